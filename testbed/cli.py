@@ -1,0 +1,119 @@
+"""``testbed`` command line: run scenarios, view recordings, list scenarios and trackers.
+
+Exit codes: 0 success, 2 bad input (malformed scenario, unknown tracker, missing run directory).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from .config import ConfigError
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from .run import run_scenario
+    from .scenario import load_scenario
+    from .scoring import format_table
+
+    overrides = {}
+    if args.tracker:
+        overrides["tracker.name"] = args.tracker
+    if args.seed is not None:
+        overrides["seed"] = args.seed
+    try:
+        scn = load_scenario(args.scenario, overrides)
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else Path("runs") / scn.name
+    with tqdm(total=scn.n_frames, desc=f"{scn.name} [{scn.tracker.name}]", unit="frame",
+              disable=args.quiet or None, leave=False) as bar:
+        res = run_scenario(scn, out_dir=out, record=not args.no_record,
+                           on_frame=lambda i, n: bar.update(1))
+    print(format_table({f"{scn.name}/{scn.tracker.name}": res.scores}))
+    per_frame = sum(res.timings_ms.values())
+    print(f"\n{res.n_frames} frames, {per_frame:.1f} ms/frame "
+          f"({', '.join(f'{k} {v:.1f}' for k, v in res.timings_ms.items())})")
+    written = ["scores.json", "truth.parquet", "detections.parquet", "tracks.parquet"]
+    if not args.no_record:
+        written.insert(0, "run.rrd")
+    print(f"wrote {', '.join(written)} to {out}/")
+    if not args.no_record:
+        print(f"view it: testbed view {out}")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    path = Path(args.run_dir)
+    rrd = path / "run.rrd" if path.is_dir() else path
+    if not rrd.is_file():
+        print(f"error: {rrd}: no recording (run `testbed run SCENARIO --out {path}` first)", file=sys.stderr)
+        return 2
+    exe = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
+    cmd = [exe, str(rrd)]
+    if args.web:
+        cmd = [exe, "--serve-web", "--bind", "127.0.0.1", str(rrd)]
+    env = dict(os.environ, RERUN_ANALYTICS="0")
+    return subprocess.call(cmd, env=env)
+
+
+def _cmd_scenarios(args: argparse.Namespace) -> int:
+    from .scenario import SCENARIO_DIR, list_scenarios, load_scenario
+
+    for name in list_scenarios():
+        try:
+            scn = load_scenario(SCENARIO_DIR / f"{name}.toml")
+            print(f"{name:<16} {scn.duration_s:5.0f} s  {len(scn.all_vehicles()):2d} cars  "
+                  f"{scn.road.kind:<8} {scn.tracker.name:<10} {scn.description}")
+        except ConfigError as err:
+            print(f"{name:<16} INVALID: {err}")
+    return 0
+
+
+def _cmd_trackers(args: argparse.Namespace) -> int:
+    from trackers import available_trackers
+
+    for name in available_trackers():
+        print(name)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="testbed", description="roadtrack: simulator-coupled target tracking testbed")
+    sub = p.add_subparsers(dest="command", required=True)
+    r = sub.add_parser("run", help="run a scenario end to end: recording, tables, scores")
+    r.add_argument("scenario", help="scenario file, or the name of a shipped one (see `testbed scenarios`)")
+    r.add_argument("--tracker", help="tracker name overriding the scenario's, e.g. jpda-kf (see `testbed trackers`)")
+    r.add_argument("--seed", type=int, help="seed overriding the scenario's")
+    r.add_argument("--out", help="output folder (default runs/<scenario>)")
+    r.add_argument("--no-record", action="store_true", help="skip the rerun recording")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.set_defaults(func=_cmd_run)
+    v = sub.add_parser("view", help="open the rerun viewer on a run's recording")
+    v.add_argument("run_dir", help="run folder (or .rrd file)")
+    v.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1 instead of a window")
+    v.set_defaults(func=_cmd_view)
+    s = sub.add_parser("scenarios", help="list the shipped scenarios")
+    s.set_defaults(func=_cmd_scenarios)
+    t = sub.add_parser("trackers", help="list the tracker names")
+    t.set_defaults(func=_cmd_trackers)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,172 @@
+"""rerun recording of a run: one ``.rrd`` with a default blueprint and stable entity paths.
+
+Entity paths (all in the world frame, z up, metres):
+
+=================================  ==========================================================
+``world/road/lanes``               lane borders (static LineStrips3D)
+``world/roadside``                 roadside objects (static Boxes3D)
+``world/truth/vehicles``           true vehicle boxes, labelled with their ids (Boxes3D)
+``world/truth/ego``                the sensor car (Boxes3D)
+``world/lidar/ground``             ground points, decimated (Points3D, grey)
+``world/lidar/objects``            non-ground points, coloured by cluster (Points3D)
+``world/detections``               cluster centres: green from a vehicle, red clutter (Points3D)
+``world/tracks/confirmed``         confirmed track estimates, labelled T<id> (Points3D)
+``world/tracks/tentative``         tentative track estimates (Points3D)
+``world/tracks/velocity``          confirmed track velocity over 1 s (Arrows3D)
+``world/tracks/covariance``        2-sigma position covariance ellipses (LineStrips3D)
+``world/tracks/gates``             validation gates of the predicted tracks (LineStrips3D)
+``world/tracks/trajectories``      estimated trajectories of confirmed tracks (LineStrips3D)
+``metrics/<name>``                 per-frame counts: tracks, detections, clutter, points (Scalars)
+=================================  ==========================================================
+
+Timelines: ``frame`` (sequence) and ``sim_time`` (duration, seconds).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+APP_ID = "roadtrack"
+METRICS = ("tracks_confirmed", "tracks_tentative", "detections", "clutter_detections", "lidar_points")
+TRAJECTORY_POINTS = 300
+CLUSTER_PALETTE = np.array([[230, 159, 0], [86, 180, 233], [0, 158, 115], [240, 228, 66], [0, 114, 178],
+                            [213, 94, 0], [204, 121, 167], [170, 170, 255]], dtype=np.uint8)
+
+
+def ellipses(centers: np.ndarray, covs: np.ndarray, scale: float, z: float, n: int = 36) -> list[np.ndarray]:
+    """Polylines (n+1, 3) of the ellipses ``{c + scale * L u : |u| = 1}``, ``covs`` (T, 2, 2)."""
+    if len(centers) == 0:
+        return []
+    t = np.linspace(0.0, 2 * np.pi, n + 1)
+    circle = np.stack([np.cos(t), np.sin(t)])  # (2, n+1)
+    w, v = np.linalg.eigh(0.5 * (covs + np.swapaxes(covs, -1, -2)))
+    axes = v * np.sqrt(np.clip(w, 0.0, None))[:, None, :]  # (T, 2, 2)
+    pts = centers[:, :, None] + scale * axes @ circle  # (T, 2, n+1)
+    out = np.concatenate([pts, np.full((len(centers), 1, n + 1), z)], axis=1)
+    return list(np.swapaxes(out, 1, 2))
+
+
+def blueprint() -> rrb.Blueprint:
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(name="scene", origin="/world"),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="tracks", origin="/metrics",
+                                   contents=["/metrics/tracks_confirmed", "/metrics/tracks_tentative"]),
+                rrb.TimeSeriesView(name="detections", origin="/metrics",
+                                   contents=["/metrics/detections", "/metrics/clutter_detections"]),
+                rrb.TimeSeriesView(name="lidar points", origin="/metrics", contents=["/metrics/lidar_points"]),
+            ),
+            column_shares=[3, 1],
+        ),
+        collapse_panels=False,
+    )
+
+
+def _boxes(centers_xy, size, yaw, z_bottom=None) -> dict:
+    size = np.asarray(size, dtype=np.float64).reshape(-1, 3)
+    zb = np.zeros(len(size)) if z_bottom is None else np.asarray(z_bottom, dtype=np.float64)
+    centers = np.column_stack([centers_xy, zb + size[:, 2] / 2])
+    return dict(centers=centers, half_sizes=size / 2,
+                rotation_axis_angles=[rr.RotationAxisAngle(axis=[0, 0, 1], radians=float(a)) for a in yaw])
+
+
+class Recorder:
+    """Writes one run to ``path`` (``.rrd``). Call :meth:`static` once, :meth:`frame` per frame, :meth:`close`."""
+
+    def __init__(self, path: str | Path, recording_id: str, lidar_every: int = 1, ground_decimation: int = 4):
+        self.path = Path(path)
+        self.lidar_every = lidar_every
+        self.ground_decimation = ground_decimation
+        self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
+        self.rec.save(str(self.path), default_blueprint=blueprint())
+        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        for name in METRICS:
+            self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " ")), static=True)
+        self.trajectories: dict[int, list[np.ndarray]] = {}
+
+    def static(self, lanes: list[np.ndarray], roadside: np.ndarray) -> None:
+        """Road lane borders (list of (P, 2)) and roadside boxes (K, 7) [cx, cy, L, W, H, yaw, z_bottom]."""
+        strips = [np.column_stack([ln, np.zeros(len(ln))]) for ln in lanes]
+        self.rec.log("world/road/lanes", rr.LineStrips3D(strips, colors=[200, 200, 200], radii=0.05), static=True)
+        if len(roadside):
+            self.rec.log("world/roadside", rr.Boxes3D(**_boxes(roadside[:, :2], roadside[:, 2:5], roadside[:, 5],
+                                                               roadside[:, 6]), colors=[120, 120, 120]), static=True)
+
+    def frame(self, truth, scan, perception, detections, tracks, info, gate_alpha: float) -> None:
+        """Log one frame. ``tracks``: the trackers' Track tuple after the step; ``info``: its StepInfo."""
+        rec = self.rec
+        rec.set_time("frame", sequence=int(truth.frame))
+        rec.set_time("sim_time", duration=float(truth.time))
+
+        size = truth.size
+        labels = [f"{n} ({i})" for n, i in zip(truth.names, truth.ids)]
+        rec.log("world/truth/ego", rr.Boxes3D(**_boxes(truth.xy[:1], size[:1], truth.heading[:1]),
+                                              labels=labels[:1], colors=[255, 255, 255]))
+        rec.log("world/truth/vehicles", rr.Boxes3D(**_boxes(truth.xy[1:], size[1:], truth.heading[1:]),
+                                                   labels=labels[1:], class_ids=truth.ids[1:],
+                                                   show_labels=False))
+
+        if self.lidar_every and truth.frame % self.lidar_every == 0 and scan is not None:
+            g = perception.is_ground
+            rec.log("world/lidar/ground", rr.Points3D(scan.points[g][:: self.ground_decimation],
+                                                      colors=[90, 90, 90], radii=0.03))
+            lab = perception.labels[~g]
+            colors = np.where((lab >= 0)[:, None], CLUSTER_PALETTE[lab % len(CLUSTER_PALETTE)],
+                              np.array([200, 200, 200], np.uint8))
+            rec.log("world/lidar/objects", rr.Points3D(scan.points[~g], colors=colors, radii=0.05))
+
+        z = detections.z
+        is_vehicle = detections.provenance >= 0
+        rec.log("world/detections", rr.Points3D(
+            np.column_stack([z, np.full(len(z), 0.3)]), radii=0.35,
+            colors=np.where(is_vehicle[:, None], np.array([40, 220, 40], np.uint8), np.array([230, 40, 40], np.uint8)),
+            labels=[f"v{p}" if p >= 0 else "clutter" for p in detections.provenance], show_labels=False))
+
+        conf = [t for t in tracks if t.confirmed]
+        tent = [t for t in tracks if not t.confirmed]
+        for name, group, radius in (("confirmed", conf, 0.5), ("tentative", tent, 0.25)):
+            xs = np.array([t.state.x[:2] for t in group], dtype=np.float64).reshape(-1, 2)
+            rec.log(f"world/tracks/{name}", rr.Points3D(
+                np.column_stack([xs, np.full(len(xs), 1.0)]), radii=radius,
+                labels=[f"T{t.id}" for t in group], class_ids=[t.id for t in group],
+                show_labels=name == "confirmed"))
+        cx = np.array([t.state.x[:2] for t in conf], dtype=np.float64).reshape(-1, 2)
+        cv = np.array([t.state.x[2:4] for t in conf], dtype=np.float64).reshape(-1, 2)
+        rec.log("world/tracks/velocity", rr.Arrows3D(origins=np.column_stack([cx, np.ones(len(cx))]),
+                                                     vectors=np.column_stack([cv, np.zeros(len(cv))]),
+                                                     class_ids=[t.id for t in conf]))
+        all_x = np.array([t.state.x[:2] for t in tracks], dtype=np.float64).reshape(-1, 2)
+        all_p = np.array([t.state.P[:2, :2] for t in tracks], dtype=np.float64).reshape(-1, 2, 2)
+        rec.log("world/tracks/covariance", rr.LineStrips3D(ellipses(all_x, all_p, 2.0, 1.0),
+                                                           class_ids=[t.id for t in tracks], radii=0.04))
+        if info is not None and len(info.ids):
+            rec.log("world/tracks/gates", rr.LineStrips3D(
+                ellipses(info.z_hat, info.S, float(np.sqrt(gate_alpha)), 0.2),
+                class_ids=info.ids, radii=0.03))
+        else:
+            rec.log("world/tracks/gates", rr.LineStrips3D([]))
+
+        live = {t.id for t in conf}
+        for t in conf:
+            pts = self.trajectories.setdefault(t.id, [])
+            pts.append(np.array([t.state.x[0], t.state.x[1], 1.0]))
+            del pts[:-TRAJECTORY_POINTS]
+        for tid in list(self.trajectories):
+            if tid not in {t.id for t in tracks}:
+                del self.trajectories[tid]
+        rec.log("world/tracks/trajectories", rr.LineStrips3D(
+            [np.array(self.trajectories[i]) for i in sorted(live)], class_ids=sorted(live), radii=0.08))
+
+        counts = dict(tracks_confirmed=len(conf), tracks_tentative=len(tent), detections=len(z),
+                      clutter_detections=int(np.count_nonzero(~is_vehicle)),
+                      lidar_points=0 if scan is None else len(scan.points))
+        for name, value in counts.items():
+            rec.log(f"metrics/{name}", rr.Scalars(float(value)))
+
+    def close(self) -> None:
+        self.rec.flush()
+        self.rec.disconnect()

@@ -1,0 +1,274 @@
+"""Scenario files: typed, frozen, strict (``scenarios/*.toml``).
+
+A scenario says everything a run needs: the road, the roadside objects, the vehicles and their scripted
+behaviours, the ego car that carries the LiDAR, the sensor and perception settings, the tracker and the
+scoring. ``load_scenario(path)`` raises :class:`~testbed.config.ConfigError` (one line naming the dotted
+key and the allowed values) on any malformed file. See ``docs/scenarios.md`` for every key.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from sensors import LidarConfig, PerceptionConfig
+
+from .config import ConfigError, field, from_dict, non_negative, positive, to_dict
+
+SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+
+BEHAVIOURS = ("idm", "hold_speed", "follow")
+ROAD_KINDS = ("straight", "curved", "u_turn")
+
+
+@dataclass(frozen=True)
+class LaneChange:
+    """Scripted lane change: at ``at_s`` seconds the vehicle steers to lane ``lane`` (0 = rightmost)."""
+
+    at_s: float = field(doc="time of the manoeuvre [s]", **non_negative())
+    lane: int = field(doc="target lane index", **non_negative())
+
+
+@dataclass(frozen=True)
+class VehicleSpec:
+    """One vehicle. ``position_m`` is the longitudinal position along the road's first segment [m]."""
+
+    name: str = field("", doc="label shown in the viewer (default car<ID>)")
+    lane: int = field(0, doc="start lane, 0 = first lane of the segment", **non_negative())
+    position_m: float = field(0.0, doc="longitudinal start position along the first segment [m]")
+    speed_mps: float = field(25.0, doc="initial speed [m/s]", **non_negative())
+    target_speed_mps: float | None = field(None, doc="cruise speed [m/s] (default: the initial speed)",
+                                           **non_negative())
+    behaviour: str = field("idm", doc="idm: IDM car-following; hold_speed: cruise control ignoring "
+                           "traffic; follow: keep gap_m to the car ahead", choices=BEHAVIOURS)
+    gap_m: float | None = field(None, doc="bumper-to-bumper gap kept by behaviour 'follow' [m]", **positive())
+    mobil: bool = field(False, doc="allow free MOBIL lane changes (behaviour idm)")
+    lane_changes: tuple[LaneChange, ...] = field((), doc="scripted lane changes")
+    length_m: float = field(5.0, doc="box length [m]", **positive())
+    width_m: float = field(2.0, doc="box width [m]", **positive())
+    height_m: float = field(1.6, doc="box height [m]", **positive())
+
+    def __post_init__(self) -> None:
+        if self.behaviour == "follow" and self.gap_m is None:
+            raise ConfigError("gap_m", "behaviour 'follow' needs gap_m (> 0)")
+        times = [c.at_s for c in self.lane_changes]
+        if times != sorted(times):
+            raise ConfigError("lane_changes", "must be in increasing at_s order")
+
+
+@dataclass(frozen=True)
+class ConvoySpec:
+    """``count`` cars in one lane, ``gap_m`` bumper to bumper, the first (front) at ``front_position_m``."""
+
+    count: int = field(5, doc="number of cars", **positive())
+    lane: int = field(0, doc="lane", **non_negative())
+    front_position_m: float = field(60.0, doc="longitudinal position of the front car [m]")
+    gap_m: float = field(10.0, doc="bumper-to-bumper gap [m]", **positive())
+    speed_mps: float = field(22.0, doc="speed of every car [m/s]", **non_negative())
+    behaviour: str = field("follow", doc="behaviour of the followers (the front car holds speed)",
+                           choices=BEHAVIOURS)
+    length_m: float = field(5.0, doc="box length [m]", **positive())
+    width_m: float = field(2.0, doc="box width [m]", **positive())
+    height_m: float = field(1.6, doc="box height [m]", **positive())
+
+    def vehicles(self) -> tuple[VehicleSpec, ...]:
+        size = dict(length_m=self.length_m, width_m=self.width_m, height_m=self.height_m)
+        pitch = self.gap_m + self.length_m
+        out = [VehicleSpec(name=f"convoy{0}", lane=self.lane, position_m=self.front_position_m,
+                           speed_mps=self.speed_mps, behaviour="hold_speed", **size)]
+        for k in range(1, self.count):
+            gap = self.gap_m if self.behaviour == "follow" else None
+            out.append(VehicleSpec(name=f"convoy{k}", lane=self.lane,
+                                   position_m=self.front_position_m - k * pitch, speed_mps=self.speed_mps,
+                                   behaviour=self.behaviour, gap_m=gap, **size))
+        return tuple(out)
+
+
+@dataclass(frozen=True)
+class RoadSpec:
+    """Road geometry. ``curved``: straight, arc, straight; ``u_turn``: highway-env's U-turn road."""
+
+    kind: str = field("straight", doc="road geometry", choices=ROAD_KINDS)
+    lanes: int = field(3, doc="lanes per direction (u_turn: always 2)", check=(lambda v: 1 <= v <= 8, "1..8"))
+    length_m: float = field(2000.0, doc="length of each straight segment [m]", **positive())
+    curve_radius_m: float = field(300.0, doc="curved: radius of the arc's first lane [m]", **positive())
+    curve_angle_deg: float = field(45.0, doc="curved: turn angle, > 0 turns left [deg]",
+                                   check=(lambda v: 0 < abs(v) <= 180, "0 < |angle| <= 180"))
+    speed_limit_mps: float = field(30.0, doc="speed limit [m/s]", **positive())
+
+
+@dataclass(frozen=True)
+class RoadsideSpec:
+    """Static objects beside the road: they are what makes the LiDAR pipeline's clutter."""
+
+    barriers: bool = field(True, doc="guard-rail segments along both road edges")
+    barrier_offset_m: float = field(1.5, doc="distance from the road edge to the barriers [m]", **non_negative())
+    post_spacing_m: float = field(40.0, doc="spacing of posts along both edges, 0 = none [m]", **non_negative())
+    trees_per_km: float = field(20.0, doc="trees (0.4 m trunk, crown from 2.2-3.5 m up) per km per side", **non_negative())
+    bushes_per_km: float = field(3.0, doc="bushes (0.8-2.5 m high) per km per side", **non_negative())
+    signs_per_km: float = field(2.0, doc="sign panels per km per side", **non_negative())
+
+
+@dataclass(frozen=True)
+class ClutterSpec:
+    """Optional Poisson clutter added on top of the pipeline's own (the papers' experiments)."""
+
+    density_per_m2: float = field(0.0, doc="Poisson clutter density [1/m^2], 0 = none", **non_negative())
+    radius_m: float = field(70.0, doc="clutter disk radius around the sensor [m]", **positive())
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    lidar: LidarConfig = field(LidarConfig(), doc="HDL-32E geometry, noise, dropout")
+    perception: PerceptionConfig = field(PerceptionConfig(), doc="ground segmentation and clustering")
+    clutter: ClutterSpec = field(ClutterSpec(), doc="added Poisson clutter")
+
+
+@dataclass(frozen=True)
+class TrackerSpec:
+    name: str = field("jpda-kf", doc="<associator>-<filter>, see `testbed trackers`")
+    params: dict[str, Any] = field({}, doc="tracker parameters (see trackers.TrackerParams)")
+
+
+@dataclass(frozen=True)
+class ScoringSpec:
+    match_distance_m: float = field(3.0, doc="track-to-truth association distance [m]", **positive())
+    correct_fraction: float = field(0.5, doc="a confirmed track is correct when matched to one vehicle for "
+                                    "at least this fraction of its confirmed life",
+                                    check=(lambda v: 0 < v <= 1, "in (0, 1]"))
+
+
+@dataclass(frozen=True)
+class RecordSpec:
+    lidar_every: int = field(1, doc="log the point cloud every N frames (0 = never)", **non_negative())
+    ground_decimation: int = field(4, doc="log every Nth ground point", **positive())
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str = field(doc="scenario name")
+    description: str = field("", doc="one-line description")
+    seed: int = field(0, doc="master seed: every random stream derives from it", **non_negative())
+    duration_s: float = field(20.0, doc="simulated time [s]", **positive())
+    rate_hz: float = field(10.0, doc="sensor (and tracker) rate [Hz]", **positive())
+    physics_substeps: int = field(1, doc="highway-env physics ticks per sensor frame", **positive())
+    road: RoadSpec = field(RoadSpec(), doc="road")
+    roadside: RoadsideSpec = field(RoadsideSpec(), doc="roadside objects")
+    ego: VehicleSpec = field(VehicleSpec(name="ego"), doc="the car carrying the LiDAR")
+    vehicles: tuple[VehicleSpec, ...] = field((), doc="other vehicles")
+    convoy: ConvoySpec | None = field(None, doc="optional convoy, added after `vehicles`")
+    sensor: SensorSpec = field(SensorSpec(), doc="sensor")
+    tracker: TrackerSpec = field(TrackerSpec(), doc="tracker")
+    scoring: ScoringSpec = field(ScoringSpec(), doc="scoring")
+    record: RecordSpec = field(RecordSpec(), doc="recording")
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.rate_hz
+
+    @property
+    def n_frames(self) -> int:
+        return int(round(self.duration_s * self.rate_hz)) + 1
+
+    def all_vehicles(self) -> tuple[VehicleSpec, ...]:
+        """Ego first (id 0), then ``vehicles``, then the convoy: the index is the vehicle id."""
+        extra = self.convoy.vehicles() if self.convoy is not None else ()
+        return (self.ego, *self.vehicles, *extra)
+
+
+def apply_overrides(data: dict, overrides: dict[str, Any]) -> dict:
+    """Return a copy of ``data`` with dotted keys set, e.g. ``{"sensor.clutter.density_per_m2": 1e-2}``.
+
+    List items are addressed by index (``vehicles.0.speed_mps``).
+    """
+    out = copy.deepcopy(data)
+    for dotted, value in overrides.items():
+        node: Any = out
+        parts = dotted.split(".")
+        for i, part in enumerate(parts[:-1]):
+            key: Any = int(part) if isinstance(node, list) and part.isdigit() else part
+            try:
+                node = node[key]
+            except (KeyError, IndexError, TypeError):
+                if isinstance(node, dict):
+                    node[key] = {}
+                    node = node[key]
+                else:
+                    raise ConfigError(".".join(parts[: i + 1]), "cannot be addressed") from None
+        last = parts[-1]
+        if isinstance(node, list) and last.isdigit():
+            node[int(last)] = value
+        elif isinstance(node, dict):
+            node[last] = value
+        else:
+            raise ConfigError(dotted, "cannot be addressed")
+    return out
+
+
+def _validate(scn: Scenario) -> Scenario:
+    from trackers import make_tracker, parse_tracker_name
+
+    try:
+        parse_tracker_name(scn.tracker.name)
+    except ValueError as err:
+        raise ConfigError("tracker.name", str(err).splitlines()[0]) from None
+    try:
+        make_tracker(scn.tracker.name, **scn.tracker.params)
+    except (ValueError, TypeError) as err:
+        raise ConfigError("tracker.params", str(err).splitlines()[0]) from None
+    lanes = 2 if scn.road.kind == "u_turn" else scn.road.lanes
+    paths = ["ego"] + [f"vehicles[{i}]" for i in range(len(scn.vehicles))]
+    if scn.convoy is not None:
+        paths += ["convoy"] * scn.convoy.count
+    for where, v in zip(paths, scn.all_vehicles()):
+        used = [v.lane] + [c.lane for c in v.lane_changes]
+        if max(used) >= lanes:
+            raise ConfigError(f"{where}.lane", f"lane {max(used)} does not exist; allowed: 0..{lanes - 1}")
+        if not 0 <= v.position_m <= scn.road.length_m:
+            key = "front_position_m" if where == "convoy" else "position_m"
+            raise ConfigError(f"{where}.{key}", f"{v.position_m} m is off the road; allowed: 0..{scn.road.length_m}")
+    return scn
+
+
+def parse_scenario(data: dict, source: str = "<dict>") -> Scenario:
+    """Build and validate a :class:`Scenario` from a TOML dict."""
+    return _validate(from_dict(Scenario, data))
+
+
+def read_toml(path: str | Path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        named = SCENARIO_DIR / f"{path}.toml"
+        if named.is_file() and path.suffix == "":
+            path = named
+        else:
+            known = ", ".join(list_scenarios())
+            raise ConfigError("", f"{path}: no such scenario file (shipped: {known})")
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError("", f"{path}: not valid TOML ({err})") from None
+
+
+def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> Scenario:
+    """Load ``path`` (a file, or the name of a shipped scenario), with optional dotted-key overrides."""
+    data = read_toml(path)
+    if overrides:
+        data = apply_overrides(data, overrides)
+    return parse_scenario(data, str(path))
+
+
+def list_scenarios() -> list[str]:
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
+
+
+def scenario_dict(scn: Scenario) -> dict:
+    return to_dict(scn)
+
+
+def replace(scn: Scenario, **changes: Any) -> Scenario:
+    return dataclasses.replace(scn, **changes)

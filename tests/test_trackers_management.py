@@ -1,0 +1,104 @@
+"""Track score (thesis §7.2): thresholds, initial score, increments, decisions, and their effect in a run."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal
+
+from trackers import ManagementParams, decide, gate_probability, initial_score, make_tracker, score_increment
+
+PD, PG, LAM = 0.9, gate_probability(16.0, 2), 1e-2
+
+
+def test_thresholds_equal_the_sprt_formulas():
+    mp = ManagementParams()
+    assert abs(mp.confirm_threshold - math.log((1 - 1e-2) / 1e-4)) <= 1e-15
+    assert abs(mp.delete_threshold - math.log(1e-2 / (1 - 1e-4))) <= 1e-15
+    assert abs(mp.confirm_threshold - 9.2003) <= 1e-4 and abs(mp.delete_threshold - (-4.6051)) <= 1e-4
+    assert mp.deletion_drop == abs(mp.delete_threshold)
+    assert ManagementParams(delta_del=7.5).deletion_drop == 7.5
+    with pytest.raises(ValueError, match="alpha_fc"):
+        ManagementParams(alpha_fc=0.0)
+
+
+def test_initial_score():
+    assert abs(initial_score(ManagementParams(), LAM, PD) - math.log(1e-3 / 1e-2)) <= 1e-15
+    with_pd = initial_score(ManagementParams(initial_score_pd=True), LAM, PD)
+    assert abs(with_pd - (math.log(1e-3 / 1e-2) + math.log(PD))) <= 1e-15
+
+
+def test_score_increment_equals_the_pda_likelihood_ratio():
+    S = np.array([[0.5, 0.1], [0.1, 0.4]])
+    nu = np.array([[0.3, -0.2], [1.0, 0.5], [9.0, 9.0]])
+    log_n = multivariate_normal(np.zeros(2), S).logpdf(nu)[None]  # (1, 3)
+    gated = np.array([[True, True, False]])
+    expected = math.log(1 - PD * PG + sum(PD * math.exp(v) / LAM for v in log_n[0, :2]))
+    assert abs(score_increment(log_n, gated, PD, PG, LAM)[0] - expected) <= 1e-12
+    miss = score_increment(np.zeros((1, 0)), np.zeros((1, 0), dtype=bool), PD, PG, LAM)[0]
+    assert abs(miss - math.log(1 - PD * PG)) <= 1e-15
+
+
+def test_decisions_follow_the_thresholds():
+    mp = ManagementParams()
+    tc, td, drop = mp.confirm_threshold, mp.delete_threshold, mp.deletion_drop
+    score = np.array([tc, tc - 1e-9, td, td + 1e-9, 20.0, 20.0, 5.0])
+    max_score = np.array([tc, tc, 0.0, 0.0, 20.0 + drop, 20.0 + drop - 1e-9, 5.0])
+    confirmed = np.array([False, False, False, False, True, True, False])
+    c, d = decide(score, max_score, confirmed, mp)
+    np.testing.assert_array_equal(c, [True, False, False, False, True, True, False])
+    np.testing.assert_array_equal(d, [False, False, True, False, True, False, False])
+
+
+def run_single_target(frames_present, frames_total, lam_sim, seed, tracker_lam=1e-2):
+    """One NCV target at 25 m/s seen at 10 Hz (P_D = 0.9, sigma_w = 0.3 m) until `frames_present`, then gone;
+    Poisson clutter of density lam_sim in a 60 m x 30 m window around it. Returns per-frame StepResults."""
+    rng_det, rng_noise, rng_clut = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3)]
+    tr = make_tracker("jpda-kf", clutter_density=tracker_lam)
+    tracks, nid, out = (), 0, []
+    for k in range(frames_total):
+        pos = np.array([25.0 * 0.1 * k, 0.0])
+        seen = k < frames_present and rng_det.random() < PD
+        z = pos + 0.3 * rng_noise.normal(size=(1, 2)) if seen else np.zeros((0, 2))
+        clutter = pos + rng_clut.uniform(-1, 1, size=(rng_clut.poisson(lam_sim * 1800), 2)) * [30.0, 15.0]
+        r = tr.step(tracks, np.concatenate([z, clutter]), 0.1, nid)
+        tracks, nid = r.tracks, r.next_id
+        out.append(r)
+    return out
+
+
+def test_confirmed_track_is_deleted_a_formula_number_of_frames_after_its_target_disappears():
+    """Without clutter each missed scan adds ln(1 - P_D P_G), so deletion takes exactly
+    ceil(|T_d| / |ln(1 - P_D P_G)|) = 3 scans."""
+    hist = run_single_target(40, 60, 0.0, seed=3)
+    confirmed_ids = {t.id for t in hist[39].tracks if t.confirmed}
+    assert len(confirmed_ids) == 1
+    gone = [k for k, h in enumerate(hist) if confirmed_ids & {t.id for t in h.deleted}]
+    n = math.ceil(ManagementParams().deletion_drop / -math.log(1 - PD * PG))
+    assert n == 3
+    assert gone == [39 + n]
+
+
+def test_deletion_with_clutter_within_bound():
+    for seed in range(3):
+        hist = run_single_target(40, 70, 1e-3, seed=seed, tracker_lam=1e-3)
+        ids = {t.id for t in hist[39].tracks if t.confirmed}
+        assert len(ids) >= 1
+        gone = min(k for k, h in enumerate(hist) if ids <= {t.id for g in hist[:k + 1] for t in g.deleted})
+        assert gone - 39 <= 6, (seed, gone)
+
+
+@pytest.mark.filterwarnings("ignore::trackers.JPDAOverflowWarning")  # large tentative clusters: documented PDA fallback
+def test_clutter_only_run_confirms_few_tracks():
+    """100 scans of Poisson clutter (lambda = 1e-2 m^-2, 18 points per scan) with the default parameters:
+    the SPRT allows alpha_FC = 1e-4 false confirmations per tentative track; at most 1 is accepted here."""
+    rng = np.random.default_rng(99)
+    tr = make_tracker("jpda-kf")
+    tracks, nid, ever = (), 0, set()
+    for _ in range(100):
+        Z = rng.uniform(-1, 1, size=(rng.poisson(LAM * 1800), 2)) * [30.0, 15.0]
+        r = tr.step(tracks, Z, 0.1, nid)
+        tracks, nid = r.tracks, r.next_id
+        ever |= {t.id for t in tracks if t.confirmed}
+    assert nid >= 100  # many tentative tracks were tried
+    assert len(ever) <= 1

@@ -1,0 +1,41 @@
+"""Filter state as an immutable value.
+
+A filter never mutates a state; it returns a new one (`s1 = flt.predict(s0, dt)`). Filters that
+need more than (x, P, e_post) subclass `FilterState` with extra fields that have defaults, e.g.
+an IMM state carrying mode probabilities, or an SVSF state carrying the last step length.
+Update a state with `dataclasses.replace(s, x=..., P=...)`, which keeps any subclass extras.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def _frozen(a, name: str, ndim: int) -> np.ndarray:
+    arr = np.array(a, dtype=np.float64)  # copy: the state owns its arrays
+    if arr.ndim != ndim:
+        raise ValueError(f"FilterState.{name} must be {ndim}-D, got shape {arr.shape}")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class FilterState:
+    """x (n,) state [px, py, vx, vy, ...]; P (n, n) covariance; e_post (m,) previous a-posteriori
+    measurement error e_{z,k|k} (thesis §2.3 step 7, §4.3 step 7), used by the SVSF family and
+    carried unchanged-or-recomputed by the KF. Arrays are float64 copies and read-only."""
+
+    x: np.ndarray
+    P: np.ndarray
+    e_post: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+    def __post_init__(self) -> None:
+        x = _frozen(self.x, "x", 1)
+        P = _frozen(self.P, "P", 2)
+        if P.shape != (x.size, x.size):
+            raise ValueError(f"FilterState.P must be ({x.size}, {x.size}) for x of size {x.size}, got {P.shape}")
+        object.__setattr__(self, "x", x)
+        object.__setattr__(self, "P", P)
+        object.__setattr__(self, "e_post", _frozen(self.e_post, "e_post", 1))
