@@ -83,8 +83,12 @@ class PerceptionConfig:
     min_extent_m: float = 1.0  # longer footprint side at least (a far car may show one face only)
     max_length_m: float = 8.0  # longer footprint side at most
     max_width_m: float = 3.5  # shorter footprint side at most
-    min_height_m: float = 0.3  # top of the cluster above the road, at least (a far car may show one low ring)
+    min_height_m: float = 0.8  # top of the cluster above the road, at least (thesis 8.2: 0.8-3.5 m; rejects guard rails)
     max_object_height_m: float = 3.5  # ... and at most
+    max_median_height_m: float = 2.0  # median point height above the road, at most (tree crowns, high signs)
+    complete_one_face: bool = True  # a cluster showing one face only: move its centre half a car deeper
+    one_face_width_m: float = 0.6  # a fitted box narrower than this shows one face only
+    size_prior_m: tuple[float, float] = (4.6, 1.8)  # typical car length, width for that completion [m]
     representative: str = "lshape_center"  # see REPRESENTATIVES; L-shape fit: 0.12 m median error near cars
 
     def __post_init__(self) -> None:
@@ -94,6 +98,12 @@ class PerceptionConfig:
             raise TypeError(f"PerceptionConfig.cluster: expected ClusterConfig, got {type(self.cluster).__name__}")
         if not isinstance(self.vehicle_like, bool):
             raise ValueError(f"PerceptionConfig.vehicle_like: expected a bool, got {self.vehicle_like!r}")
+        _checks.positive("PerceptionConfig.max_median_height_m", self.max_median_height_m)
+        _checks.positive("PerceptionConfig.one_face_width_m", self.one_face_width_m)
+        if not isinstance(self.complete_one_face, bool):
+            raise ValueError(f"PerceptionConfig.complete_one_face: expected a bool, got {self.complete_one_face!r}")
+        if len(self.size_prior_m) != 2 or not all(np.isfinite(self.size_prior_m)) or min(self.size_prior_m) <= 0:
+            raise ValueError(f"PerceptionConfig.size_prior_m: expected (length, width) > 0, got {self.size_prior_m!r}")
         for name in ("max_height_m", "max_length_m", "max_width_m", "max_object_height_m"):
             _checks.positive(f"PerceptionConfig.{name}", getattr(self, name))
         for name in ("min_extent_m", "min_height_m"):
@@ -141,12 +151,16 @@ def perceive(scan: Scan, cfg: PerceptionConfig) -> PerceptionResult:
     z = np.empty((n_clusters, 2))
     extent = np.empty((n_clusters, 3))
     provenance = np.empty(n_clusters, np.int64)
+    median_z = np.empty(n_clusters)
     represent = REPRESENTATIVES[cfg.representative]
     for k in range(n_clusters):
         idx = members[starts[k] : ends[k]]
         z[k], length, width = represent(pts[idx, :2])
         extent[k] = (length, width, pts[idx, 2].max() - road_z)
         provenance[k] = _plurality_vehicle(scan.source[idx])
+        median_z[k] = np.median(pts[idx, 2]) - road_z
+        if cfg.complete_one_face and width < cfg.one_face_width_m:
+            z[k] = _complete_one_face(z[k], pts[idx, :2], length, width, scan.origin[:2], cfg.size_prior_m)
     n_points = ends - starts
 
     keep = np.ones(n_clusters, bool)
@@ -157,11 +171,32 @@ def perceive(scan: Scan, cfg: PerceptionConfig) -> PerceptionResult:
             & (extent[:, 1] <= cfg.max_width_m)
             & (extent[:, 2] >= cfg.min_height_m)
             & (extent[:, 2] <= cfg.max_object_height_m)
+            & (median_z <= cfg.max_median_height_m)  # a crown above a thin trunk is not a vehicle
         )
     new_index = np.where(keep, np.cumsum(keep) - 1, -1)
     labels[members] = new_index[member_label]
     detections = Detections(z[keep], provenance[keep], n_points[keep], extent[keep])
     return PerceptionResult(detections, is_ground, labels)
+
+
+def _complete_one_face(centre: np.ndarray, xy: np.ndarray, length: float, width: float, sensor_xy: np.ndarray,
+                       prior: tuple[float, float]) -> np.ndarray:
+    """Centre of a vehicle of which one face is seen: shifted away from the sensor along the face normal.
+
+    A face longer than the prior width + 0.5 m is a side (hidden depth = prior width), otherwise an end
+    (hidden depth = prior length). Without it a car seen from behind is measured at its rear face, half a
+    car length short [D].
+    """
+    if len(xy) >= 2:
+        axis = np.linalg.svd(xy - xy.mean(axis=0), full_matrices=False)[2][0]
+    else:
+        axis = np.array([1.0, 0.0])
+    normal = np.array([-axis[1], axis[0]])
+    toward = centre - sensor_xy
+    if normal @ toward < 0:
+        normal = -normal
+    depth = prior[1] if length > prior[1] + 0.5 else prior[0]
+    return centre + normal * max(depth - width, 0.0) / 2
 
 
 def _plurality_vehicle(source: np.ndarray) -> int:

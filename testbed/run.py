@@ -98,9 +98,10 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         now = time.perf_counter(); spent["tracking"] += now - tic; tic = now
 
         seen.update(int(p) for p in dets.provenance if p >= 0)
-        _log_tables(truth, dets, tracks, truth_t, det_t, trk_t)
+        reported = tuple(t for t in tracks if not t.candidate)  # candidates await a second measurement
+        _log_tables(truth, dets, reported, truth_t, det_t, trk_t)
         if recorder is not None:
-            recorder.frame(truth, scan, perc, dets, tracks, result.info, tracker.params.gate_alpha)
+            recorder.frame(truth, scan, perc, dets, reported, result.info, tracker.params.gate_alpha)
         now = time.perf_counter(); spent["recording"] += now - tic; tic = now
         n += 1
         if on_frame is not None:

@@ -103,7 +103,7 @@ def test_exclusive_score_increment_formula():
 
 
 def test_empty_frames_and_no_tracks():
-    tracker = make_tracker("jpda-kf")
+    tracker = make_tracker("jpda-kf", initiation="single")
     r = tracker.step((), np.zeros((0, 2)), DT, 5)
     assert r.tracks == () and r.next_id == 5 and r.info.W.shape == (0, 0) and r.info.S.shape == (0, 2, 2)
     r = tracker.step((), np.array([[1.0, 2.0], [30.0, 2.0]]), DT, 5)
@@ -134,8 +134,9 @@ def test_step_info_describes_the_predicted_tracks():
     tracker = make_tracker("jpda-kf", clutter_density=1e-3)
     hist = run(tracker, Zs)
     prev, r = hist[-2], hist[-1]
-    np.testing.assert_array_equal(r.info.ids, [t.id for t in prev.tracks])
-    for t, tr in enumerate(prev.tracks):
+    live = [t for t in prev.tracks if not t.candidate]
+    np.testing.assert_array_equal(r.info.ids, [t.id for t in live])
+    for t, tr in enumerate(live):
         z_hat, S = tracker.filter.predicted_measurement(tracker.filter.predict(tr.state, DT))
         np.testing.assert_allclose(r.info.z_hat[t], z_hat, rtol=0, atol=1e-12)
         np.testing.assert_allclose(r.info.S[t], S, rtol=0, atol=1e-12)
@@ -204,3 +205,28 @@ def test_every_registered_tracker_runs_a_20_frame_scenario(name):
         np.testing.assert_allclose(h.info.W.sum(axis=1) + h.info.w0, 1.0, atol=1e-12)
     ids, err = coverage(X, hist)
     assert np.all(err[-1] <= 0.6), err[-1]
+
+
+def test_two_point_initiation_pairs_candidates_within_reach():
+    tracker = make_tracker("jpda-kf")  # initiation="two_point" by default
+    p = tracker.params
+    r1 = tracker.step((), np.array([[0.0, 0.0], [50.0, 0.0]]), DT, 3)
+    assert [t.candidate for t in r1.tracks] == [True, True] and r1.next_id == 3
+    assert [t.id for t in r1.tracks] == [-1, -1]
+    # first candidate moves 2.5 m (25 m/s): paired; second has no partner within reach: dropped;
+    # the far measurement becomes a new candidate.
+    r2 = tracker.step(r1.tracks, np.array([[2.5, 0.1], [200.0, 0.0]]), DT, r1.next_id)
+    new = [t for t in r2.tracks if not t.candidate]
+    assert [t.id for t in new] == [3] and r2.next_id == 4
+    np.testing.assert_allclose(new[0].state.x, [2.5, 0.1, 25.0, 1.0], atol=1e-12)
+    R = p.sigma_w**2
+    np.testing.assert_allclose(new[0].state.P[0, 2], R / DT, rtol=1e-12)
+    np.testing.assert_allclose(new[0].state.P[2, 2], 2 * R / DT**2, rtol=1e-12)
+    reach = p.v_max * DT + 3 * np.sqrt(2) * p.sigma_w
+    expected = np.log(p.new_target_density / p.clutter_density) + np.log(p.pd / (np.pi * reach**2) / p.clutter_density)
+    assert abs(new[0].score - expected) <= 1e-12
+    cands = [t for t in r2.tracks if t.candidate]
+    assert len(cands) == 1 and np.allclose(cands[0].state.x[:2], [200.0, 0.0])
+    # a measurement farther than reach from every candidate never pairs
+    r3 = tracker.step(r2.tracks, np.array([[200.0 + reach + 0.01, 0.0]]), DT, r2.next_id)
+    assert r3.next_id == r2.next_id

@@ -20,6 +20,7 @@ from trackers.models import MEASUREMENT_DIM
 from trackers.state import FilterState
 
 SCORE_MODES = ("gate", "exclusive")
+INITIATIONS = ("two_point", "single")
 
 Associator = Callable[[np.ndarray, np.ndarray, AssociationParams], tuple[np.ndarray, np.ndarray]]
 
@@ -29,7 +30,8 @@ class Track:
     """id: label (new one per initiation); state: filter state after the last update; score, max_score:
     track LLR score and its running maximum; confirmed; age: scans since birth (1 at birth);
     hits: scans with at least one gated measurement (birth counts); misses_in_a_row: consecutive
-    scans without one."""
+    scans without one; candidate: a one-measurement track candidate waiting for a second measurement
+    (two-point initiation; id -1, not associated, not reported)."""
 
     id: int
     state: FilterState
@@ -39,6 +41,7 @@ class Track:
     age: int
     hits: int
     misses_in_a_row: int
+    candidate: bool = False
 
 
 @dataclass(frozen=True)
@@ -53,7 +56,10 @@ class TrackerParams:
     score_mode: "gate" (thesis §7.2: every measurement in the track's own gate counts) or "exclusive"
     ([D], not in the thesis: measurement i counts for track t with weight 1 - sum_{s != t} W[s, i], the
     probability that no other track claims it, which stops duplicate tracks from feeding on a target
-    that another track already holds)."""
+    that another track already holds); initiation: "two_point" ([D], thesis §7.2's alternative: a
+    measurement in no track's gate becomes a candidate, and a track is started only when a measurement of
+    the next scan lies within v_max dt + 3 sqrt(2) sigma_w of it, with two-point differencing) or "single"
+    (§7.2: a tentative track at once, velocity 0, P_v = v_max^2/3)."""
 
     sigma_v: float = 2.0
     sigma_w: float = 0.3
@@ -70,6 +76,7 @@ class TrackerParams:
     max_jpda_events: int = 50_000
     jpda_overflow: str = "pda"
     score_mode: str = "gate"
+    initiation: str = "two_point"
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -80,6 +87,8 @@ class TrackerParams:
             raise ValueError("TrackerParams needs sigma_v >= 0 and sigma_w, gate_alpha, v_max > 0")
         if self.score_mode not in SCORE_MODES:
             raise ValueError(f"TrackerParams.score_mode must be one of {list(SCORE_MODES)}, got {self.score_mode!r}")
+        if self.initiation not in INITIATIONS:
+            raise ValueError(f"TrackerParams.initiation must be one of {list(INITIATIONS)}, got {self.initiation!r}")
         if self.jpda_overflow not in OVERFLOW_MODES:
             raise ValueError(f"TrackerParams.jpda_overflow must be one of {list(OVERFLOW_MODES)}, "
                              f"got {self.jpda_overflow!r}")
@@ -163,7 +172,8 @@ class Tracker:
         dt = float(dt)
         if not math.isfinite(dt) or dt < 0:
             raise ValueError(f"dt must be finite and >= 0, got {dt}")
-        tracks = tuple(tracks)
+        candidates = tuple(tr for tr in tracks if tr.candidate)
+        tracks = tuple(tr for tr in tracks if not tr.candidate)
         p, ap, mp = self.params, self.association_params, self.management_params
         flt = self.filter
         T, M, m = len(tracks), len(Z), MEASUREMENT_DIM
@@ -207,11 +217,46 @@ class Tracker:
             (deleted if delete[t] else survivors).append(new)
 
         score0 = initial_score(mp, ap.clutter_density, ap.pd)  # 7. initiate from measurements in no gate (§7.2)
-        for j in np.flatnonzero(~gated.any(axis=0)):
-            survivors.append(Track(id=int(next_id), state=flt.initiate(Z[j], p.v_max), score=score0,
-                                   max_score=score0, confirmed=False, age=1, hits=1, misses_in_a_row=0))
-            next_id += 1
+        free = np.flatnonzero(~gated.any(axis=0))
+        if p.initiation == "single":
+            for j in free:
+                survivors.append(Track(id=int(next_id), state=flt.initiate(Z[j], p.v_max), score=score0,
+                                       max_score=score0, confirmed=False, age=1, hits=1, misses_in_a_row=0))
+                next_id += 1
+        else:
+            pairs = _pair_candidates(candidates, Z[free], dt, p) if dt > 0 else []
+            used = set()
+            for c, f, score in pairs:
+                j = free[f]
+                used.add(f)
+                s0 = flt.initiate_two_point(candidates[c].state.x[:MEASUREMENT_DIM], Z[j], dt)
+                survivors.append(Track(id=int(next_id), state=s0, score=score0 + score, max_score=score0 + score,
+                                       confirmed=False, age=2, hits=2, misses_in_a_row=0))
+                next_id += 1
+            for f, j in enumerate(free):
+                if f not in used:
+                    survivors.append(Track(id=-1, state=flt.initiate(Z[j], p.v_max), score=score0,
+                                           max_score=score0, confirmed=False, age=1, hits=1, misses_in_a_row=0,
+                                           candidate=True))
 
         info = StepInfo(ids=np.array([tr.id for tr in tracks], dtype=np.int64).reshape(T), z_hat=z_hat, S=S,
                         gated=gated, W=W, w0=w0)
         return StepResult(tracks=tuple(survivors), next_id=int(next_id), deleted=tuple(deleted), info=info)
+
+
+def _pair_candidates(candidates: tuple[Track, ...], Zf: np.ndarray, dt: float,
+                     p: TrackerParams) -> list[tuple[int, int, float]]:
+    """Two-point initiation [D]: one-to-one pairs (candidate, free measurement, score increment) within
+    reach = v_max dt + 3 sqrt(2) sigma_w, nearest first (min total distance). The increment is the
+    likelihood ratio of the second measurement, ln(P_D g / lambda), g = 1 / (pi reach^2) its density
+    under a velocity uniform on the disk |v| <= v_max (§7.2-style LLR)."""
+    if not candidates or len(Zf) == 0:
+        return []
+    from scipy.optimize import linear_sum_assignment
+
+    C = np.array([c.state.x[:MEASUREMENT_DIM] for c in candidates], dtype=np.float64)
+    D = np.linalg.norm(C[:, None, :] - Zf[None, :, :], axis=-1)
+    reach = p.v_max * dt + 3.0 * math.sqrt(2.0) * p.sigma_w
+    rows, cols = linear_sum_assignment(np.where(D <= reach, D, 1e12))
+    inc = math.log(p.pd / (math.pi * reach * reach) / p.clutter_density)
+    return [(int(r), int(c), inc) for r, c in zip(rows, cols) if D[r, c] <= reach]

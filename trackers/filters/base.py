@@ -6,6 +6,7 @@ A filter is a frozen dataclass constructed from keyword parameters, with four st
     predicted_measurement(s_pred)  -> (z_hat (m,), S (m, m))
     update(s_pred, nu, beta, beta0)-> FilterState         PDA-form update (thesis §4.2/§4.3)
     initiate(z, v_max)             -> FilterState         new track from one measurement (§7.2)
+    initiate_two_point(z_prev, z, dt) -> FilterState      new track from two measurements (§7.2)
 
 `update` takes the innovations nu (M, m) of the measurements a track may use, their association
 weights beta (M,) and the miss weight beta0, with beta0 + sum(beta) = 1. Hard association (NN, GNN)
@@ -35,6 +36,8 @@ class Filter(Protocol):
     def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState: ...
 
     def initiate(self, z: np.ndarray, v_max: float) -> FilterState: ...
+
+    def initiate_two_point(self, z_prev: np.ndarray, z: np.ndarray, dt: float) -> FilterState: ...
 
 
 def symmetrise(P: np.ndarray) -> np.ndarray:

@@ -84,3 +84,17 @@ class KalmanFilter:
         P0[:2, :2] = self._R  # §7.2: position variance R
         P0[2:, 2:] = (v_max * v_max / 3.0) * np.eye(2)  # §7.2: velocity uniform on [-v_max, v_max]
         return FilterState(x=np.concatenate([z, np.zeros(2)]), P=P0, e_post=np.zeros(MEASUREMENT_DIM))
+
+    def initiate_two_point(self, z_prev: np.ndarray, z: np.ndarray, dt: float) -> FilterState:
+        """New track from two measurements dt apart (thesis §7.2 [D], two-point differencing):
+        x = [z; (z - z_prev)/dt], P0 = [[R, R/dt], [R/dt, 2R/dt^2]]."""
+        z_prev, z = np.asarray(z_prev, dtype=np.float64), np.asarray(z, dtype=np.float64)
+        if z.shape != (MEASUREMENT_DIM,) or z_prev.shape != (MEASUREMENT_DIM,) or not (
+                np.isfinite(z).all() and np.isfinite(z_prev).all()):
+            raise ValueError(f"initiate_two_point needs finite z, z_prev of shape ({MEASUREMENT_DIM},)")
+        if not np.isfinite(dt) or dt <= 0:
+            raise ValueError(f"initiate_two_point needs dt > 0, got {dt}")
+        R = self._R
+        P0 = np.block([[R, R / dt], [R / dt, 2.0 * R / dt**2]])  # §7.2 two-point differencing covariance
+        x = np.concatenate([z, (z - z_prev) / dt])  # §7.2 x = [z_k; (z_k - z_{k-1}) / T_s]
+        return FilterState(x=x, P=P0, e_post=np.zeros(MEASUREMENT_DIM))
