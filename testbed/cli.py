@@ -21,7 +21,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .scenario import load_scenario
     from .scoring import format_table
 
-    overrides = {}
+    try:
+        overrides = _parse_sets(args.set or [])
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     if args.tracker:
         overrides["tracker.name"] = args.tracker
     if args.seed is not None:
@@ -37,6 +41,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         res = run_scenario(scn, out_dir=out, record=not args.no_record,
                            on_frame=lambda i, n: bar.update(1))
     print(format_table({f"{scn.name}/{scn.tracker.name}": res.scores}))
+    m = res.metrics
+    print(f"HOTA {m['hota']:.3f}  MOTA {m['mota']:.3f}  MOTP {m['motp']:.3f}  IDF1 {m['idf1']:.3f}  "
+          f"ID switches {m['id_switches']:.0f}  GOSPA {m['gospa']:.2f} m "
+          f"(per frame: missed {m['gospa_missed']:.2f}, false {m['gospa_false']:.2f}, "
+          f"localisation {m['gospa_localisation']:.2f} m^2)")
     per_frame = sum(res.timings_ms.values())
     print(f"\n{res.n_frames} frames, {per_frame:.1f} ms/frame "
           f"({', '.join(f'{k} {v:.1f}' for k, v in res.timings_ms.items())})")
@@ -49,9 +58,26 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_sets(items: list[str]) -> dict:
+    """``KEY=VALUE`` pairs, VALUE read as a TOML value (a bare word is a string)."""
+    import tomllib
+
+    out = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError("--set", f"{item!r}: expected KEY=VALUE, e.g. sensor.clutter.density_per_m2=0.01")
+        try:
+            value = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw
+        out[key.strip()] = value
+    return out
+
+
 def _cmd_view(args: argparse.Namespace) -> int:
     path = Path(args.run_dir)
-    rrd = path / "run.rrd" if path.is_dir() else path
+    rrd = path if path.suffix == ".rrd" else path / "run.rrd"
     if not rrd.is_file():
         print(f"error: {rrd}: no recording (run `testbed run SCENARIO --out {path}` first)", file=sys.stderr)
         return 2
@@ -84,6 +110,13 @@ def _cmd_trackers(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_keys(args: argparse.Namespace) -> int:
+    from .keys import keys_markdown
+
+    sys.stdout.write(keys_markdown())
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="testbed", description="roadtrack: simulator-coupled target tracking testbed")
     sub = p.add_subparsers(dest="command", required=True)
@@ -91,6 +124,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scenario", help="scenario file, or the name of a shipped one (see `testbed scenarios`)")
     r.add_argument("--tracker", help="tracker name overriding the scenario's, e.g. jpda-kf (see `testbed trackers`)")
     r.add_argument("--seed", type=int, help="seed overriding the scenario's")
+    r.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override any scenario key by its dotted path, e.g. --set duration_s=5 "
+                        "--set sensor.clutter.density_per_m2=0.01 (repeatable)")
     r.add_argument("--out", help="output folder (default runs/<scenario>)")
     r.add_argument("--no-record", action="store_true", help="skip the rerun recording")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -101,6 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
     v.set_defaults(func=_cmd_view)
     s = sub.add_parser("scenarios", help="list the shipped scenarios")
     s.set_defaults(func=_cmd_scenarios)
+    k = sub.add_parser("keys", help="print every scenario key with its default and meaning (markdown)")
+    k.set_defaults(func=_cmd_keys)
     t = sub.add_parser("trackers", help="list the tracker names")
     t.set_defaults(func=_cmd_trackers)
     return p

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from typing import Any
@@ -136,6 +137,9 @@ def from_dict(cls: type, data: dict, path: str = "") -> Any:
         raise ConfigError(_join(path, err.path), str(err).split(": ", 1)[-1]) from None
     except (ValueError, TypeError) as err:
         msg = str(err).splitlines()[0] if str(err) else type(err).__name__
+        named = re.match(r"^\w+\.(\w+): (.*)$", msg)  # "LidarConfig.max_range_m: ..." from a __post_init__
+        if named and named.group(1) in fields:
+            raise ConfigError(_join(path, named.group(1)), named.group(2)) from None
         raise ConfigError(path or cls.__name__, msg) from None
 
 

@@ -7,6 +7,7 @@ Entity paths (all in the world frame, z up, metres):
 ``world/roadside``                 roadside objects (static Boxes3D)
 ``world/truth/vehicles``           true vehicle boxes, labelled with their ids (Boxes3D)
 ``world/truth/ego``                the sensor car (Boxes3D)
+``world/ego``                      the sensor car's pose (Transform3D; the camera follows it)
 ``world/lidar/ground``             ground points, decimated (Points3D, grey)
 ``world/lidar/objects``            non-ground points, coloured by cluster (Points3D)
 ``world/detections``               cluster centres: green from a vehicle, red clutter (Points3D)
@@ -49,10 +50,17 @@ def ellipses(centers: np.ndarray, covs: np.ndarray, scale: float, z: float, n: i
     return list(np.swapaxes(out, 1, 2))
 
 
-def blueprint() -> rrb.Blueprint:
+def blueprint(ego_xy: np.ndarray | None = None) -> rrb.Blueprint:
+    """Scene on the left, following the ego car from behind and above; counts on the right."""
+    eye = None
+    if ego_xy is not None:
+        x, y = float(ego_xy[0]), float(ego_xy[1])
+        eye = rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=[x - 45.0, y - 30.0, 35.0],
+                                look_target=[x + 15.0, y, 0.0], eye_up=[0.0, 0.0, 1.0],
+                                tracking_entity="/world/ego")
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(name="scene", origin="/world"),
+            rrb.Spatial3DView(name="scene", origin="/world", eye_controls=eye),
             rrb.Vertical(
                 rrb.TimeSeriesView(name="tracks", origin="/metrics",
                                    contents=["/metrics/tracks_confirmed", "/metrics/tracks_tentative"]),
@@ -62,7 +70,9 @@ def blueprint() -> rrb.Blueprint:
             ),
             column_shares=[3, 1],
         ),
-        collapse_panels=False,
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed"),
     )
 
 
@@ -82,7 +92,8 @@ class Recorder:
         self.lidar_every = lidar_every
         self.ground_decimation = ground_decimation
         self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
-        self.rec.save(str(self.path), default_blueprint=blueprint())
+        self.rec.save(str(self.path))
+        self.blueprint_sent = False
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         for name in METRICS:
             self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " ")), static=True)
@@ -102,8 +113,14 @@ class Recorder:
         rec.set_time("frame", sequence=int(truth.frame))
         rec.set_time("sim_time", duration=float(truth.time))
 
+        if not self.blueprint_sent:  # the camera starts behind the ego car and follows it
+            rec.send_blueprint(blueprint(truth.xy[0]), make_active=True, make_default=True)
+            self.blueprint_sent = True
         size = truth.size
         labels = [f"{n} ({i})" for n, i in zip(truth.names, truth.ids)]
+        rec.log("world/ego", rr.Transform3D(translation=[truth.xy[0, 0], truth.xy[0, 1], 0.0],
+                                            rotation_axis_angle=rr.RotationAxisAngle(axis=[0, 0, 1],
+                                                                                     radians=float(truth.heading[0]))))
         rec.log("world/truth/ego", rr.Boxes3D(**_boxes(truth.xy[:1], size[:1], truth.heading[:1]),
                                               labels=labels[:1], colors=[255, 255, 255]))
         rec.log("world/truth/vehicles", rr.Boxes3D(**_boxes(truth.xy[1:], size[1:], truth.heading[1:]),

@@ -18,6 +18,7 @@ import sensors
 from trackers import make_tracker
 
 from .config import to_dict
+from .mot_metrics import mot_metrics
 from .roadside import boxes_near, roadside_boxes
 from .scenario import Scenario
 from .scoring import Scores, score_run
@@ -36,6 +37,14 @@ class RunResult:
     n_frames: int
     out_dir: Path | None
     tables: dict = field(default_factory=dict)  # name -> TableLog
+    metrics: dict[str, float] = field(default_factory=dict)  # standard MOT metrics (HOTA, MOTA, IDF1, GOSPA)
+
+    def summary(self) -> dict[str, float]:
+        """Flat dict of every scalar score of the run: thesis scores, MOT metrics, ms per frame per stage."""
+        out = dict(self.scores.to_dict())
+        out.update(self.metrics)
+        out.update({f"ms_{k}": v for k, v in self.timings_ms.items()})
+        return out
 
 
 def rng_streams(seed: int) -> dict[str, np.random.Generator]:
@@ -125,8 +134,17 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         seen_vehicles=np.array(sorted(seen), dtype=np.int64),
         match_distance_m=scn.scoring.match_distance_m, correct_fraction=scn.scoring.correct_fraction,
     )
+    confirmed = trk_t.array("status") == "confirmed"
+    # CLEAR / Identity match within match_distance_m: TrackEval matches at similarity 0.5, and the
+    # similarity is 1 - d / (2 match_distance_m) (see testbed/mot_metrics.py).
+    metrics = mot_metrics(
+        truth=dict(frame=truth_cols["frame"][keep], vehicle_id=truth_cols["vehicle_id"][keep],
+                   xy=np.column_stack([truth_cols["x"], truth_cols["y"]])[keep]),
+        tracks=dict(frame=trk_t.array("frame")[confirmed], track_id=trk_t.array("track_id")[confirmed],
+                    xy=np.column_stack([trk_t.array("x"), trk_t.array("y")])[confirmed]),
+        n_frames=n, match_distance_m=2.0 * scn.scoring.match_distance_m, gospa_c=scn.scoring.match_distance_m)
     timings = {k: 1000.0 * v / max(n, 1) for k, v in spent.items()}
-    res = RunResult(scn, scores, timings, n, out, dict(truth=truth_t, detections=det_t, tracks=trk_t))
+    res = RunResult(scn, scores, timings, n, out, dict(truth=truth_t, detections=det_t, tracks=trk_t), metrics)
     if out is not None:
         write_outputs(res, name)
     return res
@@ -159,6 +177,7 @@ def write_outputs(res: RunResult, tracker_name: str) -> None:
     for name, log in res.tables.items():
         log.write(out / f"{name}.parquet")
     doc = dict(scenario=res.scenario.name, seed=res.scenario.seed, tracker=tracker_name,
-               frames=res.n_frames, scores=res.scores.to_dict(), timings_ms_per_frame=res.timings_ms,
+               frames=res.n_frames, scores=res.scores.to_dict(), mot_metrics=res.metrics,
+               timings_ms_per_frame=res.timings_ms,
                config=to_dict(res.scenario))
     (out / "scores.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")

@@ -14,7 +14,7 @@ Assignment rule (reference thesis-algorithms.md section 10.1, test-bed definitio
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -35,9 +35,14 @@ class Scores:
     vel_rmse_mps: float
     n_matched_frames: int
     mean_false_tracks_per_frame: float
+    # per-frame position error [m] of correct tracks on their vehicle: frame numbers (F,) and RMSE (F,)
+    # over the matched pairs of that frame (NaN where none). Not part of to_dict().
+    series_frames: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False, compare=False)
+    series_pos_rmse_m: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False, compare=False)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The scalar scores (JSON-able)."""
+        return {k: v for k, v in asdict(self).items() if not k.startswith("series_")}
 
 
 def _pct(num: int, den: int) -> float:
@@ -111,6 +116,12 @@ def score_run(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray], seen_
     else:
         pos = vel = float("nan")
 
+    err2 = np.sum((t_xy[rows_t] - g_xy[rows_g]) ** 2, axis=1)
+    sum_e2 = np.bincount(np.searchsorted(frames, pairs_arr[good, 0]), weights=err2, minlength=len(frames))
+    cnt = np.bincount(np.searchsorted(frames, pairs_arr[good, 0]), minlength=len(frames))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        series = np.where(cnt > 0, np.sqrt(sum_e2 / np.maximum(cnt, 1)), np.nan)
+
     false_ids = np.array([t for t in life if t not in best], dtype=np.int64)
     n_frames = max(len(np.unique(g_frame)), 1)
     seen = np.unique(seen_vehicles)
@@ -121,6 +132,7 @@ def score_run(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray], seen_
         vehicles_seen=len(seen), vehicles_tracked=len(set(best.values())),
         pos_rmse_m=pos, vel_rmse_mps=vel, n_matched_frames=int(len(rows_t)),
         mean_false_tracks_per_frame=float(np.isin(t_id, false_ids).sum() / n_frames),
+        series_frames=frames.astype(np.int64), series_pos_rmse_m=series,
     )
 
 

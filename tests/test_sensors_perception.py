@@ -200,7 +200,7 @@ def test_labels_index_detections_and_provenance_is_the_plurality(traffic):
 
 
 def test_centroid_representative_is_the_mean_of_the_cluster(traffic):
-    res = perceive(traffic, PerceptionConfig(representative="centroid"))
+    res = perceive(traffic, PerceptionConfig(representative="centroid", complete_one_face=False))
     for k in range(len(res.detections)):
         mean = traffic.points[res.labels == k, :2].mean(axis=0)
         assert np.abs(res.detections.z[k] - mean).max() < 1e-9
@@ -274,3 +274,30 @@ def test_clutter_detections_and_degenerate_arguments():
 def test_clutter_bad_arguments_raise(density, centre, radius, match):
     with pytest.raises(ValueError, match=match):
         poisson_clutter(np.random.default_rng(0), density, centre, radius)
+
+
+def test_tree_crown_over_a_thin_trunk_is_not_a_vehicle():
+    # trunk + crown as the testbed builds trees: a 0.4 m trunk up to 2.5 m, a 3 x 3 x 4 m crown above it
+    trunk = [20.0, 9.0, 0.4, 0.4, 2.5, 0.0, 0.0]
+    crown = [20.0, 9.0, 3.0, 3.0, 4.0, 0.0, 2.5]
+    s = scan(LidarConfig(), np.zeros(3), np.array([trunk, crown, car(-15.0, 1.75)]), np.array([-1, -1, 5]),
+             np.random.default_rng(5))
+    det = perceive(s, PerceptionConfig()).detections
+    assert det.provenance.tolist() == [5]  # the car stays, the tree is rejected by its median height
+    # a far tree whose crown top is missed by the rings looks no taller than a truck: then only the
+    # median height tells it from a vehicle
+    det_loose = perceive(s, PerceptionConfig(max_median_height_m=10.0, max_object_height_m=10.0)).detections
+    assert (det_loose.provenance == -1).sum() == 1
+
+
+@pytest.mark.parametrize("x", [25.0, 30.0, -25.0])  # nearer, one ring also lands on the roof: a split
+def test_one_face_completion_moves_a_rear_view_to_the_car_centre(x):
+    # a car straight ahead (or behind) in the sensor's lane shows only its rear (front) face
+    boxes = np.array([car(x, 0.0)])
+    s = scan(EXACT, np.zeros(3), boxes, np.array([7]), np.random.default_rng(0))
+    raw = perceive(s, PerceptionConfig(complete_one_face=False)).detections
+    done = perceive(s, PerceptionConfig()).detections
+    assert len(raw) == len(done) == 1
+    assert abs(abs(raw.z[0, 0]) - (abs(x) - 2.25)) < 0.1  # the visible face, half a car short
+    assert abs(done.z[0, 0] - x) < 0.2  # completed with the 4.6 m prior: within 0.2 m of the 4.5 m car's centre
+    assert abs(done.z[0, 1]) < 0.1

@@ -1,0 +1,95 @@
+"""Per-stage cost of the whole loop on cut_in_out, pinned to one core, against the 100 ms of a 10 Hz LiDAR.
+
+    .venv/bin/python benchmarks/pipeline.py [--scenario cut_in_out] [--duration 16] [--cores 1]
+
+Prints ms per frame per stage (simulation, ray casting, ground, clustering, rest of perception, tracking,
+recording) and the ratio of the loop to the real-time budget. The loop is timed twice in one process:
+through ``run_scenario`` with and without recording; ground and clustering are split out by timing
+``segment_ground`` and ``cluster`` on the same scans.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+
+os.environ.setdefault("RERUN_ANALYTICS", "0")
+
+import numpy as np
+
+import sensors
+from testbed.roadside import boxes_near, roadside_boxes
+from testbed.run import rng_streams, run_scenario
+from testbed.scenario import load_scenario
+from testbed.simulation import Simulation, road_edges
+
+BUDGET_MS = 100.0
+
+
+def perception_split(scn) -> dict[str, float]:
+    """Median ms per frame of ground segmentation, clustering and the whole of perceive()."""
+    rngs = rng_streams(scn.seed)
+    sim = Simulation(scn)
+    static = roadside_boxes(road_edges(sim.network), scn.roadside, rngs["roadside"])
+    cfg = scn.sensor.perception
+    t = {"ground": [], "clustering": [], "perceive": []}
+    for truth in sim.frames():
+        boxes, ids = truth.boxes()
+        near = boxes_near(static, truth.xy[0], scn.sensor.lidar.max_range_m + 10)
+        scan = sensors.scan(scn.sensor.lidar, truth.ego_pose, np.vstack([boxes, static[near]]),
+                            np.concatenate([ids, np.full(int(near.sum()), -1)]), rngs["lidar"])
+        t0 = time.perf_counter()
+        g = sensors.segment_ground(scan.points, cfg.ground)
+        t1 = time.perf_counter()
+        keep = ~g & (scan.points[:, 2] <= cfg.ground.ground_z_m + cfg.max_height_m)
+        sensors.cluster(scan.points[keep], cfg.cluster)
+        t2 = time.perf_counter()
+        sensors.perceive(scan, cfg)
+        t3 = time.perf_counter()
+        t["ground"].append(t1 - t0)
+        t["clustering"].append(t2 - t1)
+        t["perceive"].append(t3 - t2)
+    return {k: 1000 * statistics.median(v) for k, v in t.items()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="cut_in_out")
+    ap.add_argument("--duration", type=float, default=16.0, help="simulated seconds")
+    ap.add_argument("--cores", type=int, default=1, help="pin the process to this many cores")
+    args = ap.parse_args()
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, set(sorted(os.sched_getaffinity(0))[: args.cores]))
+    scn = load_scenario(args.scenario, {"duration_s": args.duration})
+    print(f"{scn.name}: {scn.n_frames} frames at {scn.rate_hz:g} Hz, pinned to "
+          f"{len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else '?'} core(s)")
+
+    run_scenario(load_scenario(args.scenario, {"duration_s": 1.0}), record=False)  # warm caches and imports
+    plain = run_scenario(scn, record=False)
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = run_scenario(scn, out_dir=tmp, record=True)
+    split = perception_split(scn)
+
+    p = plain.timings_ms
+    rest = max(p["perception"] - split["ground"] - split["clustering"], 0.0)
+    rows = [("simulation (highway-env)", p["simulation"]), ("ray casting (open3d)", p["raycast"]),
+            ("ground segmentation", split["ground"]), ("clustering", split["clustering"]),
+            ("box fit + selection", rest), ("tracking (" + scn.tracker.name + ")", p["tracking"]),
+            ("recording (rerun)", rec.timings_ms["recording"])]
+    print(f"\n{'stage':<28}{'ms/frame':>10}{'of 100 ms':>11}")
+    for name, ms in rows:
+        print(f"{name:<28}{ms:10.2f}{ms / BUDGET_MS:10.1%}")
+    loop = sum(p[k] for k in ("simulation", "raycast", "perception", "tracking"))
+    loop_rec = loop + rec.timings_ms["recording"]
+    print(f"\n{'loop without recording':<28}{loop:10.2f}{loop / BUDGET_MS:10.1%}   "
+          f"-> {BUDGET_MS / loop:.2f}x real time")
+    print(f"{'loop with recording':<28}{loop_rec:10.2f}{loop_rec / BUDGET_MS:10.1%}   "
+          f"-> {BUDGET_MS / loop_rec:.2f}x real time")
+    print("target: loop without recording faster than real time on one core:",
+          "MET" if loop < BUDGET_MS else "NOT MET")
+
+
+if __name__ == "__main__":
+    main()

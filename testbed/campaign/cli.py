@@ -1,0 +1,169 @@
+"""``testbed campaign run|resume|report``: Monte Carlo campaigns from the command line.
+
+``add_campaign_parser(subparsers)`` adds the ``campaign`` command to ``testbed``'s argparse;
+``python -m testbed.campaign.cli run|resume|report ...`` runs the same sub-commands stand-alone.
+
+Exit codes: 0 done (runs that failed inside the scenario or tracker are recorded, not fatal);
+1 the engine failed (a worker died, the scheduler is unreachable): finished runs are kept, resume;
+2 bad input (malformed campaign file, not a campaign directory): nothing written; 130 Ctrl-C.
+
+Only the standard library is imported at module level: spawned workers re-import this module.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
+def _engine_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=_positive_int, metavar="N",
+                   help="local worker processes (default: the usable cores; 0 = in this process, for debugging)")
+    g.add_argument("--scheduler", metavar="ADDR", help="run on a Dask distributed scheduler, e.g. tcp://host:8786")
+    g.add_argument("--dask-local", type=_positive_int, metavar="N",
+                   help="start a Dask LocalCluster of N single-threaded worker processes (for testing)")
+    p.add_argument("--threads", type=_positive_int, metavar="N",
+                   help="OpenMP threads per local worker (default: cores // workers; results do not depend on it)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _engine(args: argparse.Namespace):
+    from .engine import EngineOptions
+
+    if args.dask_local == 0:
+        raise ValueError("--dask-local needs N >= 1")
+    return EngineOptions(workers=args.workers, scheduler=args.scheduler, dask_local=args.dask_local,
+                         threads=args.threads or None)
+
+
+def _error(text: str, code: int = 2) -> int:
+    print(f"error: {text}", file=sys.stderr)
+    return code
+
+
+def _execute(campaign, out: Path, args: argparse.Namespace, retry_errors: bool = False) -> int:
+    from .engine import run_campaign
+
+    try:
+        engine = _engine(args)
+    except ValueError as err:
+        return _error(str(err))
+    try:
+        outcome = run_campaign(campaign, out, engine, quiet=args.quiet, retry_errors=retry_errors)
+    except OSError as err:  # e.g. the Dask scheduler cannot be reached
+        return _error(f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}; "
+                      f"resume with: testbed campaign resume {out}", 1)
+    done = outcome.before + outcome.ran
+    failed = f" ({outcome.failed} failed: see the error column)" if outcome.failed else ""
+    if outcome.interrupted:
+        print(f"interrupted: {done} of {outcome.total} runs finished{failed} and kept in {out}/\n"
+              f"resume with: testbed campaign resume {out}", file=sys.stderr)
+        return 130
+    if outcome.broken:
+        print(f"error: {outcome.broken}; {done} of {outcome.total} runs finished and kept in {out}/\n"
+              f"resume with: testbed campaign resume {out}", file=sys.stderr)
+        return 1
+    print(f"{campaign.name}: {done} runs{failed}, {outcome.ran} run now; results: {out / 'results.parquet'}")
+    print(f"summary: testbed campaign report {out}")
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from ..config import ConfigError
+    from . import store
+    from .spec import load_campaign
+
+    try:
+        campaign = load_campaign(args.file)
+        out = Path(args.out) if args.out else Path("runs") / "campaigns" / campaign.name
+        _engine(args)
+        store.create(out, campaign.source, campaign)
+    except (ConfigError, ValueError) as err:
+        return _error(str(err))
+    return _execute(campaign, out, args)
+
+
+def _cmd_resume(args: argparse.Namespace) -> int:
+    from ..config import ConfigError
+    from . import store
+
+    try:
+        campaign = store.open_campaign(args.dir)
+    except ConfigError as err:
+        return _error(str(err))
+    return _execute(campaign, Path(args.dir), args, retry_errors=args.retry_errors)
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from ..config import ConfigError
+    from . import store
+    from .report import write_report
+
+    try:
+        campaign = store.open_campaign(args.dir)
+    except ConfigError as err:
+        return _error(str(err))
+    rep = write_report(args.dir, campaign)
+    if rep.n_runs == 0:
+        return _error(f"{args.dir}: no finished run yet (run or resume the campaign first)", 1)
+    print(f"{rep.n_runs} runs ({rep.n_failed} failed): {len(rep.tables)} tables, {len(rep.plots)} plots")
+    print(f"wrote {rep.path}")
+    return 0
+
+
+def _add_subcommands(sub) -> None:
+    r = sub.add_parser("run", help="run a campaign file into a new results directory")
+    r.add_argument("file", help="campaign file, or the name of a shipped one (campaigns/*.toml)")
+    r.add_argument("--out", metavar="DIR", help="results directory (default runs/campaigns/<name>); must not "
+                   "hold a campaign yet")
+    _engine_args(r)
+    r.set_defaults(func=_cmd_run)
+    s = sub.add_parser("resume", help="finish an interrupted campaign: run only the runs DIR does not hold")
+    s.add_argument("dir", metavar="DIR", help="results directory of `testbed campaign run`")
+    _engine_args(s)
+    s.add_argument("--retry-errors", action="store_true", help="also re-run the runs that failed")
+    s.set_defaults(func=_cmd_resume)
+    p = sub.add_parser("report", help="mean, sd and 95%% CI tables and plots of a campaign: DIR/report.md")
+    p.add_argument("dir", metavar="DIR", help="results directory")
+    p.set_defaults(func=_cmd_report)
+
+
+def add_campaign_parser(subparsers) -> argparse.ArgumentParser:
+    """Add ``campaign run|resume|report`` to an argparse sub-parser collection (``testbed``'s)."""
+    c = subparsers.add_parser("campaign", help="Monte Carlo campaigns: scenarios x trackers x seeds x grids",
+                              description="Monte Carlo campaigns (see docs/campaigns.md).")
+    sub = c.add_subparsers(dest="campaign_command", required=True)
+    _add_subcommands(sub)
+    return c
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="testbed campaign", description="Monte Carlo campaigns (docs/campaigns.md)")
+    sub = p.add_subparsers(dest="campaign_command", required=True)
+    _add_subcommands(sub)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m testbed.campaign.cli run|resume|report ...``."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,438 @@
+"""Campaign execution: one run in a worker (:func:`execute_run`), on a local process pool or on Dask.
+
+Backends (chosen by :class:`EngineOptions`):
+
+* ``local`` (default): ``concurrent.futures.ProcessPoolExecutor`` with ``spawn`` workers, ``workers``
+  processes (default: the usable cores); ``workers = 0`` runs in the calling process (debugging);
+* ``dask``: a ``distributed.Client`` on ``scheduler`` (``tcp://host:port``), or on a
+  ``LocalCluster(n_workers=dask_local, threads_per_worker=1, processes=True)`` started for the campaign.
+
+The numbers do not depend on the backend, the worker count or the completion order: every run is a pure
+function of its :class:`~testbed.campaign.spec.RunSpec` (its seed comes from its key, see
+:func:`~testbed.campaign.spec.run_seed`). At most ``2 x worker slots`` runs are in flight; finished runs
+are written by this (the client) process, one atomic file each (:mod:`~testbed.campaign.store`), so
+Dask workers need no shared file system unless runs are recorded in full (``record.full_seeds``: the
+worker writes ``DIR/recordings/<run_id>/`` at the same path on its own machine).
+
+Threads: open3d's ray casting and point-cloud code use OpenMP, by default on every core. A local-pool
+worker therefore gets ``OMP_NUM_THREADS = cores // workers`` (at least 1) unless the variable is already
+set; Dask's nanny sets ``OMP_NUM_THREADS=1`` in its workers itself. Results do not depend on it.
+"""
+from __future__ import annotations
+
+import concurrent.futures as cf
+import functools
+import multiprocessing
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+import traceback
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from . import store
+from .spec import Campaign, RunSpec, plan
+
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+_DISTRIBUTIONS = {"roadtrack": ("roadtrack",), "numpy": ("numpy",), "highway_env": ("highway-env",),
+                  "open3d": ("open3d-cpu", "open3d"), "rerun": ("rerun-sdk",)}
+
+
+def usable_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+@functools.cache
+def versions() -> dict[str, str]:
+    """Installed versions of roadtrack and the packages that shape its numbers (``v_<name>`` columns)."""
+    from importlib import metadata
+
+    out = {"python": ".".join(map(str, sys.version_info[:3]))}
+    for name, dists in _DISTRIBUTIONS.items():
+        out[name] = ""
+        for dist in dists:
+            try:
+                out[name] = metadata.version(dist)
+                break
+            except metadata.PackageNotFoundError:
+                continue
+    return out
+
+
+def init_worker(threads: int | None) -> None:
+    """Local-pool worker start-up: thread limits (before open3d loads), no rerun analytics, and Ctrl-C
+    left to the parent (which stops the campaign and terminates the workers)."""
+    if threads is not None:
+        for var in THREAD_VARS:
+            os.environ.setdefault(var, str(threads))
+    os.environ.setdefault("RERUN_ANALYTICS", "0")
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def make_task(campaign: Campaign, run: RunSpec, out_dir: str | Path | None) -> dict[str, Any]:
+    """Everything a worker needs for one run, as plain picklable data."""
+    from ..scenario import apply_overrides
+
+    src = next(s for s in campaign.scenarios if s.name == run.scenario)
+    record_dir = None
+    if run.record_full and out_dir is not None:
+        record_dir = str(store.recording_dir(Path(out_dir).resolve(), run.run_id))
+    return dict(run_id=run.run_id, run_index=run.run_index, campaign=campaign.name, scenario=run.scenario,
+                tracker=run.tracker, params=dict(run.params), columns=dict(run.columns),
+                grid_index=".".join(map(str, run.grid_index)), seed_index=run.seed_index, seed=run.seed,
+                scenario_data=apply_overrides(src.data, campaign.overrides), record_dir=record_dir)
+
+
+def _where(err: BaseException) -> str:
+    frames = traceback.extract_tb(err.__traceback__)
+    if not frames:
+        return ""
+    f = frames[-1]
+    return f"{Path(f.filename).name}:{f.lineno} in {f.name}"
+
+
+def _one_line(err: BaseException) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else ""
+
+
+def execute_run(task: dict[str, Any]) -> dict[str, Any]:
+    """Run one campaign run and return its results row. Never raises for a failing run: an exception
+    inside the scenario or the tracker becomes ``status = "error"`` with its type, one-line message and
+    innermost frame; the scores are then missing (NaN)."""
+    os.environ.setdefault("RERUN_ANALYTICS", "0")
+    import numpy as np
+
+    from ..scenario import apply_overrides, parse_scenario
+
+    row: dict[str, Any] = dict(run_id=task["run_id"], run_index=task["run_index"], campaign=task["campaign"],
+                               scenario=task["scenario"], tracker=task["tracker"])
+    row.update(task["columns"])
+    row.update(grid_index=task["grid_index"], seed_index=task["seed_index"], seed=task["seed"],
+               status="ok", error_type="", error="", error_where="", warnings="")
+    t0 = time.perf_counter()
+    summary: dict[str, float] = {}
+    n_frames, dt, series = 0, float("nan"), np.zeros(0)
+    caught: list[warnings.WarningMessage] = []
+    try:
+        from ..run import run_scenario
+
+        data = apply_overrides(task["scenario_data"],
+                               {**task["params"], "tracker.name": task["tracker"], "seed": task["seed"]})
+        scn = parse_scenario(data)
+        dt = scn.dt
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            res = run_scenario(scn, out_dir=task["record_dir"], record=task["record_dir"] is not None)
+        summary = {k: float(v) for k, v in res.summary().items()}
+        n_frames = res.n_frames
+        series = np.full(n_frames, np.nan)
+        frames = np.asarray(res.scores.series_frames, dtype=np.int64)
+        values = np.asarray(res.scores.series_pos_rmse_m, dtype=np.float64)
+        ok = (frames >= 0) & (frames < n_frames)
+        series[frames[ok]] = values[ok]
+    except Exception as err:  # noqa: BLE001 - recorded, the campaign goes on
+        row.update(status="error", error_type=type(err).__name__, error=_one_line(err), error_where=_where(err))
+    if caught:
+        seen: dict[str, int] = {}
+        for w in caught:
+            key = f"{w.category.__name__}: {_one_line(w.message)}"
+            seen[key] = seen.get(key, 0) + 1
+        row["warnings"] = "; ".join(f"{k} (x{n})" if n > 1 else k for k, n in list(seen.items())[:5])
+    row["n_frames"] = n_frames
+    row["dt_s"] = dt
+    row["recorded"] = task["record_dir"] is not None and row["status"] == "ok"
+    row.update(summary)
+    row[store.SERIES_COLUMN] = series
+    row.update({f"v_{k}": v for k, v in versions().items()})
+    row["wall_s"] = time.perf_counter() - t0
+    row["worker"] = f"{socket.gethostname()}:{os.getpid()}"
+    row["finished_at"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    return row
+
+
+# ------------------------------------------------------------------------------------------ backends
+
+
+class InfrastructureError(RuntimeError):
+    """A worker or the cluster failed (not the run itself): the campaign stops and can be resumed."""
+
+
+class _InProcess:
+    """workers = 0: run in this process, one at a time (for debugging with pdb / profilers)."""
+
+    slots = 1
+    description = "in this process"
+
+    def submit(self, task):
+        fut: cf.Future = cf.Future()
+        try:
+            fut.set_result(execute_run(task))
+        except BaseException as err:  # noqa: BLE001
+            fut.set_exception(err)
+        return fut
+
+    def wait(self, futures, timeout):
+        return {f for f in futures if f.done()}
+
+    def result(self, fut):
+        return fut.result()
+
+    def close(self, abandon: bool) -> None:
+        pass
+
+
+class _LocalPool:
+    def __init__(self, workers: int, threads: int | None):
+        self.slots = workers
+        self.description = f"local process pool, {workers} worker{'s' * (workers != 1)}" + (
+            f", {threads} thread{'s' * (threads != 1)} each" if threads else "")
+        self.pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                           initializer=init_worker, initargs=(threads,))
+
+    def submit(self, task):
+        return self.pool.submit(execute_run, task)
+
+    def wait(self, futures, timeout):
+        done, _ = cf.wait(futures, timeout=timeout, return_when=cf.FIRST_COMPLETED)
+        return done
+
+    def result(self, fut):
+        try:
+            return fut.result()
+        except cf.process.BrokenProcessPool as err:
+            raise InfrastructureError(f"a worker process died ({_one_line(err) or 'BrokenProcessPool'})") from None
+
+    def close(self, abandon: bool) -> None:
+        if abandon:
+            for proc in list((getattr(self.pool, "_processes", None) or {}).values()):
+                try:
+                    proc.terminate()
+                except Exception:  # noqa: BLE001 - already gone
+                    pass
+        self.pool.shutdown(wait=not abandon, cancel_futures=True)
+
+
+class _Dask:
+    def __init__(self, scheduler: str | None, n_local: int | None):
+        import logging
+
+        from distributed import Client, LocalCluster
+
+        self.cluster = None
+        if n_local:
+            self.cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True,
+                                        dashboard_address=None, silence_logs=logging.ERROR,
+                                        env={"RERUN_ANALYTICS": "0"})
+            self.client = Client(self.cluster)
+            self.description = f"Dask LocalCluster, {n_local} worker process{'es' * (n_local != 1)}"
+        else:
+            self.client = Client(scheduler, timeout="30s")
+            self.description = f"Dask scheduler {scheduler}"
+
+    @property
+    def slots(self) -> int:
+        return max(1, sum(self.client.nthreads().values()))
+
+    def submit(self, task):
+        return self.client.submit(execute_run, task, pure=False, key=f"roadtrack-run-{task['run_id']}-{time.time_ns()}")
+
+    def wait(self, futures, timeout):
+        from distributed import wait
+
+        try:
+            wait(list(futures), timeout=timeout, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            pass
+        except Exception:  # noqa: BLE001 - dask's own timeout type in some versions
+            pass
+        return {f for f in futures if f.done()}
+
+    def result(self, fut):
+        from distributed import KilledWorker
+
+        try:
+            return fut.result()
+        except KilledWorker:
+            raise  # attributable to this run: recorded as its error
+        except Exception as err:  # noqa: BLE001 - cancelled, lost connection, ...
+            raise InfrastructureError(f"Dask: {type(err).__name__}: {_one_line(err)}") from None
+
+    def close(self, abandon: bool) -> None:
+        try:
+            self.client.close()
+        finally:
+            if self.cluster is not None:
+                self.cluster.close()
+
+
+@dataclass(frozen=True)
+class EngineOptions:
+    """Where runs execute: ``workers`` local processes (None: usable cores; 0: in this process), or Dask
+    on ``scheduler`` or on a ``dask_local``-worker LocalCluster. ``threads``: OMP threads per local
+    worker (None: cores // workers)."""
+
+    workers: int | None = None
+    scheduler: str | None = None
+    dask_local: int | None = None
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        chosen = [x is not None for x in (self.scheduler, self.dask_local)]
+        if sum(chosen) > 1 or (any(chosen) and self.workers is not None):
+            raise ValueError("choose one of workers, scheduler, dask_local")
+        if self.workers is not None and self.workers < 0:
+            raise ValueError(f"workers must be >= 0, got {self.workers}")
+        if self.dask_local is not None and self.dask_local < 1:
+            raise ValueError(f"dask_local must be >= 1, got {self.dask_local}")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"threads must be >= 1, got {self.threads}")
+
+
+def make_backend(opts: EngineOptions):
+    if opts.scheduler is not None or opts.dask_local is not None:
+        return _Dask(opts.scheduler, opts.dask_local)
+    workers = usable_cores() if opts.workers is None else opts.workers
+    if workers == 0:
+        return _InProcess()
+    threads = opts.threads if opts.threads is not None else max(1, usable_cores() // workers)
+    return _LocalPool(workers, threads)
+
+
+# ------------------------------------------------------------------------------------------ the loop
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """total: runs in the plan; before: finished before this call; ran: finished now; failed: runs
+    with status error (all of them, old and new); interrupted: stopped by Ctrl-C; broken: why the
+    backend failed (None if it did not)."""
+
+    total: int
+    before: int
+    ran: int
+    failed: int
+    interrupted: bool = False
+    broken: str | None = None
+
+    @property
+    def complete(self) -> bool:
+        return self.before + self.ran == self.total
+
+
+def _submit_order(runs: list[RunSpec]) -> list[RunSpec]:
+    """Seed-major: every configuration's seed 0 first, then seed 1, ... so a stopped campaign has
+    balanced partial results."""
+    return sorted(runs, key=lambda r: (r.seed_index, r.run_index))
+
+
+def run_campaign(campaign: Campaign, out_dir: str | Path, engine: EngineOptions | None = None,
+                 quiet: bool = False, retry_errors: bool = False,
+                 say: Callable[[str], None] | None = None, stop: threading.Event | None = None) -> Outcome:
+    """Run every run of ``campaign`` that ``out_dir`` does not hold yet (with ``retry_errors`` also
+    those that failed), writing each as it finishes, then rebuild ``results.parquet``.
+
+    Ctrl-C (SIGINT, when called from the main thread) or setting ``stop`` stops submitting, keeps
+    what finished, abandons the runs in flight and returns with ``interrupted``.
+    """
+    from tqdm import tqdm
+
+    say = say or (lambda text: print(text, file=sys.stderr))
+    out = Path(out_dir)
+    runs = plan(campaign)
+    finished = store.finished_runs(out)
+    keep = {rid for rid, status in finished.items() if status == "ok" or not retry_errors}
+    pending = _submit_order([r for r in runs if r.run_id not in keep])
+    before = len(runs) - len(pending)
+    failed = sum(1 for rid in keep if finished[rid] == "error")
+    if not pending:
+        store.consolidate(out)
+        return Outcome(len(runs), before, 0, failed)
+
+    stop = stop or threading.Event()
+    old_handler = None
+    if threading.current_thread() is threading.main_thread():
+        def on_sigint(signum, frame):
+            stop.set()
+            signal.signal(signal.SIGINT, old_handler)  # a second Ctrl-C interrupts the clean-up itself
+        old_handler = signal.signal(signal.SIGINT, on_sigint)
+
+    backend = None
+    ran = 0
+    broken: str | None = None
+    bar = tqdm(total=len(runs), initial=before, unit="run", desc=campaign.name, disable=quiet or None,
+               file=sys.stderr, dynamic_ncols=True, smoothing=0.05)
+    bar.set_postfix(failed=failed)
+    in_flight: dict[Any, RunSpec] = {}
+
+    def take(fut) -> None:
+        nonlocal ran, failed
+        run = in_flight.pop(fut)
+        try:
+            row = backend.result(fut)
+        except InfrastructureError:
+            raise
+        except Exception as err:  # noqa: BLE001 - e.g. Dask KilledWorker: the run itself kills workers
+            row = _error_row(campaign, run, err)
+        store.write_run(out, row)
+        ran += 1
+        failed += row["status"] != "ok"
+        bar.update(1)
+        bar.set_postfix(failed=failed)
+
+    try:
+        backend = make_backend(engine or EngineOptions())
+        if not quiet:
+            say(f"{campaign.name}: {len(pending)} of {len(runs)} runs to do on {backend.description}")
+        queue = iter(pending)
+        exhausted = False
+        while not stop.is_set():
+            while not exhausted and len(in_flight) < 2 * backend.slots and not stop.is_set():
+                run = next(queue, None)
+                if run is None:
+                    exhausted = True
+                    break
+                in_flight[backend.submit(make_task(campaign, run, out))] = run
+            if not in_flight:
+                break
+            for fut in backend.wait(set(in_flight), timeout=0.25):
+                take(fut)
+        if stop.is_set():  # keep whatever already finished
+            for fut in [f for f in in_flight if f.done() and not f.cancelled()]:
+                try:
+                    take(fut)
+                except InfrastructureError:
+                    in_flight.pop(fut, None)
+    except InfrastructureError as err:
+        broken = str(err)
+    finally:
+        bar.close()
+        if old_handler is not None:
+            signal.signal(signal.SIGINT, old_handler)
+        if backend is not None:
+            backend.close(abandon=bool(in_flight) or stop.is_set() or broken is not None)
+        store.consolidate(out)
+    return Outcome(len(runs), before, ran, failed, interrupted=stop.is_set(), broken=broken)
+
+
+def _error_row(campaign: Campaign, run: RunSpec, err: BaseException) -> dict[str, Any]:
+    import numpy as np
+
+    row: dict[str, Any] = dict(run_id=run.run_id, run_index=run.run_index, campaign=campaign.name,
+                               scenario=run.scenario, tracker=run.tracker)
+    row.update(run.columns)
+    row.update(grid_index=".".join(map(str, run.grid_index)), seed_index=run.seed_index, seed=run.seed,
+               status="error", error_type=type(err).__name__, error=_one_line(err), error_where="", warnings="",
+               n_frames=0, dt_s=float("nan"), recorded=False)
+    row[store.SERIES_COLUMN] = np.zeros(0)
+    row.update({f"v_{k}": "" for k in versions()})
+    row.update(wall_s=float("nan"), worker="", finished_at=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+    return row

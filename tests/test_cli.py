@@ -1,0 +1,68 @@
+"""The `testbed` command line: listings, --set overrides, clear errors, the generated key reference."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from testbed.cli import _parse_sets
+from testbed.config import ConfigError
+from testbed.keys import keys_markdown
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "testbed.cli", *args], capture_output=True, text=True, cwd=REPO,
+                          timeout=timeout, env=dict(os.environ, RERUN_ANALYTICS="0"))
+
+
+def test_docs_scenarios_md_is_generated_from_the_code():
+    assert (REPO / "docs" / "scenarios.md").read_text() == keys_markdown(), \
+        "docs/scenarios.md is stale: run `.venv/bin/testbed keys > docs/scenarios.md`"
+
+
+def test_keys_reference_lists_nested_keys_with_defaults():
+    md = keys_markdown()
+    for key in ("`vehicles[].lane_changes[].at_s`", "`sensor.lidar.max_range_m`", "`convoy.gap_m`",
+                "`sensor.perception.ground.method`", "`tracker.params`", "`scoring.match_distance_m`"):
+        assert key in md, key
+    assert "| `sensor.lidar.max_range_m` | float | `70.0` |" in md
+
+
+def test_parse_sets_reads_toml_values():
+    got = _parse_sets(["duration_s=5", "sensor.clutter.density_per_m2=1e-2", "tracker.name=pda-kf",
+                       "roadside.barriers=false", "vehicles.0.lane_changes=[{at_s = 1.0, lane = 0}]"])
+    assert got == {"duration_s": 5, "sensor.clutter.density_per_m2": 0.01, "tracker.name": "pda-kf",
+                   "roadside.barriers": False, "vehicles.0.lane_changes": [{"at_s": 1.0, "lane": 0}]}
+    with pytest.raises(ConfigError, match=r"^--set: 'oops': expected KEY=VALUE"):
+        _parse_sets(["oops"])
+
+
+def test_listings():
+    proc = _cli("scenarios")
+    assert proc.returncode == 0
+    names = [line.split()[0] for line in proc.stdout.splitlines()]
+    assert names == sorted(["convoy", "cut_in_out", "interchange", "straight_curve", "u_turn"])
+    assert "INVALID" not in proc.stdout
+    proc = _cli("trackers")
+    assert proc.returncode == 0 and {"jpda-kf", "pda-kf", "gnn-kf", "nn-kf"} <= set(proc.stdout.split())
+
+
+@pytest.mark.parametrize("args, message", [
+    (["run", "nowhere.toml"], "error: nowhere.toml: no such scenario file (shipped: convoy, cut_in_out,"),
+    (["run", "cut_in_out", "--tracker", "jpda-ukf"], "error: tracker.name: unknown tracker name 'jpda-ukf'"),
+    (["run", "cut_in_out", "--set", "sensor.lidar.max_range_m=-3"],
+     "error: sensor.lidar.max_range_m: expected a finite number > 0, got -3.0"),
+    (["run", "cut_in_out", "--set", "tracker.params.sigma_q=1"], "error: tracker.params: unknown parameter(s) ['sigma_q']"),
+    (["view", "no/such/run"], "error: no/such/run/run.rrd: no recording"),
+])
+def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path):
+    proc = _cli(*args, "--out", str(tmp_path / "o")) if args[0] == "run" else _cli(*args)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(message), lines
+    assert not (tmp_path / "o").exists()
