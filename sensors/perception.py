@@ -148,29 +148,36 @@ def perceive(scan: Scan, cfg: PerceptionConfig) -> PerceptionResult:
     ends = np.cumsum(np.bincount(member_label, minlength=n_clusters))
     starts = ends - np.diff(ends, prepend=0)
 
-    z = np.empty((n_clusters, 2))
-    extent = np.empty((n_clusters, 3))
-    provenance = np.empty(n_clusters, np.int64)
-    median_z = np.empty(n_clusters)
+    n_points = ends - starts
+    # Cheap vectorised tests first: the box fit runs only on clusters that can still pass.
+    mz = pts[members, 2]
+    top = np.maximum.reduceat(mz, starts) - road_z
+    diag = np.hypot(np.maximum.reduceat(pts[members, 0], starts) - np.minimum.reduceat(pts[members, 0], starts),
+                    np.maximum.reduceat(pts[members, 1], starts) - np.minimum.reduceat(pts[members, 1], starts))
+    keep = np.ones(n_clusters, bool)
+    if cfg.vehicle_like:  # the oriented box's longer side is at most the axis-aligned diagonal
+        keep = (top >= cfg.min_height_m) & (top <= cfg.max_object_height_m) & (diag >= cfg.min_extent_m)
+
+    z = np.zeros((n_clusters, 2))
+    extent = np.zeros((n_clusters, 3))
+    extent[:, 2] = top
+    provenance = np.full(n_clusters, -1, np.int64)
+    median_z = np.zeros(n_clusters)
     represent = REPRESENTATIVES[cfg.representative]
-    for k in range(n_clusters):
+    for k in np.flatnonzero(keep):
         idx = members[starts[k] : ends[k]]
         z[k], length, width = represent(pts[idx, :2])
-        extent[k] = (length, width, pts[idx, 2].max() - road_z)
+        extent[k, :2] = (length, width)
         provenance[k] = _plurality_vehicle(scan.source[idx])
-        median_z[k] = np.median(pts[idx, 2]) - road_z
+        median_z[k] = np.median(mz[starts[k] : ends[k]]) - road_z
         if cfg.complete_one_face and width < cfg.one_face_width_m:
             z[k] = _complete_one_face(z[k], pts[idx, :2], length, width, scan.origin[:2], cfg.size_prior_m)
-    n_points = ends - starts
 
-    keep = np.ones(n_clusters, bool)
     if cfg.vehicle_like:
-        keep = (
+        keep &= (
             (extent[:, 0] >= cfg.min_extent_m)
             & (extent[:, 0] <= cfg.max_length_m)
             & (extent[:, 1] <= cfg.max_width_m)
-            & (extent[:, 2] >= cfg.min_height_m)
-            & (extent[:, 2] <= cfg.max_object_height_m)
             & (median_z <= cfg.max_median_height_m)  # a crown above a thin trunk is not a vehicle
         )
     new_index = np.where(keep, np.cumsum(keep) - 1, -1)
