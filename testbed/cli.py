@@ -141,6 +141,9 @@ def build_parser() -> argparse.ArgumentParser:
     k.set_defaults(func=_cmd_keys)
     t = sub.add_parser("trackers", help="list the tracker names")
     t.set_defaults(func=_cmd_trackers)
+    from .campaign.cli import add_campaign_parser
+
+    add_campaign_parser(sub)
     return p
 
 

@@ -34,7 +34,8 @@ def _engine_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--dask-local", type=_positive_int, metavar="N",
                    help="start a Dask LocalCluster of N single-threaded worker processes (for testing)")
     p.add_argument("--threads", type=_positive_int, metavar="N",
-                   help="OpenMP threads per local worker (default: cores // workers; results do not depend on it)")
+                   help="threads (OpenMP, and as many pinned cores) per local worker (default: cores // workers; "
+                   "results do not depend on it)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 

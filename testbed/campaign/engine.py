@@ -14,9 +14,13 @@ are written by this (the client) process, one atomic file each (:mod:`~testbed.c
 Dask workers need no shared file system unless runs are recorded in full (``record.full_seeds``: the
 worker writes ``DIR/recordings/<run_id>/`` at the same path on its own machine).
 
-Threads: open3d's ray casting and point-cloud code use OpenMP, by default on every core. A local-pool
-worker therefore gets ``OMP_NUM_THREADS = cores // workers`` (at least 1) unless the variable is already
-set; Dask's nanny sets ``OMP_NUM_THREADS=1`` in its workers itself. Results do not depend on it.
+Threads: open3d runs parts of a scan on OpenMP threads and builds the ray-casting scene on a TBB thread
+pool, by default on every core, so one "single-threaded" run uses ~1.2 cores. A local-pool worker
+therefore gets ``OMP_NUM_THREADS = cores // workers`` (at least 1; an ``OMP_NUM_THREADS`` already set
+wins) and, when ``workers x threads <= cores``, its own block of cores by CPU affinity, which TBB follows
+(``sensors/lidar.py`` passes no ``nthreads`` to ``cast_rays``; affinity makes that knob unnecessary).
+LocalCluster workers get ``OMP_NUM_THREADS=1`` from Dask's nanny and one core each. Results do not
+depend on any of it.
 """
 from __future__ import annotations
 
@@ -67,12 +71,39 @@ def versions() -> dict[str, str]:
     return out
 
 
-def init_worker(threads: int | None) -> None:
-    """Local-pool worker start-up: thread limits (before open3d loads), no rerun analytics, and Ctrl-C
-    left to the parent (which stops the campaign and terminates the workers)."""
+def pin_process(cpus: list[int]) -> None:
+    """Restrict every thread of this process, and the threads it starts later, to the cores ``cpus``."""
+    if not hasattr(os, "sched_setaffinity"):
+        return
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [0]
+    for tid in tids:
+        try:
+            os.sched_setaffinity(tid, cpus)
+        except OSError:
+            pass
+
+
+def _core_block(k: int, threads: int) -> list[int]:
+    cores = sorted(os.sched_getaffinity(0))
+    return sorted({cores[(k * threads + j) % len(cores)] for j in range(threads)})
+
+
+def init_worker(threads: int | None, counter=None) -> None:
+    """Local-pool worker start-up: thread limits (before open3d loads), no rerun analytics, Ctrl-C left
+    to the parent (which stops the campaign and terminates the workers), and, with ``counter`` (a shared
+    int), pinning of the k-th worker to its own block of ``threads`` cores: open3d's ray-casting scene
+    build runs on a TBB thread pool that ignores OMP_NUM_THREADS but follows the CPU affinity."""
     if threads is not None:
         for var in THREAD_VARS:
             os.environ.setdefault(var, str(threads))
+    if counter is not None and threads and hasattr(os, "sched_setaffinity"):
+        with counter.get_lock():
+            k = counter.value
+            counter.value += 1
+        pin_process(_core_block(k, threads))
     os.environ.setdefault("RERUN_ANALYTICS", "0")
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
@@ -104,6 +135,17 @@ def _one_line(err: BaseException) -> str:
     return text.splitlines()[0] if text else ""
 
 
+def _scalar(value: Any) -> float | str:
+    """A summary value as a results cell: numbers (and booleans) as float64, None as NaN, else text."""
+    import numbers
+
+    if value is None:
+        return float("nan")
+    if isinstance(value, numbers.Real):  # includes bool and numpy scalars
+        return float(value)
+    return str(value)
+
+
 def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     """Run one campaign run and return its results row. Never raises for a failing run: an exception
     inside the scenario or the tracker becomes ``status = "error"`` with its type, one-line message and
@@ -132,7 +174,7 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             res = run_scenario(scn, out_dir=task["record_dir"], record=task["record_dir"] is not None)
-        summary = {k: float(v) for k, v in res.summary().items()}
+        summary = {k: _scalar(v) for k, v in res.summary().items()}
         n_frames = res.n_frames
         series = np.full(n_frames, np.nan)
         frames = np.asarray(res.scores.series_frames, dtype=np.int64)
@@ -191,15 +233,21 @@ class _InProcess:
 
 
 class _LocalPool:
-    def __init__(self, workers: int, threads: int | None):
+    def __init__(self, workers: int, threads: int | None, pin: bool = True):
+        ctx = multiprocessing.get_context("spawn")
+        pin = pin and threads is not None and workers * threads <= usable_cores() and hasattr(os, "sched_setaffinity")
+        counter = ctx.Value("i", 0) if pin else None
         self.slots = workers
         self.description = f"local process pool, {workers} worker{'s' * (workers != 1)}" + (
-            f", {threads} thread{'s' * (threads != 1)} each" if threads else "")
-        self.pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                           initializer=init_worker, initargs=(threads,))
+            f", {threads} thread{'s' * (threads != 1)} each" if threads else "") + (", pinned" if pin else "")
+        self.pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=init_worker,
+                                           initargs=(threads, counter))
 
     def submit(self, task):
-        return self.pool.submit(execute_run, task)
+        try:
+            return self.pool.submit(execute_run, task)
+        except cf.process.BrokenProcessPool as err:
+            raise InfrastructureError(f"a worker process died ({_one_line(err) or 'BrokenProcessPool'})") from None
 
     def wait(self, futures, timeout):
         done, _ = cf.wait(futures, timeout=timeout, return_when=cf.FIRST_COMPLETED)
@@ -221,18 +269,41 @@ class _LocalPool:
         self.pool.shutdown(wait=not abandon, cancel_futures=True)
 
 
-class _Dask:
-    def __init__(self, scheduler: str | None, n_local: int | None):
-        import logging
+def _local_cluster(n_workers: int):
+    """``LocalCluster(n_workers, threads_per_worker=1, processes=True)`` without Dask's default
+    ``MALLOC_TRIM_THRESHOLD_=65536`` in the workers: setting it switches off glibc's adaptive mmap
+    threshold, so every large numpy temporary is mmap'ed and page-faulted afresh, which makes a roadtrack
+    run ~40 % slower; and without the workers' statistical profiler (a stack sample every 10 ms that
+    nobody reads here). Dask's nanny also writes its pre-spawn variables (OMP_NUM_THREADS=1, ...) into
+    this process's environment; they are put back afterwards so that later local pools are unaffected."""
+    import logging
 
-        from distributed import Client, LocalCluster
+    import dask
+    from distributed import LocalCluster
+
+    saved = dict(os.environ)
+    try:
+        with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                              "distributed.worker.profile.enabled": False}):
+            return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                                silence_logs=logging.ERROR, env={"RERUN_ANALYTICS": "0"})
+    finally:
+        for key in set(os.environ) - set(saved):
+            del os.environ[key]
+        os.environ.update(saved)
+
+
+class _Dask:
+    def __init__(self, scheduler: str | None, n_local: int | None, pin: bool = True):
+        from distributed import Client
 
         self.cluster = None
         if n_local:
-            self.cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True,
-                                        dashboard_address=None, silence_logs=logging.ERROR,
-                                        env={"RERUN_ANALYTICS": "0"})
+            self.cluster = _local_cluster(n_local)
             self.client = Client(self.cluster)
+            if pin and n_local <= usable_cores() and hasattr(os, "sched_setaffinity"):
+                for k, addr in enumerate(sorted(self.client.scheduler_info()["workers"])):
+                    self.client.run(pin_process, _core_block(k, 1), workers=[addr])
             self.description = f"Dask LocalCluster, {n_local} worker process{'es' * (n_local != 1)}"
         else:
             self.client = Client(scheduler, timeout="30s")
@@ -278,12 +349,14 @@ class _Dask:
 class EngineOptions:
     """Where runs execute: ``workers`` local processes (None: usable cores; 0: in this process), or Dask
     on ``scheduler`` or on a ``dask_local``-worker LocalCluster. ``threads``: OMP threads per local
-    worker (None: cores // workers)."""
+    worker (None: cores // workers). ``pin``: give each local or LocalCluster worker its own cores
+    (when they are enough), so that no run's helper threads compete with another worker."""
 
     workers: int | None = None
     scheduler: str | None = None
     dask_local: int | None = None
     threads: int | None = None
+    pin: bool = True
 
     def __post_init__(self) -> None:
         chosen = [x is not None for x in (self.scheduler, self.dask_local)]
@@ -299,12 +372,12 @@ class EngineOptions:
 
 def make_backend(opts: EngineOptions):
     if opts.scheduler is not None or opts.dask_local is not None:
-        return _Dask(opts.scheduler, opts.dask_local)
+        return _Dask(opts.scheduler, opts.dask_local, opts.pin)
     workers = usable_cores() if opts.workers is None else opts.workers
     if workers == 0:
         return _InProcess()
     threads = opts.threads if opts.threads is not None else max(1, usable_cores() // workers)
-    return _LocalPool(workers, threads)
+    return _LocalPool(workers, threads, opts.pin)
 
 
 # ------------------------------------------------------------------------------------------ the loop
@@ -336,17 +409,21 @@ def _submit_order(runs: list[RunSpec]) -> list[RunSpec]:
 
 def run_campaign(campaign: Campaign, out_dir: str | Path, engine: EngineOptions | None = None,
                  quiet: bool = False, retry_errors: bool = False,
-                 say: Callable[[str], None] | None = None, stop: threading.Event | None = None) -> Outcome:
+                 say: Callable[[str], None] | None = None, stop: threading.Event | None = None,
+                 backend=None) -> Outcome:
     """Run every run of ``campaign`` that ``out_dir`` does not hold yet (with ``retry_errors`` also
     those that failed), writing each as it finishes, then rebuild ``results.parquet``.
 
     Ctrl-C (SIGINT, when called from the main thread) or setting ``stop`` stops submitting, keeps
-    what finished, abandons the runs in flight and returns with ``interrupted``.
+    what finished, abandons the runs in flight and returns with ``interrupted``. ``backend`` (from
+    :func:`make_backend`) reuses already started workers, e.g. warm ones in a benchmark; it is then
+    left open unless runs had to be abandoned.
     """
     from tqdm import tqdm
 
     say = say or (lambda text: print(text, file=sys.stderr))
     out = Path(out_dir)
+    (out / store.RUNS_DIR).mkdir(parents=True, exist_ok=True)
     runs = plan(campaign)
     finished = store.finished_runs(out)
     keep = {rid for rid, status in finished.items() if status == "ok" or not retry_errors}
@@ -362,15 +439,13 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, engine: EngineOptions 
     if threading.current_thread() is threading.main_thread():
         def on_sigint(signum, frame):
             stop.set()
-            signal.signal(signal.SIGINT, old_handler)  # a second Ctrl-C interrupts the clean-up itself
-        old_handler = signal.signal(signal.SIGINT, on_sigint)
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C interrupts the clean-up
+        old_handler = signal.signal(signal.SIGINT, on_sigint) or signal.default_int_handler
 
-    backend = None
+    own_backend = backend is None
     ran = 0
     broken: str | None = None
-    bar = tqdm(total=len(runs), initial=before, unit="run", desc=campaign.name, disable=quiet or None,
-               file=sys.stderr, dynamic_ncols=True, smoothing=0.05)
-    bar.set_postfix(failed=failed)
+    bar = None
     in_flight: dict[Any, RunSpec] = {}
 
     def take(fut) -> None:
@@ -389,9 +464,13 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, engine: EngineOptions 
         bar.set_postfix(failed=failed)
 
     try:
-        backend = make_backend(engine or EngineOptions())
+        if own_backend:
+            backend = make_backend(engine or EngineOptions())
         if not quiet:
             say(f"{campaign.name}: {len(pending)} of {len(runs)} runs to do on {backend.description}")
+        bar = tqdm(total=len(runs), initial=before, unit="run", desc=campaign.name, disable=quiet or None,
+                   file=sys.stderr, dynamic_ncols=True, smoothing=0.05)
+        bar.set_postfix(failed=failed)
         queue = iter(pending)
         exhausted = False
         while not stop.is_set():
@@ -414,11 +493,13 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, engine: EngineOptions 
     except InfrastructureError as err:
         broken = str(err)
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
         if old_handler is not None:
             signal.signal(signal.SIGINT, old_handler)
-        if backend is not None:
-            backend.close(abandon=bool(in_flight) or stop.is_set() or broken is not None)
+        abandon = bool(in_flight) or stop.is_set() or broken is not None
+        if backend is not None and (own_backend or abandon):
+            backend.close(abandon=abandon)
         store.consolidate(out)
     return Outcome(len(runs), before, ran, failed, interrupted=stop.is_set(), broken=broken)
 

@@ -163,7 +163,8 @@ def _address_error(resolved: dict, key: str) -> str | None:
     """Why ``key`` cannot address a value of the resolved scenario dict (None when it can).
 
     Every table on the way must exist: setting ``convoy.gap_m`` on a scenario without a convoy would
-    otherwise create a whole default convoy. Set the table itself (``convoy = {...}``) to add one.
+    otherwise create a whole default convoy. To add a table, give it whole as a grid value
+    (``convoy = [{...}]``).
     """
     node: Any = resolved
     parts = key.split(".")
@@ -174,7 +175,8 @@ def _address_error(resolved: dict, key: str) -> str | None:
                 return f"{here}: unknown key; allowed: {', '.join(sorted(node))}"
             node = node[part]
             if node is None:
-                return f"{here} is not set in this scenario (set the whole table instead, e.g. {here} = {{...}})"
+                return (f"{here} is not set in this scenario (to add it, give the whole table as a grid value: "
+                        f"{here} = [{{...}}])")
         elif isinstance(node, list):
             if not part.isdigit() or int(part) >= len(node):
                 return f"{here}: no item {part!r}; allowed: 0..{len(node) - 1}"
@@ -247,8 +249,8 @@ def parse_campaign(data: dict, source: str = "<dict>", base_dir: Path | None = N
             scn = parse_scenario(raw)
         except ConfigError as err:
             raise ConfigError(where, f"scenario {entry}: {err}") from None
-        if any(s.name == scn.name for s in sources):
-            raise ConfigError(where, f"scenario name {scn.name!r} appears twice")
+        if any(_safe(s.name) == _safe(scn.name) for s in sources):
+            raise ConfigError(where, f"scenario name {scn.name!r} appears twice (names key the run ids)")
         sources.append(ScenarioSource(scn.name, entry, raw))
 
     for i, tracker in enumerate(spec.trackers):
@@ -266,7 +268,8 @@ def parse_campaign(data: dict, source: str = "<dict>", base_dir: Path | None = N
     for key in grid:
         _check_key(key, "grid")
         if key in RESERVED_COLUMNS:
-            raise ConfigError(f'grid."{key}"', f"clashes with a results column; reserved: {', '.join(RESERVED_COLUMNS)}")
+            raise ConfigError(f'grid."{key}"',
+                              f"clashes with a results column; reserved: {', '.join(RESERVED_COLUMNS)}")
     keys = [("overrides", k) for k in overrides] + [("grid", k) for k in grid]
     for (wa, a), (wb, b) in itertools.combinations(keys, 2):
         if a == b or b.startswith(a + ".") or a.startswith(b + "."):
