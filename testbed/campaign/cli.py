@@ -149,21 +149,11 @@ def add_campaign_parser(subparsers) -> argparse.ArgumentParser:
     return c
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="testbed campaign", description="Monte Carlo campaigns (docs/campaigns.md)")
-    sub = p.add_subparsers(dest="campaign_command", required=True)
-    _add_subcommands(sub)
-    return p
-
-
 def main(argv: list[str] | None = None) -> int:
-    """``python -m testbed.campaign.cli run|resume|report ...``."""
-    args = build_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    """``python -m testbed.campaign.cli run|resume|report ...`` = ``testbed campaign ...``."""
+    from testbed.cli import main as testbed_main
+
+    return testbed_main(["campaign", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":
