@@ -83,7 +83,11 @@ def _cmd_view(args: argparse.Namespace) -> int:
         return 2
     exe = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
     cmd = [exe, str(rrd)]
-    if args.web:
+    headless = sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    if headless and not args.web:
+        print("no display found: serving the web viewer on 127.0.0.1 instead (open the URL rerun prints; "
+              "Ctrl-C to stop)", file=sys.stderr)
+    if args.web or headless:
         cmd = [exe, "--serve-web", "--bind", "127.0.0.1", str(rrd)]
     env = dict(os.environ, RERUN_ANALYTICS="0")
     return subprocess.call(cmd, env=env)
