@@ -38,8 +38,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("runs") / scn.name
     with tqdm(total=scn.n_frames, desc=f"{scn.name} [{scn.tracker.name}]", unit="frame",
               disable=args.quiet or None, leave=False) as bar:
-        res = run_scenario(scn, out_dir=out, record=not args.no_record,
-                           on_frame=lambda i, n: bar.update(1))
+        try:
+            res = run_scenario(scn, out_dir=out, record=not args.no_record,
+                               on_frame=lambda i, n: bar.update(1))
+        except (ValueError, RuntimeError, ArithmeticError) as err:  # trackers' FilterError, JPDA overflow, ...
+            bar.close()
+            where = "; ".join(getattr(err, "__notes__", []))
+            print(f"error: {type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''} ({where}; "
+                  f"the tables of the frames before it are in {out}/)", file=sys.stderr)
+            return 1
     print(format_table({f"{scn.name}/{scn.tracker.name}": res.scores}))
     m = res.metrics
     print(f"HOTA {m['hota']:.3f}  MOTA {m['mota']:.3f}  MOTP {m['motp']:.3f}  IDF1 {m['idf1']:.3f}  "

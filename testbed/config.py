@@ -54,16 +54,11 @@ def _convert(tp: Any, value: Any, path: str) -> Any:
             return None
         if len(options) == 1:  # Optional[X]: report X's own, precise error
             return _convert(options[0], value, path)
-        errors = []
-        for arg in typing.get_args(tp):
-            if arg is type(None):
-                if value is None:
-                    return None
-                continue
+        for arg in options:
             try:
                 return _convert(arg, value, path)
-            except ConfigError as err:
-                errors.append(err)
+            except ConfigError:
+                continue
         raise ConfigError(path, f"expected {_type_name(tp)}, got {value!r}")
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):

@@ -172,9 +172,9 @@ class Recorder:
             pts = self.trajectories.setdefault(t.id, [])
             pts.append(np.array([t.state.x[0], t.state.x[1], 1.0]))
             del pts[:-TRAJECTORY_POINTS]
-        for tid in list(self.trajectories):
-            if tid not in {t.id for t in tracks}:
-                del self.trajectories[tid]
+        alive = {t.id for t in tracks}
+        for tid in [i for i in self.trajectories if i not in alive]:
+            del self.trajectories[tid]
         rec.log("world/tracks/trajectories", rr.LineStrips3D(
             [np.array(self.trajectories[i]) for i in sorted(live)], class_ids=sorted(live), radii=0.08))
 

@@ -83,71 +83,80 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     seen: set[int] = set()
     n = 0
     tic = time.perf_counter()
-    for truth in sim.frames():
-        now = time.perf_counter()
-        spent["simulation"] += now - tic
-        tic = now
+    try:
+        for truth in sim.frames():
+            now = time.perf_counter()
+            spent["simulation"] += now - tic
+            tic = now
 
-        boxes, ids = truth.boxes()
-        near = boxes_near(static, truth.xy[0], reach)
-        scene_boxes = np.vstack([boxes, static[near]])
-        scene_ids = np.concatenate([ids, np.full(int(near.sum()), -1, dtype=np.int64)])
-        scan = sensors.scan(lidar_cfg, truth.ego_pose, scene_boxes, scene_ids, rngs["lidar"])
-        now = time.perf_counter(); spent["raycast"] += now - tic; tic = now
+            boxes, ids = truth.boxes()
+            near = boxes_near(static, truth.xy[0], reach)
+            scene_boxes = np.vstack([boxes, static[near]])
+            scene_ids = np.concatenate([ids, np.full(int(near.sum()), -1, dtype=np.int64)])
+            scan = sensors.scan(lidar_cfg, truth.ego_pose, scene_boxes, scene_ids, rngs["lidar"])
+            now = time.perf_counter(); spent["raycast"] += now - tic; tic = now
 
-        perc = sensors.perceive(scan, perc_cfg)
-        dets = perc.detections
-        if clutter.density_per_m2 > 0:
-            dets = dets.concat(sensors.clutter_detections(rngs["clutter"], clutter.density_per_m2,
-                                                          truth.xy[0], clutter.radius_m))
-        now = time.perf_counter(); spent["perception"] += now - tic; tic = now
+            perc = sensors.perceive(scan, perc_cfg)
+            dets = perc.detections
+            if clutter.density_per_m2 > 0:
+                dets = dets.concat(sensors.clutter_detections(rngs["clutter"], clutter.density_per_m2,
+                                                              truth.xy[0], clutter.radius_m))
+            now = time.perf_counter(); spent["perception"] += now - tic; tic = now
 
-        result = tracker.step(tracks, dets.z, scn.dt if truth.frame > 0 else 0.0, next_id)
-        tracks, next_id = result.tracks, result.next_id
-        now = time.perf_counter(); spent["tracking"] += now - tic; tic = now
+            result = tracker.step(tracks, dets.z, scn.dt if truth.frame > 0 else 0.0, next_id)
+            tracks, next_id = result.tracks, result.next_id
+            now = time.perf_counter(); spent["tracking"] += now - tic; tic = now
 
-        seen.update(int(p) for p in dets.provenance if p >= 0)
-        reported = tuple(t for t in tracks if not t.candidate)  # candidates await a second measurement
-        _log_tables(truth, dets, reported, truth_t, det_t, trk_t)
+            seen.update(int(p) for p in dets.provenance if p >= 0)
+            reported = tuple(t for t in tracks if not t.candidate)  # candidates await a second measurement
+            _log_tables(truth, dets, reported, truth_t, det_t, trk_t)
+            if recorder is not None:
+                recorder.frame(truth, scan, perc, dets, reported, result.info, tracker.params.gate_alpha)
+            now = time.perf_counter(); spent["recording"] += now - tic; tic = now
+            n += 1
+            if on_frame is not None:
+                on_frame(n, scn.n_frames)
+    except Exception as err:  # keep what was computed: the tables of the frames before the failure
+        err.add_note(f"the run stopped at frame {n} (t = {n * scn.dt:.1f} s)")
         if recorder is not None:
-            recorder.frame(truth, scan, perc, dets, reported, result.info, tracker.params.gate_alpha)
-        now = time.perf_counter(); spent["recording"] += now - tic; tic = now
-        n += 1
-        if on_frame is not None:
-            on_frame(n, scn.n_frames)
+            recorder.close()
+        if out is not None:
+            for name, log in (("truth", truth_t), ("detections", det_t), ("tracks", trk_t)):
+                log.write(out / f"{name}.parquet")
+        raise
 
     if recorder is not None:
         t0 = time.perf_counter()
         recorder.close()
         spent["recording"] += time.perf_counter() - t0
 
-    truth_cols = {c: truth_t.array(c) for c in ("frame", "vehicle_id", "x", "y", "vx", "vy", "is_ego")}
-    keep = ~truth_cols["is_ego"]
-    scores = score_run(
-        truth=dict(frame=truth_cols["frame"][keep], vehicle_id=truth_cols["vehicle_id"][keep],
-                   xy=np.column_stack([truth_cols["x"], truth_cols["y"]])[keep],
-                   v=np.column_stack([truth_cols["vx"], truth_cols["vy"]])[keep]),
-        tracks=dict(frame=trk_t.array("frame"), track_id=trk_t.array("track_id"),
-                    confirmed=trk_t.array("status") == "confirmed",
-                    xy=np.column_stack([trk_t.array("x"), trk_t.array("y")]),
-                    v=np.column_stack([trk_t.array("vx"), trk_t.array("vy")])),
-        seen_vehicles=np.array(sorted(seen), dtype=np.int64),
-        match_distance_m=scn.scoring.match_distance_m, correct_fraction=scn.scoring.correct_fraction,
-    )
-    confirmed = trk_t.array("status") == "confirmed"
-    # CLEAR / Identity match within match_distance_m: TrackEval matches at similarity 0.5, and the
-    # similarity is 1 - d / (2 match_distance_m) (see testbed/mot_metrics.py).
-    metrics = mot_metrics(
-        truth=dict(frame=truth_cols["frame"][keep], vehicle_id=truth_cols["vehicle_id"][keep],
-                   xy=np.column_stack([truth_cols["x"], truth_cols["y"]])[keep]),
-        tracks=dict(frame=trk_t.array("frame")[confirmed], track_id=trk_t.array("track_id")[confirmed],
-                    xy=np.column_stack([trk_t.array("x"), trk_t.array("y")])[confirmed]),
-        n_frames=n, match_distance_m=2.0 * scn.scoring.match_distance_m, gospa_c=scn.scoring.match_distance_m)
+    scores, metrics = _score(scn, truth_t, trk_t, np.array(sorted(seen), dtype=np.int64), n)
     timings = {k: 1000.0 * v / max(n, 1) for k, v in spent.items()}
     res = RunResult(scn, scores, timings, n, out, dict(truth=truth_t, detections=det_t, tracks=trk_t), metrics)
     if out is not None:
         write_outputs(res, name)
     return res
+
+
+def _score(scn: Scenario, truth_t, trk_t, seen: np.ndarray, n_frames: int) -> tuple[Scores, dict[str, float]]:
+    """Thesis scores and the standard MOT metrics of a run, from its truth and track tables."""
+    keep = ~truth_t.array("is_ego")
+    truth = dict(frame=truth_t.array("frame")[keep], vehicle_id=truth_t.array("vehicle_id")[keep],
+                 xy=np.column_stack([truth_t.array("x"), truth_t.array("y")])[keep],
+                 v=np.column_stack([truth_t.array("vx"), truth_t.array("vy")])[keep])
+    tracks = dict(frame=trk_t.array("frame"), track_id=trk_t.array("track_id"),
+                  confirmed=trk_t.array("status") == "confirmed",
+                  xy=np.column_stack([trk_t.array("x"), trk_t.array("y")]),
+                  v=np.column_stack([trk_t.array("vx"), trk_t.array("vy")]))
+    sc = scn.scoring
+    scores = score_run(truth, tracks, seen, match_distance_m=sc.match_distance_m,
+                       correct_fraction=sc.correct_fraction)
+    conf = tracks["confirmed"]
+    # CLEAR / Identity match within match_distance_m: TrackEval matches at similarity 0.5, and the
+    # similarity is 1 - d / (2 match_distance_m) (see testbed/mot_metrics.py).
+    metrics = mot_metrics(truth, {k: tracks[k][conf] for k in ("frame", "track_id", "xy")}, n_frames,
+                          match_distance_m=2.0 * sc.match_distance_m, gospa_c=sc.match_distance_m)
+    return scores, metrics
 
 
 def _log_tables(truth, dets, tracks, truth_t, det_t, trk_t) -> None:

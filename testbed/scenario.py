@@ -8,7 +8,6 @@ key and the allowed values) on any malformed file. See ``docs/scenarios.md`` for
 from __future__ import annotations
 
 import copy
-import dataclasses
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -233,7 +232,7 @@ def _validate(scn: Scenario) -> Scenario:
     return scn
 
 
-def parse_scenario(data: dict, source: str = "<dict>") -> Scenario:
+def parse_scenario(data: dict) -> Scenario:
     """Build and validate a :class:`Scenario` from a TOML dict."""
     return _validate(from_dict(Scenario, data))
 
@@ -259,16 +258,9 @@ def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> 
     data = read_toml(path)
     if overrides:
         data = apply_overrides(data, overrides)
-    return parse_scenario(data, str(path))
+    return parse_scenario(data)
 
 
 def list_scenarios() -> list[str]:
     return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
 
-
-def scenario_dict(scn: Scenario) -> dict:
-    return to_dict(scn)
-
-
-def replace(scn: Scenario, **changes: Any) -> Scenario:
-    return dataclasses.replace(scn, **changes)

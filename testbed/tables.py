@@ -36,8 +36,7 @@ class TableLog:
         for name in self.columns:
             arr = self.array(name)
             if arr.ndim == 2:  # fixed-size list column (e.g. a flattened covariance)
-                data[name] = pa.FixedSizeListArray.from_arrays(pa.array(arr.reshape(-1)), arr.shape[1]) \
-                    if len(arr) else pa.array([], type=pa.list_(pa.float64(), 16))
+                data[name] = pa.FixedSizeListArray.from_arrays(pa.array(arr.reshape(-1)), arr.shape[1])
             else:
                 data[name] = pa.array(arr)
         return pa.table(data)

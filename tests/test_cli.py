@@ -66,3 +66,20 @@ def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(message), lines
     assert not (tmp_path / "o").exists()
+
+
+def test_a_run_that_fails_mid_way_keeps_its_tables_and_says_where(tmp_path):
+    # JPDA told to refuse any cluster with more than one joint event, with gates wide enough to merge tracks
+    out = tmp_path / "failed"
+    proc = _cli("run", "cut_in_out", "--set", "duration_s=2", "--set", "tracker.params.max_jpda_events=1",
+                "--set", "tracker.params.jpda_overflow='raise'", "--set", "tracker.params.gate_alpha=1e4",
+                "--out", str(out), "--quiet")
+    assert proc.returncode == 1
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: JPDAOverflowError: "), lines
+    assert "the run stopped at frame 2 (t = 0.2 s)" in lines[0]
+    import pandas as pd
+
+    truth = pd.read_parquet(out / "truth.parquet")
+    assert sorted(truth.frame.unique()) == [0, 1]  # the frames before the failure
+    assert (out / "run.rrd").is_file() and not (out / "scores.json").exists()

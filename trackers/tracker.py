@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Callable
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from trackers.association.params import OVERFLOW_MODES, AssociationParams
 from trackers.filters.base import Filter
@@ -252,8 +253,6 @@ def _pair_candidates(candidates: tuple[Track, ...], Zf: np.ndarray, dt: float,
     under a velocity uniform on the disk |v| <= v_max (§7.2-style LLR)."""
     if not candidates or len(Zf) == 0:
         return []
-    from scipy.optimize import linear_sum_assignment
-
     C = np.array([c.state.x[:MEASUREMENT_DIM] for c in candidates], dtype=np.float64)
     D = np.linalg.norm(C[:, None, :] - Zf[None, :, :], axis=-1)
     reach = p.v_max * dt + 3.0 * math.sqrt(2.0) * p.sigma_w

@@ -151,16 +151,24 @@ def _plot_rmse_vs_time(df, grid_keys, scenario, trackers, path: Path) -> bool:
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("time [s]")
         ax.grid(alpha=0.3)
-    for ax in axes.flat[len(points):]:
-        ax.set_visible(False)
     for ax in axes[:, 0]:
         ax.set_ylabel("position RMSE [m]")
     axes.flat[0].legend(fontsize=8)
-    fig.suptitle(f"Position RMSE of correctly tracked vehicles vs time (RMS over runs) — {scenario}", fontsize=10)
+    _save(fig, axes, len(points), f"Position RMSE of correctly tracked vehicles vs time (RMS over runs) — {scenario}",
+          path)
+    return drew
+
+
+def _save(fig, axes, used: int, title: str, path: Path) -> None:
+    """Hide the axes past the first ``used``, title, write ``path`` (PNG) and free the figure."""
+    import matplotlib.pyplot as plt
+
+    for ax in axes.flat[used:]:
+        ax.set_visible(False)
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    return drew
 
 
 def _plot_scores_vs_key(summary, key, grid_keys, grid_values, scenario, trackers, path: Path) -> bool:
@@ -214,13 +222,8 @@ def _plot_scores_vs_key(summary, key, grid_keys, grid_values, scenario, trackers
         ax.set_xlabel(key, fontsize=8)
         ax.set_ylabel(LABELS.get(score, score))
         ax.grid(alpha=0.3)
-    for ax in axes.flat[len(scores):]:
-        ax.set_visible(False)
     axes.flat[0].legend(fontsize=7)
-    fig.suptitle(f"Scores vs {key} (mean, 95 % CI) — {scenario}", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, axes, len(scores), f"Scores vs {key} (mean, 95 % CI) — {scenario}", path)
     return True
 
 
@@ -242,12 +245,7 @@ def _plot_scores_by_tracker(summary, scenario, trackers, path: Path) -> bool:
         ax.set_xticks(range(len(trackers)), trackers, rotation=20, fontsize=8)
         ax.set_ylabel(LABELS.get(score, score))
         ax.grid(alpha=0.3)
-    for ax in axes.flat[len(scores):]:
-        ax.set_visible(False)
-    fig.suptitle(f"Scores by tracker (mean, 95 % CI) — {scenario}", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, axes, len(scores), f"Scores by tracker (mean, 95 % CI) — {scenario}", path)
     return True
 
 
