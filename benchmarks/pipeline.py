@@ -20,10 +20,10 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 import numpy as np
 
 import sensors
-from testbed.roadside import boxes_near, roadside_boxes
+from testbed.roadside import boxes_near
 from testbed.run import rng_streams, run_scenario
 from testbed.scenario import load_scenario
-from testbed.simulation import Simulation, road_edges
+from testbed.simulation import Simulation, roadside_objects
 
 BUDGET_MS = 100.0
 
@@ -32,7 +32,7 @@ def perception_split(scn) -> dict[str, float]:
     """Median ms per frame of ground segmentation, clustering and the whole of perceive()."""
     rngs = rng_streams(scn.seed)
     sim = Simulation(scn)
-    static = roadside_boxes(road_edges(sim.network), scn.roadside, rngs["roadside"])
+    static = roadside_objects(sim.network, scn.roadside, rngs["roadside"])
     cfg = scn.sensor.perception
     t = {"ground": [], "clustering": [], "perceive": []}
     for truth in sim.frames():

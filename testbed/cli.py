@@ -49,10 +49,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
             return 1
     print(format_table({f"{scn.name}/{scn.tracker.name}": res.scores}))
     m = res.metrics
-    print(f"HOTA {m['hota']:.3f}  MOTA {m['mota']:.3f}  MOTP {m['motp']:.3f}  IDF1 {m['idf1']:.3f}  "
-          f"ID switches {m['id_switches']:.0f}  GOSPA {m['gospa']:.2f} m "
-          f"(per frame: missed {m['gospa_missed']:.2f}, false {m['gospa_false']:.2f}, "
-          f"localisation {m['gospa_localisation']:.2f} m^2)")
+    for label, sfx in (("visible truth", ""), ("all truth    ", "_all")):
+        print(f"{label}: HOTA {m['hota' + sfx]:.3f}  MOTA {m['mota' + sfx]:.3f}  MOTP {m['motp' + sfx]:.3f}  "
+              f"IDF1 {m['idf1' + sfx]:.3f}  ID switches {m['id_switches' + sfx]:.0f}  GOSPA {m['gospa' + sfx]:.2f} m "
+              f"(per frame: missed {m['gospa_missed' + sfx]:.2f}, false {m['gospa_false' + sfx]:.2f}, "
+              f"localisation {m['gospa_localisation' + sfx]:.2f} m^2)")
     per_frame = sum(res.timings_ms.values())
     print(f"\n{res.n_frames} frames, {per_frame:.1f} ms/frame "
           f"({', '.join(f'{k} {v:.1f}' for k, v in res.timings_ms.items())})")
@@ -106,8 +107,14 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
     for name in list_scenarios():
         try:
             scn = load_scenario(SCENARIO_DIR / f"{name}.toml")
-            print(f"{name:<16} {scn.duration_s:5.0f} s  {len(scn.all_vehicles()):2d} cars  "
-                  f"{scn.road.kind:<8} {scn.tracker.name:<10} {scn.description}")
+            if scn.env is not None:
+                cars, road = "env traffic", scn.env.id
+            elif scn.traffic.enabled:
+                cars, road = f"{len(scn.all_vehicles()):2d} + traffic", scn.road.kind
+            else:
+                cars, road = f"{len(scn.all_vehicles()):2d} cars", scn.road.kind
+            print(f"{name:<18} {scn.duration_s:6.0f} s  {cars:<12} {road:<14} {scn.tracker.name:<10} "
+                  f"{scn.description}")
         except ConfigError as err:
             print(f"{name:<16} INVALID: {err}")
     return 0

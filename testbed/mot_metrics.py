@@ -6,23 +6,25 @@ HOTA / CLEAR / Identity (TrackEval 1.3.0, called directly on a hand-built sequen
 --------------------------------------------------------------------------------------
 TrackEval scores pairs by a *similarity* in [0, 1]. Position distance ``d`` [m] is mapped to
 
-    s(d) = max(0, 1 - d / match_distance_m),
+    s(d) = max(0, 1 - d / similarity_scale_m),
 
-so ``s = 1`` at zero error, ``s = 0`` at and beyond ``match_distance_m``.
+so ``s = 1`` at zero error, ``s = 0`` at and beyond ``similarity_scale_m`` (the scenario key
+``scoring.similarity_scale_m``; by default the match distance, 3 m, so a CLEAR / Identity match, and a
+HOTA match at alpha = 0.5, needs ``d <= 1.5 m``).
 
 * HOTA (Luiten et al., "HOTA: A Higher Order Metric for Evaluating Multi-object Tracking", IJCV 2021)
   counts a pair as a match at localisation threshold ``alpha`` when ``s >= alpha``, i.e. when
-  ``d <= (1 - alpha) * match_distance_m``, for alpha = 0.05, 0.10, ..., 0.95 (19 values: 2.85 m down
-  to 0.15 m for the default 3 m). ``hota``, ``deta``, ``assa``, ``loca`` are the means over those 19
+  ``d <= (1 - alpha) * similarity_scale_m``, for alpha = 0.05, 0.10, ..., 0.95 (19 values: 2.85 m
+  down to 0.15 m for the default 3 m). ``hota``, ``deta``, ``assa``, ``loca`` are the means over those 19
   alphas of HOTA_alpha = sqrt(DetA_alpha * AssA_alpha), DetA_alpha, AssA_alpha, LocA_alpha: the values
   TrackEval prints. (So ``hota`` is not ``sqrt(deta * assa)`` in general.)
 * CLEAR (Bernardin & Stiefelhagen 2008) and Identity (Ristani et al. 2016) use TrackEval's default
   similarity threshold 0.5: a pair can be matched only when ``s >= 0.5``, i.e. when
-  ``d <= match_distance_m / 2`` (1.5 m for the default). CLEAR matching prefers the previous frame's
+  ``d <= similarity_scale_m / 2`` (1.5 m for the default). CLEAR matching prefers the previous frame's
   pairing, then maximum similarity; Identity is a global one-to-one id assignment.
     mota = 1 - (FN + FP + IDSW) / max(1, GT)              GT = number of truth rows
     motp = sum of s over CLEAR matches / max(1, TP)     a similarity, 1 = perfect; when TP > 0 the mean
-                                                        matched distance is (1 - motp) * match_distance_m [m]
+                                                        matched distance is (1 - motp) * similarity_scale_m [m]
     idf1 = IDTP / max(1, IDTP + 0.5 IDFP + 0.5 IDFN) = 2 IDTP / (GT + Q) when GT + Q > 0
     id_switches = IDSW: a truth matched to a tracker id other than the one it was last matched to.
 
@@ -50,6 +52,17 @@ identity loc + missed + false = GOSPA^p holds per frame; after averaging, ``gosp
 gospa_missed + gospa_false = mean_k GOSPA_k^p >= gospa^p`` (Jensen), with equality when GOSPA_k is
 constant over frames. ``gospa_missed / (c^p/2)`` is the mean number of missed vehicles per frame and
 ``gospa_false / (c^p/2)`` the mean number of false tracks per frame.
+
+Visible truth (the default set of a run)
+---------------------------------------
+A car the sensor cannot see (out of range, or hidden behind another) cannot be tracked from the
+measurements, so counting it as a miss measures the sensor, not the tracker. ``visible_truth`` keeps
+the truth rows hit by at least one beam in that frame and treats the hidden ones as *don't care*, as
+the MOTChallenge and KITTI benchmarks do with their ignored objects: per frame, tracks are first
+assigned one to one (Hungarian) to all truth within ``similarity_scale_m / 2`` (similarity >= 0.5);
+tracks assigned to a hidden car are removed (neither true nor false positives), then the hidden
+cars. A run reports the metrics on visible truth under the plain names and on all truth with the
+suffix ``_all``.
 
 Empty inputs (never an exception, never NaN)
 --------------------------------------------
@@ -139,23 +152,42 @@ def _check_rows(name: str, frame: np.ndarray, ids: np.ndarray, xy: np.ndarray, n
         raise ValueError(f"{name}: id {ids[k]} appears twice in frame {frame[k]}")
 
 
+def visible_truth(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray],
+                  similarity_scale_m: float) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Visible truth rows, and the tracks less those on hidden cars (see the module docstring).
+
+    truth: ``frame (N,)``, ``vehicle_id (N,)``, ``xy (N, 2)`` [m], ``visible (N,) bool``; tracks:
+    ``frame (Q,)``, ``track_id (Q,)``, ``xy (Q, 2)`` [m]. Returns both dicts with the same keys.
+    """
+    from .scoring import assign_frames
+
+    vis = np.asarray(truth["visible"], dtype=bool)
+    rt, rg = assign_frames(np.asarray(tracks["frame"]), np.asarray(tracks["xy"]).reshape(-1, 2),
+                           np.asarray(truth["frame"]), np.asarray(truth["xy"]).reshape(-1, 2),
+                           similarity_scale_m / 2.0)
+    keep = np.ones(len(tracks["frame"]), dtype=bool)
+    keep[rt[~vis[rg]]] = False
+    return ({k: np.asarray(v)[vis] for k, v in truth.items()},
+            {k: np.asarray(v)[keep] for k, v in tracks.items()})
+
+
 def mot_metrics(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray], n_frames: int,
-                match_distance_m: float = 3.0, gospa_c: float = 3.0, gospa_p: float = 2.0) -> dict[str, float]:
+                similarity_scale_m: float = 3.0, gospa_c: float = 3.0, gospa_p: float = 2.0) -> dict[str, float]:
     """HOTA / CLEAR / Identity (via TrackEval) and GOSPA for one run.
 
     truth: ``frame (N,) int64``, ``vehicle_id (N,) int64``, ``xy (N, 2) float64`` [m] (ego excluded).
     tracks: ``frame (Q,) int64``, ``track_id (Q,) int64``, ``xy (Q, 2) float64`` [m], confirmed tracks
     only. Frames are ``0 .. n_frames-1``; any frame may lack truth or tracks. An id may appear at most
     once per frame.
-    match_distance_m: distance [m] at which the TrackEval similarity ``max(0, 1 - d / match_distance_m)``
-    reaches 0; CLEAR / Identity then match pairs within ``match_distance_m / 2``.
+    similarity_scale_m: distance [m] at which the TrackEval similarity ``max(0, 1 - d / similarity_scale_m)``
+    reaches 0; CLEAR / Identity then match pairs within ``similarity_scale_m / 2``.
     gospa_c [m], gospa_p: GOSPA cut-off and order (alpha = 2).
 
     Returns a flat dict of floats with keys ``METRIC_KEYS``; definitions, GOSPA averaging and the
     values on empty input are in the module docstring.
     """
-    if not match_distance_m > 0:
-        raise ValueError(f"match_distance_m must be > 0, got {match_distance_m}")
+    if not similarity_scale_m > 0:
+        raise ValueError(f"similarity_scale_m must be > 0, got {similarity_scale_m}")
     if not (gospa_c > 0 and gospa_p >= 1):
         raise ValueError(f"GOSPA needs c > 0 and p >= 1, got c={gospa_c}, p={gospa_p}")
     n_frames = int(n_frames)
@@ -189,7 +221,7 @@ def mot_metrics(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray], n_f
         d = _pairwise(g_xy[gi], t_xy[ti])
         gt_ids.append(g_cid[gi])
         tr_ids.append(t_cid[ti])
-        sims.append(np.maximum(0.0, 1.0 - d / match_distance_m))
+        sims.append(np.maximum(0.0, 1.0 - d / similarity_scale_m))
         g_tot[f], g_loc[f], g_mis[f], g_fal[f] = _gospa_from_distances(d, float(gospa_c), float(gospa_p))
 
     data = {

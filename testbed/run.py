@@ -18,11 +18,11 @@ import sensors
 from trackers import make_tracker
 
 from .config import to_dict
-from .mot_metrics import mot_metrics
-from .roadside import boxes_near, roadside_boxes
+from .mot_metrics import mot_metrics, visible_truth
+from .roadside import boxes_near
 from .scenario import Scenario
 from .scoring import Scores, score_run
-from .simulation import Simulation, lane_polylines, road_edges
+from .simulation import lane_polylines, roadside_objects
 from .tables import detections_log, tracks_log, truth_log
 
 STAGES = ("simulation", "raycast", "perception", "tracking", "recording")
@@ -60,27 +60,21 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     name = tracker_name or scn.tracker.name
     tracker = make_tracker(name, **scn.tracker.params)
     rngs = rng_streams(scn.seed)
-    sim = Simulation(scn)
-    static = roadside_boxes(road_edges(sim.network), scn.roadside, rngs["roadside"])
+    from .envsource import make_simulation  # a highway-env environment ([env]) or our scripted traffic
+
+    sim = make_simulation(scn)
+    static = roadside_objects(sim.network, scn.roadside, rngs["roadside"])
     lidar_cfg, perc_cfg, clutter = scn.sensor.lidar, scn.sensor.perception, scn.sensor.clutter
-    reach = lidar_cfg.max_range_m + 10.0
 
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-    recorder = None
-    if out is not None and record:
-        from .recording import Recorder  # rerun is imported only when recording
-
-        recorder = Recorder(out / "run.rrd", recording_id=f"{scn.name}-seed{scn.seed}-{name}",
-                            lidar_every=scn.record.lidar_every, ground_decimation=scn.record.ground_decimation)
-        recorder.static(lane_polylines(sim.network), static)
+    recorder = _recorder(scn, out / "run.rrd", name, sim, static) if out is not None and record else None
 
     truth_t, det_t, trk_t = truth_log(), detections_log(), tracks_log()
     spent = dict.fromkeys(STAGES, 0.0)
     tracks: tuple = ()
     next_id = 1
-    seen: set[int] = set()
     n = 0
     tic = time.perf_counter()
     try:
@@ -89,11 +83,7 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
             spent["simulation"] += now - tic
             tic = now
 
-            boxes, ids = truth.boxes()
-            near = boxes_near(static, truth.xy[0], reach)
-            scene_boxes = np.vstack([boxes, static[near]])
-            scene_ids = np.concatenate([ids, np.full(int(near.sum()), -1, dtype=np.int64)])
-            scan = sensors.scan(lidar_cfg, truth.ego_pose, scene_boxes, scene_ids, rngs["lidar"])
+            scan = _scan(truth, static, lidar_cfg, rngs["lidar"])
             now = time.perf_counter(); spent["raycast"] += now - tic; tic = now
 
             perc = sensors.perceive(scan, perc_cfg)
@@ -107,9 +97,9 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
             tracks, next_id = result.tracks, result.next_id
             now = time.perf_counter(); spent["tracking"] += now - tic; tic = now
 
-            seen.update(int(p) for p in dets.provenance if p >= 0)
             reported = tuple(t for t in tracks if not t.candidate)  # candidates await a second measurement
-            _log_tables(truth, dets, reported, truth_t, det_t, trk_t)
+            _log_tables(truth, visibility(truth, scan, lidar_cfg.max_range_m), dets, reported,
+                        truth_t, det_t, trk_t)
             if recorder is not None:
                 recorder.frame(truth, scan, perc, dets, reported, result.info, tracker.params.gate_alpha)
             now = time.perf_counter(); spent["recording"] += now - tic; tic = now
@@ -130,7 +120,7 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         recorder.close()
         spent["recording"] += time.perf_counter() - t0
 
-    scores, metrics = _score(scn, truth_t, trk_t, np.array(sorted(seen), dtype=np.int64), n)
+    scores, metrics = score_tables(scn, truth_t, trk_t, n)
     timings = {k: 1000.0 * v / max(n, 1) for k, v in spent.items()}
     res = RunResult(scn, scores, timings, n, out, dict(truth=truth_t, detections=det_t, tracks=trk_t), metrics)
     if out is not None:
@@ -138,34 +128,73 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     return res
 
 
-def _score(scn: Scenario, truth_t, trk_t, seen: np.ndarray, n_frames: int) -> tuple[Scores, dict[str, float]]:
-    """Thesis scores and the standard MOT metrics of a run, from its truth and track tables."""
+def _scan(truth, static: np.ndarray, cfg: sensors.LidarConfig, rng: np.random.Generator) -> sensors.Scan:
+    """One LiDAR turn from the ego car at the vehicles (ego left out) and roadside boxes within reach."""
+    reach = cfg.max_range_m + 10.0
+    boxes, ids = truth.boxes()
+    cars = boxes_near(boxes, truth.xy[0], reach)  # a car beyond the LiDAR's reach returns no point
+    near = boxes_near(static, truth.xy[0], reach)
+    scene_boxes = np.vstack([boxes[cars], static[near]])
+    scene_ids = np.concatenate([ids[cars], np.full(int(near.sum()), -1, dtype=np.int64)])
+    return sensors.scan(cfg, truth.ego_pose, scene_boxes, scene_ids, rng)
+
+
+def _recorder(scn: Scenario, path: Path, tracker_name: str, sim, static: np.ndarray):
+    """A :class:`~testbed.recording.Recorder` with the road and roadside objects logged."""
+    from .recording import FOOTER_MAX_FRAMES, Recorder  # rerun is imported only when recording
+
+    rec = Recorder(path, recording_id=f"{scn.name}-seed{scn.seed}-{tracker_name}",
+                   lidar_every=scn.record.lidar_every, ground_decimation=scn.record.ground_decimation,
+                   write_footer=scn.n_frames <= FOOTER_MAX_FRAMES)
+    rec.static(lane_polylines(sim.network), static)
+    return rec
+
+
+def visibility(truth, scan, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per vehicle of ``truth`` (K,): LiDAR points that hit it (int64) and whether its centre lies
+    within ``max_range_m`` of the sensor (bool)."""
+    ids, counts = np.unique(scan.source[scan.source >= 0], return_counts=True)
+    n_points = np.zeros(len(truth.ids), dtype=np.int64)
+    if len(ids):
+        at = np.minimum(np.searchsorted(ids, truth.ids), len(ids) - 1)
+        hit = ids[at] == truth.ids
+        n_points[hit] = counts[at[hit]]
+    in_range = np.hypot(*(truth.xy - scan.origin[:2]).T) <= max_range_m
+    return n_points, in_range
+
+
+def score_tables(scn: Scenario, truth_t, trk_t, n_frames: int) -> tuple[Scores, dict[str, float]]:
+    """Thesis scores and the MOT metrics (visible truth, and all truth as ``*_all``) of a run's tables."""
     keep = ~truth_t.array("is_ego")
+    sc = scn.scoring
     truth = dict(frame=truth_t.array("frame")[keep], vehicle_id=truth_t.array("vehicle_id")[keep],
                  xy=np.column_stack([truth_t.array("x"), truth_t.array("y")])[keep],
-                 v=np.column_stack([truth_t.array("vx"), truth_t.array("vy")])[keep])
+                 v=np.column_stack([truth_t.array("vx"), truth_t.array("vy")])[keep],
+                 visible=truth_t.array("n_points")[keep] >= sc.visible_min_points)
     tracks = dict(frame=trk_t.array("frame"), track_id=trk_t.array("track_id"),
                   confirmed=trk_t.array("status") == "confirmed",
                   xy=np.column_stack([trk_t.array("x"), trk_t.array("y")]),
                   v=np.column_stack([trk_t.array("vx"), trk_t.array("vy")]))
-    sc = scn.scoring
-    scores = score_run(truth, tracks, seen, match_distance_m=sc.match_distance_m,
-                       correct_fraction=sc.correct_fraction)
+    scores = score_run(truth, tracks, match_distance_m=sc.match_distance_m, correct_fraction=sc.correct_fraction)
     conf = tracks["confirmed"]
-    # CLEAR / Identity match within match_distance_m: TrackEval matches at similarity 0.5, and the
-    # similarity is 1 - d / (2 match_distance_m) (see testbed/mot_metrics.py).
-    metrics = mot_metrics(truth, {k: tracks[k][conf] for k in ("frame", "track_id", "xy")}, n_frames,
-                          match_distance_m=2.0 * sc.match_distance_m, gospa_c=sc.match_distance_m)
+    scale = sc.similarity_scale_m or sc.match_distance_m
+    g_all = {k: truth[k] for k in ("frame", "vehicle_id", "xy", "visible")}
+    t_all = {k: tracks[k][conf] for k in ("frame", "track_id", "xy")}
+    g_vis, t_vis = visible_truth(g_all, t_all, scale)
+    kw = dict(similarity_scale_m=scale, gospa_c=sc.match_distance_m)
+    metrics = mot_metrics(g_vis, t_vis, n_frames, **kw)
+    metrics.update({f"{k}_all": v for k, v in mot_metrics(g_all, t_all, n_frames, **kw).items()})
     return scores, metrics
 
 
-def _log_tables(truth, dets, tracks, truth_t, det_t, trk_t) -> None:
+def _log_tables(truth, vis, dets, tracks, truth_t, det_t, trk_t) -> None:
     k = len(truth.ids)
     truth_t.append(frame=np.full(k, truth.frame), time=np.full(k, truth.time), vehicle_id=truth.ids,
                    name=np.array(truth.names, dtype=object), is_ego=truth.ids == truth.ids[0],
                    x=truth.xy[:, 0], y=truth.xy[:, 1], heading=truth.heading, vx=truth.velocity[:, 0],
                    vy=truth.velocity[:, 1], length=truth.size[:, 0], width=truth.size[:, 1],
-                   height=truth.size[:, 2], lane=truth.lane, crashed=truth.crashed)
+                   height=truth.size[:, 2], lane=truth.lane, crashed=truth.crashed,
+                   n_points=vis[0], in_range=vis[1])
     m = len(dets.z)
     det_t.append(frame=np.full(m, truth.frame), time=np.full(m, truth.time), x=dets.z[:, 0], y=dets.z[:, 1],
                  provenance=dets.provenance, n_points=dets.n_points, length=dets.extent[:, 0],

@@ -16,11 +16,12 @@ from typing import Any
 from sensors import LidarConfig, PerceptionConfig
 
 from .config import ConfigError, field, from_dict, non_negative, positive, to_dict
+from .envsource import EnvSpec, check_env_scenario
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 
 BEHAVIOURS = ("idm", "hold_speed", "follow")
-ROAD_KINDS = ("straight", "curved", "u_turn")
+ROAD_KINDS = ("straight", "curved", "u_turn", "motorway")
 
 
 @dataclass(frozen=True)
@@ -88,7 +89,9 @@ class ConvoySpec:
 
 @dataclass(frozen=True)
 class RoadSpec:
-    """Road geometry. ``curved``: straight, arc, straight; ``u_turn``: highway-env's U-turn road."""
+    """Road geometry. ``curved``: straight, arc, straight; ``u_turn``: highway-env's U-turn road;
+    ``motorway``: a straight carriageway of ``lanes`` lanes in +x and, beyond a median of ``median_m``, the
+    opposite carriageway of ``lanes`` lanes in -x (its lane ``lanes - 1`` next to the median)."""
 
     kind: str = field("straight", doc="road geometry", choices=ROAD_KINDS)
     lanes: int = field(3, doc="lanes per direction (u_turn: always 2)", check=(lambda v: 1 <= v <= 8, "1..8"))
@@ -97,6 +100,8 @@ class RoadSpec:
     curve_angle_deg: float = field(45.0, doc="curved: turn angle, > 0 turns left [deg]",
                                    check=(lambda v: 0 < abs(v) <= 180, "0 < |angle| <= 180"))
     speed_limit_mps: float = field(30.0, doc="speed limit [m/s]", **positive())
+    median_m: float = field(4.0, doc="motorway: width of the median between the carriageways' inner lane "
+                            "edges [m]", **positive())
 
 
 @dataclass(frozen=True)
@@ -109,6 +114,82 @@ class RoadsideSpec:
     trees_per_km: float = field(20.0, doc="trees (0.4 m trunk, crown from 2.2-3.5 m up) per km per side", **non_negative())
     bushes_per_km: float = field(3.0, doc="bushes (0.8-2.5 m high) per km per side", **non_negative())
     signs_per_km: float = field(2.0, doc="sign panels per km per side", **non_negative())
+
+
+def _speed_range() -> dict:
+    return {"check": (lambda v: 0 <= v[0] <= v[1], "[min, max] with 0 <= min <= max")}
+
+
+def _size_range() -> dict:
+    return {"check": (lambda v: 0 < v[0] <= v[1], "[min, max] with 0 < min <= max")}
+
+
+def _lane_list() -> dict:
+    return {"check": (lambda v: all(i >= 0 for i in v), "a list of lane indices >= 0")}
+
+
+def _share() -> dict:
+    return {"check": (lambda v: 0 <= v <= 1, "in [0, 1]")}
+
+
+@dataclass(frozen=True)
+class TrafficSpec:
+    """Random background traffic around the ego car, drawn from the scenario seed (``testbed/traffic.py``).
+
+    Give ``count`` or ``density_per_km_lane``, not both (an error); with neither (the default) there is no
+    background traffic and the scenario runs exactly as scripted. Traffic lives in a window from
+    ``window_behind_m`` behind to ``window_ahead_m`` ahead of the ego car: a vehicle leaving it is removed,
+    and new vehicles (each with a new id) enter at its edges at the rate that keeps the density.
+    ``hold_speed`` vehicles ignore traffic and run into slower cars ahead: in traffic, script cars with
+    ``idm`` or ``follow``.
+    """
+
+    count: int = field(0, doc="background vehicles in the window at the start; the density this makes is "
+                       "kept afterwards", **non_negative())
+    density_per_km_lane: float = field(0.0, doc="background vehicles per km per lane, kept in the window",
+                                       **non_negative())
+    lanes: tuple[int, ...] | None = field(None, doc="lanes of the ego's carriageway with traffic (default: "
+                                          "all)", **_lane_list())
+    opposite_lanes: tuple[int, ...] | None = field(None, doc="motorway: lanes of the opposite carriageway "
+                                                   "with traffic (default: all, [] = none)", **_lane_list())
+    speed_mps: tuple[float, float] = field((22.0, 33.0), doc="range of car speeds [m/s]", **_speed_range())
+    mobil_share: float = field(0.0, doc="share of cars that change lanes by MOBIL (trucks keep their lane)",
+                               **_share())
+    idm_spread: float = field(0.0, doc="relative spread s: each vehicle's IDM time gap, jam distance and "
+                              "target speed (relative to its start speed) are scaled by U(1 - s, 1 + s)",
+                              check=(lambda v: 0 <= v < 1, "in [0, 1)"))
+    truck_share: float = field(0.0, doc="share of trucks among the vehicles of truck_lanes", **_share())
+    truck_lanes: tuple[int, ...] | None = field(None, doc="lanes (of either carriageway) where trucks drive "
+                                                "(default: all)", **_lane_list())
+    truck_speed_mps: tuple[float, float] = field((22.0, 25.0), doc="range of truck speeds [m/s]",
+                                                 **_speed_range())
+    car_length_m: tuple[float, float] = field((4.2, 5.0), doc="range of car lengths [m]", **_size_range())
+    car_width_m: tuple[float, float] = field((1.75, 2.0), doc="range of car widths [m]", **_size_range())
+    car_height_m: tuple[float, float] = field((1.4, 1.7), doc="range of car heights [m]", **_size_range())
+    truck_length_m: tuple[float, float] = field((12.0, 18.75), doc="range of truck lengths [m]",
+                                                **_size_range())
+    truck_width_m: tuple[float, float] = field((2.45, 2.55), doc="range of truck widths [m]", **_size_range())
+    truck_height_m: tuple[float, float] = field((3.4, 4.0), doc="range of truck heights [m]", **_size_range())
+    min_gap_m: float = field(8.0, doc="least bumper-to-bumper gap to any vehicle when a vehicle is spawned "
+                             "(which also starts no faster than its IDM gap to the leader allows) [m]",
+                             **positive())
+    window_behind_m: float = field(300.0, doc="traffic is kept from this far behind the ego car [m]",
+                                   **positive())
+    window_ahead_m: float = field(400.0, doc="to this far ahead of the ego car [m]", **positive())
+    position_jitter_m: float = field(0.0, doc="scripted vehicles (not the ego) start U(-j, j) from their "
+                                     "position_m [m]", **non_negative())
+    speed_jitter_mps: float = field(0.0, doc="scripted vehicles (not the ego) start U(-j, j) from their "
+                                    "speed_mps (and cruise at it unless target_speed_mps is set) [m/s]",
+                                    **non_negative())
+
+    def __post_init__(self) -> None:
+        if self.count > 0 and self.density_per_km_lane > 0:
+            raise ConfigError("density_per_km_lane", "give count or density_per_km_lane, not both")
+
+    @property
+    def enabled(self) -> bool:
+        """Whether there is background traffic."""
+        return self.count > 0 or self.density_per_km_lane > 0
 
 
 @dataclass(frozen=True)
@@ -138,6 +219,12 @@ class ScoringSpec:
     correct_fraction: float = field(0.5, doc="a confirmed track is correct when matched to one vehicle for "
                                     "at least this fraction of its confirmed life",
                                     check=(lambda v: 0 < v <= 1, "in (0, 1]"))
+    visible_min_points: int = field(1, doc="a vehicle is visible in a frame when at least this many LiDAR "
+                                    "points hit it (cars seen, visible-truth MOT metrics)", **positive())
+    similarity_scale_m: float | None = field(None, doc="MOT metrics: distance [m] at which the similarity "
+                                             "1 - d / scale reaches 0, so a CLEAR / Identity match (HOTA at "
+                                             "alpha 0.5) needs d <= scale / 2 (default: match_distance_m)",
+                                             **positive())
 
 
 @dataclass(frozen=True)
@@ -159,6 +246,8 @@ class Scenario:
     ego: VehicleSpec = field(VehicleSpec(name="ego"), doc="the car carrying the LiDAR")
     vehicles: tuple[VehicleSpec, ...] = field((), doc="other vehicles")
     convoy: ConvoySpec | None = field(None, doc="optional convoy, added after `vehicles`")
+    traffic: TrafficSpec = field(TrafficSpec(), doc="random background traffic (default: none)")
+    env: EnvSpec | None = field(None, doc="a registered highway-env environment as the traffic source, instead of road, ego, vehicles, convoy and traffic (testbed/envsource.py)")
     sensor: SensorSpec = field(SensorSpec(), doc="sensor")
     tracker: TrackerSpec = field(TrackerSpec(), doc="tracker")
     scoring: ScoringSpec = field(ScoringSpec(), doc="scoring")
@@ -218,6 +307,8 @@ def _validate(scn: Scenario) -> Scenario:
         make_tracker(scn.tracker.name, **scn.tracker.params)
     except (ValueError, TypeError) as err:
         raise ConfigError("tracker.params", str(err).splitlines()[0]) from None
+    if scn.env is not None:
+        check_env_scenario(scn)
     lanes = 2 if scn.road.kind == "u_turn" else scn.road.lanes
     paths = ["ego"] + [f"vehicles[{i}]" for i in range(len(scn.vehicles))]
     if scn.convoy is not None:
@@ -229,7 +320,19 @@ def _validate(scn: Scenario) -> Scenario:
         if not 0 <= v.position_m <= scn.road.length_m:
             key = "front_position_m" if where == "convoy" else "position_m"
             raise ConfigError(f"{where}.{key}", f"{v.position_m} m is off the road; allowed: 0..{scn.road.length_m}")
+    _validate_traffic(scn.traffic, scn.road, lanes)
     return scn
+
+
+def _validate_traffic(spec: TrafficSpec, road: RoadSpec, lanes: int) -> None:
+    """Lane lists of ``[traffic]`` against the road (``lanes`` lanes per carriageway)."""
+    if spec.opposite_lanes and road.kind != "motorway":
+        raise ConfigError("traffic.opposite_lanes", f"road.kind {road.kind!r} has no opposite carriageway; "
+                          "allowed: [] (or road.kind = 'motorway')")
+    for key in ("lanes", "opposite_lanes", "truck_lanes"):
+        bad = [i for i in getattr(spec, key) or () if i >= lanes]
+        if bad:
+            raise ConfigError(f"traffic.{key}", f"lane {bad[0]} does not exist; allowed: 0..{lanes - 1}")
 
 
 def parse_scenario(data: dict) -> Scenario:

@@ -3,8 +3,13 @@
 We build highway-env's own ``Road``/``RoadNetwork``/vehicle objects from a :class:`Scenario` and step
 ``road.act(); road.step(dt)`` directly (what ``AbstractEnv._simulate`` does per physics tick), without the
 gym wrapper: its observation and reward code costs more than the traffic and is not needed. Nothing
-random is drawn by highway-env here (no MOBIL randomisation, single-successor road graphs), so the same
-scenario always gives the same truth.
+random is drawn by highway-env here (no MOBIL randomisation, single-successor road graphs); the random
+background traffic of ``[traffic]`` (``testbed/traffic.py``) draws from its own stream of the scenario seed,
+so the same scenario and seed always give the same truth.
+
+Vehicle ids: the ego is 0, the scripted vehicles 1..n in ``Scenario.all_vehicles()`` order, background
+vehicles n+1, n+2, ... in spawn order (never reused). A frame holds the vehicles on the road at that time:
+the ego first, then the scripted ones, then the background vehicles in the window.
 """
 from __future__ import annotations
 
@@ -20,14 +25,20 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle
 
-from .scenario import RoadSpec, Scenario, VehicleSpec
+from .roadside import clear_of_lanes, roadside_boxes
+from .scenario import RoadsideSpec, RoadSpec, Scenario, TrafficSpec, VehicleSpec
+from .traffic import (BackgroundTraffic, Carriageway, TrafficNetwork, TrafficRoad, jitter_specs, make_carriageway,
+                      traffic_rngs)
 
 LANE_WIDTH = StraightLane.DEFAULT_WIDTH  # 4 m
+FIRST_SEGMENT = ("a", "b")  # the ego's carriageway starts at node "a" (every road kind)
+OPPOSITE_SEGMENT = ("B", "A")  # motorway: the opposite carriageway, from x = length_m back to x = 0
 
 
 @dataclass(frozen=True)
 class TruthFrame:
-    """Simulator truth at one sensor frame. K vehicles (ego included, at index 0).
+    """Simulator truth at one sensor frame. K vehicles (ego included, at index 0); K varies with background
+    traffic.
 
     ids (K,) int64 stable vehicle ids; xy (K, 2) centre [m]; heading (K,) [rad]; velocity (K, 2) [m/s];
     size (K, 3) length, width, height [m]; lane (K,) int64 current lane index; crashed (K,) bool.
@@ -79,10 +90,30 @@ class GapFollower(IDMVehicle):
         return float(np.clip(acc, self.COMFORT_ACC_MIN, self.COMFORT_ACC_MAX))
 
 
+def _motorway(net: RoadNetwork, spec: RoadSpec) -> None:
+    """Two straight carriageways of ``spec.lanes`` lanes: a->b in +x (lane 0 at y = 0, the rightmost) and,
+    beyond the median, B->A in -x (its lane 0 outermost, its lane ``lanes - 1`` next to the median)."""
+    c, s, n = LineType.CONTINUOUS_LINE, LineType.STRIPED, LineType.NONE
+    lanes, length = spec.lanes, spec.length_m
+    fast_y = (lanes - 1) * LANE_WIDTH + LANE_WIDTH + spec.median_m  # centre of the opposite lane lanes-1
+    for i in range(lanes):
+        types = (c if i == 0 else s, c if i == lanes - 1 else n)
+        net.add_lane(*FIRST_SEGMENT, StraightLane([0, i * LANE_WIDTH], [length, i * LANE_WIDTH], line_types=types,
+                                                  speed_limit=spec.speed_limit_mps))
+    for j in range(lanes):
+        y = fast_y + (lanes - 1 - j) * LANE_WIDTH
+        types = (c if j == 0 else s, c if j == lanes - 1 else n)
+        net.add_lane(*OPPOSITE_SEGMENT, StraightLane([length, y], [0, y], line_types=types,
+                                                     speed_limit=spec.speed_limit_mps))
+
+
 def build_network(spec: RoadSpec) -> tuple[RoadNetwork, tuple[str, str]]:
     """Road network and the (from, to) nodes of its first segment."""
     net = RoadNetwork()
     c, s, n = LineType.CONTINUOUS_LINE, LineType.STRIPED, LineType.NONE
+    if spec.kind == "motorway":
+        _motorway(net, spec)
+        return net, FIRST_SEGMENT
     if spec.kind == "u_turn":
         # Same construction as highway-env's u-turn-v0 (UTurnEnv._make_road), with a configurable length.
         length, radius = spec.length_m, 20.0
@@ -144,6 +175,27 @@ def lane_polylines(net: RoadNetwork, step_m: float = 2.0) -> list[np.ndarray]:
     return lines
 
 
+def lane_centres(net: RoadNetwork, step_m: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centre lines of every lane, sampled every ``step_m``: points (P, 2) [m], heading (P,) [rad] and
+    half width (P,) [m]."""
+    pts, heads, half = [], [], []
+    for lanes in net.graph.values():
+        for lane_list in lanes.values():
+            for lane in lane_list:
+                s = np.append(np.arange(0.0, lane.length, step_m), lane.length)
+                pts += [lane.position(si, 0.0) for si in s]
+                heads += [lane.heading_at(si) for si in s]
+                half += [lane.width_at(si) / 2 for si in s]
+    return (np.asarray(pts, dtype=np.float64).reshape(-1, 2), np.asarray(heads, dtype=np.float64),
+            np.asarray(half, dtype=np.float64))
+
+
+def roadside_objects(net: RoadNetwork, spec: RoadsideSpec, rng: np.random.Generator) -> np.ndarray:
+    """The roadside boxes ``(K, 7)`` of a road network (testbed/roadside.py), none of them on a lane."""
+    boxes = roadside_boxes(road_edges(net), spec, rng)
+    return boxes[clear_of_lanes(boxes, *lane_centres(net))]
+
+
 def road_edges(net: RoadNetwork, step_m: float = 1.0) -> list[tuple[np.ndarray, np.ndarray]]:
     """Outer road edges: list of (points (P, 2), outward unit normals (P, 2)) [m]."""
     edges = []
@@ -157,6 +209,16 @@ def road_edges(net: RoadNetwork, step_m: float = 1.0) -> list[tuple[np.ndarray, 
                 normal = sign * np.column_stack([-np.sin(heads), np.cos(heads)])
                 edges.append((pts.reshape(-1, 2), normal.reshape(-1, 2)))
     return edges
+
+
+def carriageways(net: RoadNetwork, road: RoadSpec, spec: TrafficSpec) -> list[Carriageway]:
+    """The carriageways with background traffic: the ego's (chain from node "a") and the motorway's opposite."""
+    n_lanes = 2 if road.kind == "u_turn" else road.lanes
+    out = [make_carriageway(net, FIRST_SEGMENT[0], 1.0, spec.lanes if spec.lanes is not None else range(n_lanes))]
+    if road.kind == "motorway":
+        lanes = spec.opposite_lanes if spec.opposite_lanes is not None else range(n_lanes)
+        out.append(make_carriageway(net, OPPOSITE_SEGMENT[0], -1.0, lanes))
+    return [cw for cw in out if cw.lanes]
 
 
 def _make_vehicle(road: Road, spec: VehicleSpec, first: tuple[str, str]):
@@ -175,40 +237,59 @@ def _make_vehicle(road: Road, spec: VehicleSpec, first: tuple[str, str]):
         v.target_speed = 0.0
     v.LENGTH, v.WIDTH = spec.length_m, spec.width_m  # instance attributes: collisions and IDM gaps use them
     v.diagonal = np.sqrt(v.LENGTH**2 + v.WIDTH**2)
+    v.HEIGHT = spec.height_m  # [m], read into the truth like LENGTH and WIDTH
     return v
 
 
 class Simulation:
-    """Scripted highway-env traffic for one scenario; iterate :meth:`frames` for truth at the sensor rate."""
+    """Scripted highway-env traffic for one scenario, plus the optional background traffic of ``[traffic]``;
+    iterate :meth:`frames` for truth at the sensor rate."""
 
     def __init__(self, scenario: Scenario):
         self.scenario = scenario
         self.network, first = build_network(scenario.road)
+        spec = scenario.traffic
         # np_random is only used by highway-env to break ties between several successor lanes; our road
-        # graphs have one successor per lane, but seed it anyway.
-        self.road = Road(network=self.network, np_random=np.random.RandomState(scenario.seed))
-        self.specs = scenario.all_vehicles()
-        self.vehicles = [_make_vehicle(self.road, spec, first) for spec in self.specs]
-        self.road.vehicles.extend(self.vehicles)
-        self.names = tuple(spec.name or ("ego" if i == 0 else f"car{i}") for i, spec in enumerate(self.specs))
-        self.ids = np.arange(len(self.vehicles), dtype=np.int64)
-        self.heights = np.array([spec.height_m for spec in self.specs], dtype=np.float64)
-        self._changes = [list(spec.lane_changes) for spec in self.specs]
+        # graphs have one successor per lane, but seed it anyway. TrafficRoad only with background traffic,
+        # so that scripted scenarios stay exactly as they were.
+        road_cls = TrafficRoad if spec.enabled else Road
+        if spec.enabled:
+            self.network = TrafficNetwork.of(self.network)
+        self.road = road_cls(network=self.network, np_random=np.random.RandomState(scenario.seed))
+        jitter_rng, traffic_rng = traffic_rngs(scenario.seed)
+        self.specs = jitter_specs(scenario.all_vehicles(), spec, scenario.road.length_m, jitter_rng)
+        for i, vspec in enumerate(self.specs):
+            v = _make_vehicle(self.road, vspec, first)
+            v.truth_id, v.truth_name = i, vspec.name or ("ego" if i == 0 else f"car{i}")
+            self.road.vehicles.append(v)
+        self.scripted = tuple(self.road.vehicles)
+        self._changes = [list(vspec.lane_changes) for vspec in self.specs]
+        self.traffic: BackgroundTraffic | None = None
+        if spec.enabled:
+            cws = carriageways(self.network, scenario.road, spec)
+            self.traffic = BackgroundTraffic(self.road, spec, cws, self.scripted[0], traffic_rng, len(self.specs))
+            self.traffic.populate()
+
+    @property
+    def vehicles(self) -> list:
+        """The vehicles on the road now: ego, scripted, background (highway-env objects)."""
+        return self.road.vehicles
 
     def _truth(self, frame: int, time: float) -> TruthFrame:
-        vs = self.vehicles
+        vs = self.road.vehicles
         return TruthFrame(
-            frame=frame, time=time, ids=self.ids.copy(), names=self.names,
+            frame=frame, time=time, ids=np.array([v.truth_id for v in vs], dtype=np.int64),
+            names=tuple(v.truth_name for v in vs),
             xy=np.array([v.position for v in vs], dtype=np.float64).reshape(-1, 2),
             heading=np.array([v.heading for v in vs], dtype=np.float64),
             velocity=np.array([v.velocity for v in vs], dtype=np.float64).reshape(-1, 2),
-            size=np.column_stack([[v.LENGTH for v in vs], [v.WIDTH for v in vs], self.heights]).astype(np.float64),
+            size=np.array([[v.LENGTH, v.WIDTH, v.HEIGHT] for v in vs], dtype=np.float64).reshape(-1, 3),
             lane=np.array([v.lane_index[2] for v in vs], dtype=np.int64),
             crashed=np.array([v.crashed for v in vs], dtype=bool),
         )
 
     def _apply_scripts(self, time: float) -> None:
-        for v, changes in zip(self.vehicles, self._changes):
+        for v, changes in zip(self.scripted, self._changes):
             while changes and changes[0].at_s <= time + 1e-9:
                 lane = changes.pop(0).lane
                 v.target_lane_index = (v.lane_index[0], v.lane_index[1], lane)
@@ -224,4 +305,6 @@ class Simulation:
                     self._apply_scripts((k - 1) * scn.dt + sub * dt)
                     self.road.act()
                     self.road.step(dt)
+                if self.traffic is not None:
+                    self.traffic.update(scn.dt)
             yield self._truth(k, time)

@@ -1,6 +1,6 @@
 """The run's data as Parquet tables (columns documented in README.md, "Output files").
 
-Rows are accumulated per frame as NumPy blocks and concatenated once at the end.
+Rows are copied per frame into preallocated column chunks and concatenated once at the end.
 """
 from __future__ import annotations
 
@@ -10,46 +10,88 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+CHUNK_ROWS = 4096
+ROW_GROUP_ROWS = 8192
+
 
 class TableLog:
-    """Column blocks appended per frame; ``table()`` builds a pyarrow Table."""
+    """Columns appended per frame; ``array(name)`` and ``table()`` return the rows appended so far.
 
-    def __init__(self, columns: dict[str, type]):
+    Each column is a list of preallocated chunks of ``chunk_rows`` rows, filled in order: a run of F frames
+    allocates O(F / chunk_rows) blocks. Keeping one small array per column per frame instead (thousands of
+    small long-lived blocks, allocated between each frame's large freed LiDAR temporaries) fragments the C
+    heap: the small blocks pin the freed space so the next frame's large temporaries do not fit in it, and
+    a run's RSS grew by ~0.7 MB per frame (benchmarks/memory.py).
+    """
+
+    def __init__(self, columns: dict[str, type], chunk_rows: int = CHUNK_ROWS):
         self.columns = columns
-        self.blocks: dict[str, list[np.ndarray]] = {c: [] for c in columns}
+        self.chunk_rows = chunk_rows
+        self.n_rows = 0
+        self._chunks: dict[str, list[np.ndarray]] = {name: [] for name in columns}
+        self._row_shapes: dict[str, tuple[int, ...]] = {}  # set by the first append, e.g. (16,) for a covariance
 
     def append(self, **cols: np.ndarray) -> None:
         n = {len(np.asarray(v)) for v in cols.values()}
         if len(n) != 1:
             raise ValueError(f"columns of unequal length: { {k: len(np.asarray(v)) for k, v in cols.items()} }")
-        for name, dtype in self.columns.items():
-            self.blocks[name].append(np.asarray(cols[name], dtype=dtype))
+        rows = {name: np.asarray(cols[name], dtype=dtype) for name, dtype in self.columns.items()}
+        if not self._row_shapes:
+            self._row_shapes = {name: a.shape[1:] for name, a in rows.items()}
+        for name, a in rows.items():
+            if a.shape[1:] != self._row_shapes[name]:
+                raise ValueError(f"column {name}: rows of shape {a.shape[1:]}, earlier {self._row_shapes[name]}")
+        m, done = n.pop(), 0
+        while done < m:
+            at = self.n_rows % self.chunk_rows
+            if at == 0 and self.n_rows == len(self._chunks[next(iter(self.columns))]) * self.chunk_rows:
+                for name, chunks in self._chunks.items():
+                    chunks.append(np.empty((self.chunk_rows, *self._row_shapes[name]), self.columns[name]))
+            take = min(m - done, self.chunk_rows - at)
+            for name, a in rows.items():
+                self._chunks[name][-1][at : at + take] = a[done : done + take]
+            done += take
+            self.n_rows += take
+
+    def _filled(self, name: str) -> list[np.ndarray]:
+        """The chunks of column ``name`` cut to the rows appended (views, no copy)."""
+        chunks = self._chunks[name]
+        if not chunks:
+            return []
+        fill = self.n_rows - (len(chunks) - 1) * self.chunk_rows
+        return [*chunks[:-1], chunks[-1][:fill]]
 
     def array(self, name: str) -> np.ndarray:
-        blocks = self.blocks[name]
-        if not blocks:
+        """Column ``name`` (a new array): (n_rows,), or (n_rows, width) for a fixed-size list column."""
+        if name not in self._row_shapes:  # nothing appended yet
             return np.zeros(0, dtype=self.columns[name])
-        return np.concatenate(blocks)
+        parts = self._filled(name)
+        return np.concatenate(parts) if parts else np.empty((0, *self._row_shapes[name]), self.columns[name])
 
     def table(self) -> pa.Table:
+        """The rows as a pyarrow Table, one record batch per chunk (numeric columns wrap the chunks, no copy)."""
         data = {}
         for name in self.columns:
-            arr = self.array(name)
-            if arr.ndim == 2:  # fixed-size list column (e.g. a flattened covariance)
-                data[name] = pa.FixedSizeListArray.from_arrays(pa.array(arr.reshape(-1)), arr.shape[1])
+            parts = self._filled(name) or [self.array(name)]
+            if parts[0].ndim == 2:  # fixed-size list column (e.g. a flattened covariance)
+                width = parts[0].shape[1]
+                arrays = [pa.FixedSizeListArray.from_arrays(pa.array(p.reshape(-1)), width) for p in parts]
             else:
-                data[name] = pa.array(arr)
+                arrays = [pa.array(p) for p in parts]
+            data[name] = pa.chunked_array(arrays)
         return pa.table(data)
 
     def write(self, path: Path) -> None:
-        pq.write_table(self.table(), path)
+        """Write the rows to Parquet in row groups of at most ``ROW_GROUP_ROWS`` rows: the writer buffers a
+        whole row group (~1 kB a row for the tracks table), so a long run's file is written in bounded memory."""
+        pq.write_table(self.table(), path, row_group_size=ROW_GROUP_ROWS)
 
 
 def truth_log() -> TableLog:
     return TableLog(dict(frame=np.int64, time=np.float64, vehicle_id=np.int64, name=object, is_ego=bool,
                          x=np.float64, y=np.float64, heading=np.float64, vx=np.float64, vy=np.float64,
                          length=np.float64, width=np.float64, height=np.float64, lane=np.int64,
-                         crashed=bool))
+                         crashed=bool, n_points=np.int64, in_range=bool))
 
 
 def detections_log() -> TableLog:

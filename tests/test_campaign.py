@@ -382,6 +382,13 @@ def test_report_tables_and_plots(reference):
     assert cell["ci_hi"] - cell["mean"] == pytest.approx(half, rel=1e-9)
     failed = summary[(summary["tracker"] == "jpda-kf") & (summary["tracker.params.max_jpda_events"] == 1)]
     assert (failed["n"] == 0).all() and (failed["failed"] == 2).all()
+    # thesis-table form: counts summed over the ok runs, percentages of the sums, thesis rows beside
+    ok = df[(df["tracker"] == "gnn-kf") & (df["tracker.params.max_jpda_events"] == 50000)]
+    seen, tracked, false = (int(ok[c].sum()) for c in ("cars_seen", "cars_tracked", "false_tracks"))
+    row = f"| gnn-kf (ours) | 50000 | 2 | {seen} | {tracked} | {false} | {100 * tracked / seen:.4g} |"
+    assert "### Thesis-table form" in md and row in md
+    assert "| thesis Table 4.3: JPDA-KF |  | – | 58 | 49 | 9 | 84.48 | 15.52 | 8 |" in md
+    assert "| thesis Table 5.4: JPDA-GVBL-SVSF (text: APDA-SVSF) |  | – | – | – | – | 93.42 | 6.58 | 3.1 |" in md
 
 
 def test_mean_sd_ci_student_t():

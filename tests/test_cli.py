@@ -46,7 +46,9 @@ def test_listings():
     proc = _cli("scenarios")
     assert proc.returncode == 0
     names = [line.split()[0] for line in proc.stdout.splitlines()]
-    assert names == sorted(["convoy", "cut_in_out", "interchange", "straight_curve", "u_turn"])
+    assert names == sorted(["convoy", "cut_in_out", "interchange", "straight_curve", "u_turn", "highway_benchmark",
+                            "merge", "roundabout"])
+    assert "merge-v0" in proc.stdout and "motorway" in proc.stdout
     assert "INVALID" not in proc.stdout
     proc = _cli("trackers")
     assert proc.returncode == 0 and {"jpda-kf", "pda-kf", "gnn-kf", "nn-kf"} <= set(proc.stdout.split())

@@ -9,7 +9,7 @@ from stonesoup.metricgenerator.ospametric import GOSPAMetric
 from stonesoup.types.array import StateVector
 from stonesoup.types.state import State
 
-from testbed.mot_metrics import METRIC_KEYS, _trackeval_metrics, gospa, mot_metrics
+from testbed.mot_metrics import METRIC_KEYS, _trackeval_metrics, gospa, mot_metrics, visible_truth
 
 T0 = datetime.datetime(2024, 1, 1)
 N_ALPHA = 19  # HOTA alphas 0.05, 0.10, ..., 0.95
@@ -156,7 +156,7 @@ def test_track_beyond_match_distance_is_miss_plus_false():
     f = np.arange(n_frames)
     truth = truth_rows(f, np.zeros(n_frames), pos)
     tracks = track_rows(f, np.full(n_frames, 9), pos + [0.0, 10.0])   # always 10 m to the side
-    res = mot_metrics(truth, tracks, n_frames, match_distance_m=3.0, gospa_c=c, gospa_p=p)
+    res = mot_metrics(truth, tracks, n_frames, similarity_scale_m=3.0, gospa_c=c, gospa_p=p)
     gt, fn, fp = 20, 20, 20
     assert res["mota"] == pytest.approx(1.0 - (fn + fp) / gt, abs=1e-12)         # = -1
     for key in ("hota", "deta", "assa", "idf1", "motp", "id_switches", "gospa_localisation"):
@@ -167,7 +167,7 @@ def test_track_beyond_match_distance_is_miss_plus_false():
 
 
 @pytest.mark.parametrize("offset,clear_match,n_alpha_matched", [(1.4, True, 10), (1.6, False, 9)])
-def test_clear_threshold_is_half_the_match_distance(offset, clear_match, n_alpha_matched):
+def test_clear_threshold_is_half_the_similarity_scale(offset, clear_match, n_alpha_matched):
     """Constant offset d, similarity s = 1 - d/3. CLEAR/Identity match iff s >= 0.5 (d <= 1.5 m);
     HOTA matches at the alphas <= s: 10 of them (0.05..0.50) for s = 0.533, 9 (0.05..0.45) for s = 0.467,
     with HOTA_alpha = 1 there and 0 elsewhere."""
@@ -257,3 +257,47 @@ def test_rejects_malformed_rows():
         mot_metrics(truth, tracks, 1)
     with pytest.raises(ValueError, match="frames must lie"):
         mot_metrics(truth_rows([5], [1], [[0.0, 0.0]]), tracks, 5)
+
+
+# --------------------------------------------------------------------------- visible truth
+
+
+def _occlusion_case(coast: bool):
+    """Two cars over 4 frames; car 2 is hidden in frames 2-3. T1 follows car 1 throughout; T2 follows
+    car 2 in frames 0-1 and, when ``coast``, through the occlusion too. T9 is a false track in frame 3."""
+    pos = straight_lines(2, 4)
+    f = np.repeat(np.arange(4), 2)
+    v = np.tile([0, 1], 4)
+    truth = truth_rows(f, v + 1, pos[f, v])
+    truth["visible"] = ~((v == 1) & (f >= 2))
+    on = (v == 0) | (f < 2) | coast
+    tracks = track_rows(np.append(f[on], 3), np.append(v[on] + 1, 9),
+                        np.vstack([pos[f, v][on] + [0.3, 0.0], [[500.0, 0.0]]]))
+    return truth, tracks
+
+
+@pytest.mark.parametrize("coast", [False, True])
+def test_visible_truth_treats_hidden_cars_as_dont_care(coast):
+    """Hand-worked: visible GT = 6 (car 1 x 4, car 2 x 2), all GT = 8, one false track row.
+    Visible: 6 TP, 1 FP -> MOTA = 1 - 1/6 whether or not T2 coasts (its hidden-car rows are dropped).
+    All truth: lost T2 -> 2 FN + 1 FP -> MOTA = 1 - 3/8; coasting T2 -> 1 FP -> MOTA = 1 - 1/8."""
+    truth, tracks = _occlusion_case(coast)
+    g_vis, t_vis = visible_truth(truth, tracks, similarity_scale_m=3.0)
+    assert len(g_vis["frame"]) == 6 and len(t_vis["frame"]) == 7
+    assert set(g_vis) == set(truth) and set(t_vis) == set(tracks)
+    vis = mot_metrics(g_vis, t_vis, 4)
+    full = mot_metrics({k: truth[k] for k in ("frame", "vehicle_id", "xy")}, tracks, 4)
+    assert vis["mota"] == pytest.approx(1.0 - 1.0 / 6.0, abs=1e-12)
+    assert vis["idf1"] == pytest.approx(2 * 6 / (6 + 7), abs=1e-12)
+    assert vis["gospa_false"] == pytest.approx(4.5 / 4, abs=1e-12)       # c^p/2 once in 4 frames
+    assert vis["gospa_missed"] == pytest.approx(0.0, abs=1e-12)
+    assert full["mota"] == pytest.approx(1.0 - (1.0 if coast else 3.0) / 8.0, abs=1e-12)
+    assert full["gospa_missed"] == pytest.approx(0.0 if coast else 2 * 4.5 / 4, abs=1e-12)
+
+
+def test_visible_truth_keeps_a_track_far_from_the_hidden_car():
+    """A track 2 m from a hidden car is beyond similarity_scale_m / 2 = 1.5 m: it stays, as a false track."""
+    truth = truth_rows([0], [1], [[0.0, 0.0]])
+    truth["visible"] = np.array([False])
+    _, t_vis = visible_truth(truth, track_rows([0, 0], [5, 6], [[2.0, 0.0], [1.0, 0.0]]), similarity_scale_m=3.0)
+    assert t_vis["track_id"].tolist() == [5]
