@@ -1,6 +1,6 @@
 """The run's data as Parquet tables (columns documented in README.md, "Output files").
 
-Rows are copied per frame into preallocated column chunks and concatenated once at the end.
+Rows are copied per frame into preallocated column chunks; ``table()`` wraps the chunks without a copy.
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ class TableLog:
     allocates O(F / chunk_rows) blocks. Keeping one small array per column per frame instead (thousands of
     small long-lived blocks, allocated between each frame's large freed LiDAR temporaries) fragments the C
     heap: the small blocks pin the freed space so the next frame's large temporaries do not fit in it, and
-    a run's RSS grew by ~0.7 MB per frame (benchmarks/memory.py).
+    a run's RSS grew by 0.5-0.7 MB per frame (benchmarks/memory.py).
     """
 
     def __init__(self, columns: dict[str, type], chunk_rows: int = CHUNK_ROWS):
@@ -43,10 +43,10 @@ class TableLog:
                 raise ValueError(f"column {name}: rows of shape {a.shape[1:]}, earlier {self._row_shapes[name]}")
         m, done = n.pop(), 0
         while done < m:
-            at = self.n_rows % self.chunk_rows
-            if at == 0 and self.n_rows == len(self._chunks[next(iter(self.columns))]) * self.chunk_rows:
+            if self.n_rows == len(self._chunks[next(iter(self.columns))]) * self.chunk_rows:  # all chunks full
                 for name, chunks in self._chunks.items():
                     chunks.append(np.empty((self.chunk_rows, *self._row_shapes[name]), self.columns[name]))
+            at = self.n_rows % self.chunk_rows
             take = min(m - done, self.chunk_rows - at)
             for name, a in rows.items():
                 self._chunks[name][-1][at : at + take] = a[done : done + take]
