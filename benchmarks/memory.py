@@ -9,6 +9,8 @@ temporary directory and without. Each run is a fresh subprocess, so their peaks 
 the peak RSS (``getrusage`` ``ru_maxrss``), the RSS after the first ``--sample-every`` frames and the end
 of the loop (sampled from ``/proc/self/statm``), the growth per frame (least-squares slope of the samples
 after the first quarter of the run) and the ratio long / short of the peaks. Target: ratio <= 1.2.
+The peak includes the end of the run (scoring, parquet tables, closing the recording); a recording of
+more than ``testbed.recording.FOOTER_MAX_FRAMES`` frames is written without rerun's footer.
 """
 from __future__ import annotations
 

@@ -79,9 +79,7 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     tic = time.perf_counter()
     try:
         for truth in sim.frames():
-            now = time.perf_counter()
-            spent["simulation"] += now - tic
-            tic = now
+            now = time.perf_counter(); spent["simulation"] += now - tic; tic = now
 
             scan = _scan(truth, static, lidar_cfg, rngs["lidar"])
             now = time.perf_counter(); spent["raycast"] += now - tic; tic = now
@@ -111,8 +109,7 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         if recorder is not None:
             recorder.close()
         if out is not None:
-            for name, log in (("truth", truth_t), ("detections", det_t), ("tracks", trk_t)):
-                log.write(out / f"{name}.parquet")
+            _write_tables(out, dict(truth=truth_t, detections=det_t, tracks=trk_t))
         raise
 
     if recorder is not None:
@@ -209,11 +206,15 @@ def _log_tables(truth, vis, dets, tracks, truth_t, det_t, trk_t) -> None:
                  score=np.array([tr.score for tr in tracks], dtype=np.float64), cov=covs)
 
 
+def _write_tables(out: Path, tables: dict) -> None:
+    for name, log in tables.items():
+        log.write(out / f"{name}.parquet")
+
+
 def write_outputs(res: RunResult, tracker_name: str) -> None:
     out = res.out_dir
     assert out is not None
-    for name, log in res.tables.items():
-        log.write(out / f"{name}.parquet")
+    _write_tables(out, res.tables)
     doc = dict(scenario=res.scenario.name, seed=res.scenario.seed, tracker=tracker_name,
                frames=res.n_frames, scores=res.scores.to_dict(), mot_metrics=res.metrics,
                timings_ms_per_frame=res.timings_ms,

@@ -312,6 +312,14 @@ def _score_tables(sub, scenario: str, grid_keys, rep: Report) -> list[str]:
     return md
 
 
+def _failed_runs(df) -> list[str]:
+    """Markdown lines: the failed runs grouped by error."""
+    err = df[df["status"] != "ok"]
+    rows = [[f"`{t}`", m, len(g), g["run_id"].iloc[0]]
+            for (t, m), g in err.groupby(["error_type", "error"], sort=False)]
+    return ["## Failed runs", "", _md_table(["error", "message", "runs", "first run"], rows), ""]
+
+
 def write_report(out_dir: str | Path, campaign) -> Report:
     """Consolidate the results of ``out_dir`` and write ``summary.csv``, ``plots/*.png`` and ``report.md``."""
     import matplotlib
@@ -377,10 +385,7 @@ def write_report(out_dir: str | Path, campaign) -> Report:
                 md += [f"![scores by tracker]({p.relative_to(out).as_posix()})", ""]
 
     if rep.n_failed:
-        err = df[df["status"] != "ok"]
-        rows = [[f"`{t}`", m, len(g), g["run_id"].iloc[0]]
-                for (t, m), g in err.groupby(["error_type", "error"], sort=False)]
-        md += ["## Failed runs", "", _md_table(["error", "message", "runs", "first run"], rows), ""]
+        md += _failed_runs(df)
     if planned > rep.n_runs:
         md += [f"{planned - rep.n_runs} runs are missing: `testbed campaign resume {out}` runs them.", ""]
     store.atomic_write_bytes(rep.path, "\n".join(md).encode())
