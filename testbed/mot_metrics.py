@@ -152,6 +152,15 @@ def _check_rows(name: str, frame: np.ndarray, ids: np.ndarray, xy: np.ndarray, n
         raise ValueError(f"{name}: id {ids[k]} appears twice in frame {frame[k]}")
 
 
+def _rows(name: str, rows: dict, id_key: str, n_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``frame (N,) int64``, ``id (N,) int64``, ``xy (N, 2) float64`` of ``rows``, checked."""
+    frame = np.asarray(rows["frame"], dtype=np.int64).reshape(-1)
+    ids = np.asarray(rows[id_key], dtype=np.int64).reshape(-1)
+    xy = np.asarray(rows["xy"], dtype=np.float64).reshape(-1, 2)
+    _check_rows(name, frame, ids, xy, n_frames)
+    return frame, ids, xy
+
+
 def visible_truth(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray],
                   similarity_scale_m: float) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Visible truth rows, and the tracks less those on hidden cars (see the module docstring).
@@ -193,14 +202,8 @@ def mot_metrics(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray], n_f
     n_frames = int(n_frames)
     if n_frames < 0:
         raise ValueError(f"n_frames must be >= 0, got {n_frames}")
-    g_frame = np.asarray(truth["frame"], dtype=np.int64).reshape(-1)
-    g_id = np.asarray(truth["vehicle_id"], dtype=np.int64).reshape(-1)
-    g_xy = np.asarray(truth["xy"], dtype=np.float64).reshape(-1, 2)
-    t_frame = np.asarray(tracks["frame"], dtype=np.int64).reshape(-1)
-    t_id = np.asarray(tracks["track_id"], dtype=np.int64).reshape(-1)
-    t_xy = np.asarray(tracks["xy"], dtype=np.float64).reshape(-1, 2)
-    _check_rows("truth", g_frame, g_id, g_xy, n_frames)
-    _check_rows("tracks", t_frame, t_id, t_xy, n_frames)
+    g_frame, g_id, g_xy = _rows("truth", truth, "vehicle_id", n_frames)
+    t_frame, t_id, t_xy = _rows("tracks", tracks, "track_id", n_frames)
 
     # Contiguous ids 0..K-1 (TrackEval indexes count arrays by id) and rows grouped by frame.
     g_uid, g_cid = np.unique(g_id, return_inverse=True)
