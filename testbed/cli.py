@@ -57,7 +57,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     per_frame = sum(res.timings_ms.values())
     print(f"\n{res.n_frames} frames, {per_frame:.1f} ms/frame "
           f"({', '.join(f'{k} {v:.1f}' for k, v in res.timings_ms.items())})")
-    written = ["scores.json", "truth.parquet", "detections.parquet", "tracks.parquet"]
+    written = ["scores.json", "truth.parquet", "detections.parquet", "tracks.parquet", "diagnostics.parquet"]
     if not args.no_record:
         written.insert(0, "run.rrd")
     print(f"wrote {', '.join(written)} to {out}/")
@@ -121,10 +121,10 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _cmd_trackers(args: argparse.Namespace) -> int:
-    from trackers import available_trackers
+    from trackers import describe_tracker, named_trackers
 
-    for name in available_trackers():
-        print(name)
+    for name in named_trackers(all_combinations=args.all):
+        print(f"{name:<22} {describe_tracker(name)}")
     return 0
 
 
@@ -157,7 +157,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_scenarios)
     k = sub.add_parser("keys", help="print every scenario key with its default and meaning (markdown)")
     k.set_defaults(func=_cmd_keys)
-    t = sub.add_parser("trackers", help="list the tracker names")
+    t = sub.add_parser("trackers", help="list the tracker names, one line each")
+    t.add_argument("--all", action="store_true", help="every associator x filter (x wrapper) combination, "
+                   "not only the papers' named trackers")
     t.set_defaults(func=_cmd_trackers)
     from .campaign.cli import add_campaign_parser
 

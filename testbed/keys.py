@@ -73,6 +73,34 @@ def _walk(cls: type, prefix: str, rows: list[tuple[str, str, str, str]]) -> None
             rows.append((path, _type_name(tp), _default(f), doc))
 
 
+TRACKER_HEADER = """## Tracker parameters
+
+`tracker.name` is a preset: it selects the filter and the associator (and a wrapper such as `imm`), and
+the three tables below take that filter's, associator's and manager's parameters. `tracker.management.kind`
+selects the manager. A sub-table named after a filter or associator kind (`[tracker.filter.svsf]`,
+`[tracker.associator.apda]`) applies only when that kind is in use (also to an IMM's modes of that kind), so
+one scenario can carry tuned parameters for several trackers; plain keys must belong to the named tracker.
+`--tracker` with another name keeps the plain keys that tracker has and drops the others. Every parameter
+of every filter, associator and manager:
+"""
+
+
+def tracker_markdown() -> list[str]:
+    from trackers.params import describe
+    from trackers.registry import parameter_tables
+
+    lines = [TRACKER_HEADER]
+    for table, kind, cls in parameter_tables():
+        lines += [f"### `tracker.{table}` for {table} `{kind}`", "", "| key | type | default | meaning |",
+                  "|---|---|---|---|"]
+        if table == "management":
+            lines.append(f"| `tracker.management.kind` | str | `'score'` | manager (one of: {kind.replace(' or ', ', ')}) |")
+        for name, tp, default, doc in describe(cls):
+            lines.append(f"| `tracker.{table}.{name}` | {tp} | `{default}` | {doc.replace('|', '/')} |")
+        lines.append("")
+    return lines
+
+
 def keys_markdown() -> str:
     from .scenario import Scenario
 
@@ -81,4 +109,5 @@ def keys_markdown() -> str:
     lines = [HEADER, "| key | type | default | meaning |", "|---|---|---|---|"]
     for path, tp, default, doc in rows:
         lines.append(f"| `{path}` | {tp} | {default} | {doc.replace('|', '/')} |")
-    return "\n".join(lines) + "\n"
+    lines += ["", *tracker_markdown()]
+    return "\n".join(lines).rstrip("\n") + "\n"

@@ -33,6 +33,7 @@ import rerun.blueprint as rrb
 APP_ID = "roadtrack"
 METRICS = ("tracks_confirmed", "tracks_tentative", "detections", "clutter_detections", "lidar_points")
 TRAJECTORY_POINTS = 300
+SERIES_FLUSH_FRAMES = 200  # per-track diagnostic series are buffered and sent in columns every N frames
 FOOTER_MAX_FRAMES = 1200
 """Recordings of up to this many frames end with an rrd footer (a manifest of every chunk, for random access).
 rerun keeps that manifest in memory until the file is closed: ~17 kB per frame here (about 3.5 chunks a
@@ -72,6 +73,8 @@ def blueprint(ego_xy: np.ndarray | None = None) -> rrb.Blueprint:
                 rrb.TimeSeriesView(name="detections", origin="/metrics",
                                    contents=["/metrics/detections", "/metrics/clutter_detections"]),
                 rrb.TimeSeriesView(name="lidar points", origin="/metrics", contents=["/metrics/lidar_points"]),
+                rrb.TimeSeriesView(name="track diagnostics (score, NIS, layers, mode probabilities)",
+                                   origin="/world/tracks"),
             ),
             column_shares=[3, 1],
         ),
@@ -104,6 +107,9 @@ class Recorder:
         for name in METRICS:
             self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " ")), static=True)
         self.trajectories: dict[int, list[np.ndarray]] = {}
+        self.series: dict[tuple[int, str], tuple[list[int], list[float], list[float]]] = {}
+        self.series_frames = 0
+        self.layers_logged = False
 
     def static(self, lanes: list[np.ndarray], roadside: np.ndarray) -> None:
         """Road lane borders (list of (P, 2)) and roadside boxes (K, 7) [cx, cy, L, W, H, yaw, z_bottom]."""
@@ -113,8 +119,9 @@ class Recorder:
             self.rec.log("world/roadside", rr.Boxes3D(**_boxes(roadside[:, :2], roadside[:, 2:5], roadside[:, 5],
                                                                roadside[:, 6]), colors=[120, 120, 120]), static=True)
 
-    def frame(self, truth, scan, perception, detections, tracks, info, gate_alpha: float) -> None:
-        """Log one frame. ``tracks``: the trackers' Track tuple after the step; ``info``: its StepInfo."""
+    def frame(self, truth, scan, perception, detections, tracks, kin, info, gate_alpha: float) -> None:
+        """Log one frame. ``tracks``: the trackers' Track tuple after the step; ``kin``: their position-velocity
+        estimates and covariances ((T, 2d), (T, 2d, 2d), ``Tracker.kinematics``); ``info``: the StepInfo."""
         rec = self.rec
         rec.set_time("frame", sequence=int(truth.frame))
         rec.set_time("sim_time", duration=float(truth.time))
@@ -151,38 +158,8 @@ class Recorder:
 
         conf = [t for t in tracks if t.confirmed]
         tent = [t for t in tracks if not t.confirmed]
-        for name, group, radius in (("confirmed", conf, 0.5), ("tentative", tent, 0.25)):
-            xs = np.array([t.state.x[:2] for t in group], dtype=np.float64).reshape(-1, 2)
-            rec.log(f"world/tracks/{name}", rr.Points3D(
-                np.column_stack([xs, np.full(len(xs), 1.0)]), radii=radius,
-                labels=[f"T{t.id}" for t in group], class_ids=[t.id for t in group],
-                show_labels=name == "confirmed"))
-        cx = np.array([t.state.x[:2] for t in conf], dtype=np.float64).reshape(-1, 2)
-        cv = np.array([t.state.x[2:4] for t in conf], dtype=np.float64).reshape(-1, 2)
-        rec.log("world/tracks/velocity", rr.Arrows3D(origins=np.column_stack([cx, np.ones(len(cx))]),
-                                                     vectors=np.column_stack([cv, np.zeros(len(cv))]),
-                                                     class_ids=[t.id for t in conf]))
-        all_x = np.array([t.state.x[:2] for t in tracks], dtype=np.float64).reshape(-1, 2)
-        all_p = np.array([t.state.P[:2, :2] for t in tracks], dtype=np.float64).reshape(-1, 2, 2)
-        rec.log("world/tracks/covariance", rr.LineStrips3D(ellipses(all_x, all_p, 2.0, 1.0),
-                                                           class_ids=[t.id for t in tracks], radii=0.04))
-        if info is not None and len(info.ids):
-            rec.log("world/tracks/gates", rr.LineStrips3D(
-                ellipses(info.z_hat, info.S, float(np.sqrt(gate_alpha)), 0.2),
-                class_ids=info.ids, radii=0.03))
-        else:
-            rec.log("world/tracks/gates", rr.LineStrips3D([]))
-
-        live = {t.id for t in conf}
-        for t in conf:
-            pts = self.trajectories.setdefault(t.id, [])
-            pts.append(np.array([t.state.x[0], t.state.x[1], 1.0]))
-            del pts[:-TRAJECTORY_POINTS]
-        alive = {t.id for t in tracks}
-        for tid in [i for i in self.trajectories if i not in alive]:
-            del self.trajectories[tid]
-        rec.log("world/tracks/trajectories", rr.LineStrips3D(
-            [np.array(self.trajectories[i]) for i in sorted(live)], class_ids=sorted(live), radii=0.08))
+        self._tracks(tracks, kin, info, gate_alpha)
+        self._diagnostics(truth, conf, info)
 
         counts = dict(tracks_confirmed=len(conf), tracks_tentative=len(tent), detections=len(z),
                       clutter_detections=int(np.count_nonzero(~is_vehicle)),
@@ -190,6 +167,79 @@ class Recorder:
         for name, value in counts.items():
             rec.log(f"metrics/{name}", rr.Scalars(float(value)))
 
+    def _tracks(self, tracks, kin, info, gate_alpha: float) -> None:
+        """Track estimates, velocities, covariance ellipses, gates, boundary layers and trajectories."""
+        rec = self.rec
+        xs, covs = kin
+        d = xs.shape[1] // 2
+        pos, vel, ppos = xs[:, :2], xs[:, d:d + 2], covs[:, :2, :2]
+        ids = np.array([t.id for t in tracks], dtype=np.int64)
+        conf = np.array([t.confirmed for t in tracks], dtype=bool)
+        for name, sel, radius in (("confirmed", conf, 0.5), ("tentative", ~conf, 0.25)):
+            rec.log(f"world/tracks/{name}", rr.Points3D(
+                np.column_stack([pos[sel], np.full(int(sel.sum()), 1.0)]), radii=radius,
+                labels=[f"T{i}" for i in ids[sel]], class_ids=ids[sel], show_labels=name == "confirmed"))
+        rec.log("world/tracks/velocity", rr.Arrows3D(origins=np.column_stack([pos[conf], np.ones(int(conf.sum()))]),
+                                                     vectors=np.column_stack([vel[conf], np.zeros(int(conf.sum()))]),
+                                                     class_ids=ids[conf]))
+        rec.log("world/tracks/covariance", rr.LineStrips3D(ellipses(pos, ppos, 2.0, 1.0), class_ids=ids, radii=0.04))
+        if info is not None and len(info.ids):
+            rec.log("world/tracks/gates", rr.LineStrips3D(
+                ellipses(info.z_hat, info.S, float(np.sqrt(gate_alpha)), 0.2), class_ids=info.ids, radii=0.03))
+        else:
+            rec.log("world/tracks/gates", rr.LineStrips3D([]))
+        # SVSF boundary layers: a box of the layer's half widths around each updated estimate (thesis §2.1, §3.4)
+        where = {int(i): k for k, i in enumerate(ids)}
+        rows = [] if info is None else [(k, where[int(i)]) for k, i in enumerate(info.ids)
+                                        if int(i) in where and np.isfinite(info.layers[k]).all()]
+        if rows or self.layers_logged:
+            lk = np.array([r[0] for r in rows], dtype=np.int64)
+            tk = np.array([r[1] for r in rows], dtype=np.int64)
+            half = info.layers[lk][:, :2] if rows else np.zeros((0, 2))
+            rec.log("world/tracks/layers", rr.Boxes3D(
+                centers=np.column_stack([pos[tk], np.full(len(tk), 1.0)]) if rows else np.zeros((0, 3)),
+                half_sizes=np.column_stack([half, np.full(len(tk), 0.05)]), class_ids=ids[tk] if rows else [],
+                colors=[255, 140, 0]))
+            self.layers_logged = True
+        live = set(ids[conf].tolist())
+        for k in np.flatnonzero(conf):
+            pts = self.trajectories.setdefault(int(ids[k]), [])
+            pts.append(np.array([pos[k, 0], pos[k, 1], 1.0]))
+            del pts[:-TRAJECTORY_POINTS]
+        for tid in [i for i in self.trajectories if i not in set(ids.tolist())]:
+            del self.trajectories[tid]
+        rec.log("world/tracks/trajectories", rr.LineStrips3D(
+            [np.array(self.trajectories[i]) for i in sorted(live)], class_ids=sorted(live), radii=0.08))
+
+    def _diagnostics(self, truth, conf, info) -> None:
+        """Buffer the confirmed tracks' diagnostics as series ``world/tracks/<id>/<name>``; sent in columns."""
+        if info is None or not info.diagnostics:
+            return
+        row = {int(i): k for k, i in enumerate(info.ids)}
+        for t in conf:
+            k = row.get(int(t.id))
+            if k is None:
+                continue
+            for name, values in info.diagnostics.items():
+                v = float(values[k])
+                if np.isfinite(v):
+                    f, tm, vs = self.series.setdefault((int(t.id), name), ([], [], []))
+                    f.append(int(truth.frame)); tm.append(float(truth.time)); vs.append(v)
+        self.series_frames += 1
+        if self.series_frames >= SERIES_FLUSH_FRAMES:
+            self._flush_series()
+
+    def _flush_series(self) -> None:
+        for (tid, name), (f, tm, vs) in self.series.items():
+            if f:
+                self.rec.send_columns(f"world/tracks/{tid}/{name}",
+                                      indexes=[rr.TimeColumn("frame", sequence=f),
+                                               rr.TimeColumn("sim_time", duration=tm)],
+                                      columns=rr.Scalars.columns(scalars=vs))
+        self.series = {}
+        self.series_frames = 0
+
     def close(self) -> None:
+        self._flush_series()
         self.rec.flush()
         self.rec.disconnect()

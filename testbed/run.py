@@ -15,7 +15,6 @@ from typing import Callable
 import numpy as np
 
 import sensors
-from trackers import make_tracker
 
 from .config import to_dict
 from .mot_metrics import mot_metrics, visible_truth
@@ -23,7 +22,7 @@ from .roadside import boxes_near
 from .scenario import Scenario
 from .scoring import Scores, score_run
 from .simulation import lane_polylines, roadside_objects
-from .tables import detections_log, tracks_log, truth_log
+from .tables import diagnostics_log, detections_log, tracks_log, truth_log
 
 STAGES = ("simulation", "raycast", "perception", "tracking", "recording")
 STREAMS = ("roadside", "lidar", "clutter")
@@ -58,49 +57,38 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
                  on_frame: Callable[[int, int], None] | None = None) -> RunResult:
     """Run ``scn``; with ``out_dir`` write scores.json, the parquet tables and (``record``) run.rrd."""
     name = tracker_name or scn.tracker.name
-    tracker = make_tracker(name, **scn.tracker.params)
+    tracker = scn.tracker.build(name)
     rngs = rng_streams(scn.seed)
     from .envsource import make_simulation  # a highway-env environment ([env]) or our scripted traffic
 
     sim = make_simulation(scn)
     static = roadside_objects(sim.network, scn.roadside, rngs["roadside"])
-    lidar_cfg, perc_cfg, clutter = scn.sensor.lidar, scn.sensor.perception, scn.sensor.clutter
 
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     recorder = _recorder(scn, out / "run.rrd", name, sim, static) if out is not None and record else None
 
-    truth_t, det_t, trk_t = truth_log(), detections_log(), tracks_log()
-    spent = dict.fromkeys(STAGES, 0.0)
+    tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(), diagnostics=diagnostics_log())
+    watch = _Stopwatch()
     tracks: tuple = ()
     next_id = 1
     n = 0
-    tic = time.perf_counter()
     try:
         for truth in sim.frames():
-            now = time.perf_counter(); spent["simulation"] += now - tic; tic = now
-
-            scan = _scan(truth, static, lidar_cfg, rngs["lidar"])
-            now = time.perf_counter(); spent["raycast"] += now - tic; tic = now
-
-            perc = sensors.perceive(scan, perc_cfg)
-            dets = perc.detections
-            if clutter.density_per_m2 > 0:
-                dets = dets.concat(sensors.clutter_detections(rngs["clutter"], clutter.density_per_m2,
-                                                              truth.xy[0], clutter.radius_m))
-            now = time.perf_counter(); spent["perception"] += now - tic; tic = now
-
+            watch.lap("simulation")
+            scan, perc, dets = _sense(truth, static, scn, rngs, watch)
             result = tracker.step(tracks, dets.z, scn.dt if truth.frame > 0 else 0.0, next_id)
             tracks, next_id = result.tracks, result.next_id
-            now = time.perf_counter(); spent["tracking"] += now - tic; tic = now
-
+            watch.lap("tracking")
             reported = tuple(t for t in tracks if not t.candidate)  # candidates await a second measurement
-            _log_tables(truth, visibility(truth, scan, lidar_cfg.max_range_m), dets, reported,
-                        truth_t, det_t, trk_t)
+            kin = tracker.kinematics(reported)
+            _log_tables(truth, visibility(truth, scan, scn.sensor.lidar.max_range_m), dets, reported, kin,
+                        tables["truth"], tables["detections"], tables["tracks"])
+            _log_diagnostics(truth, result.info, tables["diagnostics"])
             if recorder is not None:
-                recorder.frame(truth, scan, perc, dets, reported, result.info, tracker.params.gate_alpha)
-            now = time.perf_counter(); spent["recording"] += now - tic; tic = now
+                recorder.frame(truth, scan, perc, dets, reported, kin, result.info, tracker.association.gate_alpha)
+            watch.lap("recording")
             n += 1
             if on_frame is not None:
                 on_frame(n, scn.n_frames)
@@ -109,20 +97,47 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         if recorder is not None:
             recorder.close()
         if out is not None:
-            _write_tables(out, dict(truth=truth_t, detections=det_t, tracks=trk_t))
+            _write_tables(out, tables)
         raise
-
+    spent = watch.spent
     if recorder is not None:
         t0 = time.perf_counter()
         recorder.close()
         spent["recording"] += time.perf_counter() - t0
 
-    scores, metrics = score_tables(scn, truth_t, trk_t, n)
+    scores, metrics = score_tables(scn, tables["truth"], tables["tracks"], n)
     timings = {k: 1000.0 * v / max(n, 1) for k, v in spent.items()}
-    res = RunResult(scn, scores, timings, n, out, dict(truth=truth_t, detections=det_t, tracks=trk_t), metrics)
+    res = RunResult(scn, scores, timings, n, out, tables, metrics)
     if out is not None:
         write_outputs(res, name)
     return res
+
+
+class _Stopwatch:
+    """Seconds spent per stage: ``lap(stage)`` charges the time since the previous lap to ``stage``."""
+
+    def __init__(self):
+        self.spent = dict.fromkeys(STAGES, 0.0)
+        self.tic = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.spent[stage] += now - self.tic
+        self.tic = now
+
+
+def _sense(truth, static: np.ndarray, scn: Scenario, rngs: dict, watch: _Stopwatch):
+    """One frame's LiDAR scan, perception and detections (plus the scenario's added clutter)."""
+    scan = _scan(truth, static, scn.sensor.lidar, rngs["lidar"])
+    watch.lap("raycast")
+    perc = sensors.perceive(scan, scn.sensor.perception)
+    dets = perc.detections
+    clutter = scn.sensor.clutter
+    if clutter.density_per_m2 > 0:
+        dets = dets.concat(sensors.clutter_detections(rngs["clutter"], clutter.density_per_m2, truth.xy[0],
+                                                      clutter.radius_m))
+    watch.lap("perception")
+    return scan, perc, dets
 
 
 def _scan(truth, static: np.ndarray, cfg: sensors.LidarConfig, rng: np.random.Generator) -> sensors.Scan:
@@ -184,7 +199,21 @@ def score_tables(scn: Scenario, truth_t, trk_t, n_frames: int) -> tuple[Scores, 
     return scores, metrics
 
 
-def _log_tables(truth, vis, dets, tracks, truth_t, det_t, trk_t) -> None:
+def _log_diagnostics(truth, info, diag_t) -> None:
+    """Long format: one row per (track, quantity) of the step's diagnostics (NIS, gate volume, the filters'
+    boundary layers and mode probabilities, the associator's extras)."""
+    T = len(info.ids)
+    if not T or not info.diagnostics:
+        return
+    names = sorted(info.diagnostics)
+    values = np.stack([np.asarray(info.diagnostics[k], dtype=np.float64) for k in names], axis=1)  # (T, N)
+    keep = np.isfinite(values)
+    rows, cols = np.nonzero(keep)
+    diag_t.append(frame=np.full(rows.size, truth.frame), time=np.full(rows.size, truth.time),
+                  track_id=info.ids[rows], name=np.array(names, dtype=object)[cols], value=values[rows, cols])
+
+
+def _log_tables(truth, vis, dets, tracks, kin, truth_t, det_t, trk_t) -> None:
     k = len(truth.ids)
     truth_t.append(frame=np.full(k, truth.frame), time=np.full(k, truth.time), vehicle_id=truth.ids,
                    name=np.array(truth.names, dtype=object), is_ego=truth.ids == truth.ids[0],
@@ -197,13 +226,13 @@ def _log_tables(truth, vis, dets, tracks, truth_t, det_t, trk_t) -> None:
                  provenance=dets.provenance, n_points=dets.n_points, length=dets.extent[:, 0],
                  width=dets.extent[:, 1], height=dets.extent[:, 2])
     t = len(tracks)
-    xs = np.array([tr.state.x[:4] for tr in tracks], dtype=np.float64).reshape(t, 4)
-    covs = np.array([tr.state.P[:4, :4].reshape(-1) for tr in tracks], dtype=np.float64).reshape(t, 16)
+    xs, covs = kin  # (t, 2d) [p; v] and (t, 2d, 2d) from the filter's output
+    d = xs.shape[1] // 2
     trk_t.append(frame=np.full(t, truth.frame), time=np.full(t, truth.time),
                  track_id=np.array([tr.id for tr in tracks], dtype=np.int64),
                  status=np.array(["confirmed" if tr.confirmed else "tentative" for tr in tracks], dtype=object),
-                 x=xs[:, 0], y=xs[:, 1], vx=xs[:, 2], vy=xs[:, 3],
-                 score=np.array([tr.score for tr in tracks], dtype=np.float64), cov=covs)
+                 x=xs[:, 0], y=xs[:, 1], vx=xs[:, d], vy=xs[:, d + 1],
+                 score=np.array([tr.score for tr in tracks], dtype=np.float64), cov=covs.reshape(t, covs[0].size if t else 4 * d * d))
 
 
 def _write_tables(out: Path, tables: dict) -> None:

@@ -209,8 +209,25 @@ class SensorSpec:
 
 @dataclass(frozen=True)
 class TrackerSpec:
-    name: str = field("jpda-kf", doc="<associator>-<filter>, see `testbed trackers`")
-    params: dict[str, Any] = field({}, doc="tracker parameters (see trackers.TrackerParams)")
+    """A tracker: a named preset plus three typed parameter tables (listed under "Tracker parameters" by
+    `testbed keys`). Keys are validated against the filter, associator and manager the name selects."""
+
+    name: str = field("jpda-kf", doc="[<wrapper>-]<associator>-<filter>, a preset that fills the tables below, "
+                      "see `testbed trackers`")
+    filter: dict[str, Any] = field({}, doc="filter parameters (motion and measurement models, SVSF layers, IMM "
+                                   "modes); see Tracker parameters below")
+    associator: dict[str, Any] = field({}, doc="associator parameters (gate, P_D, clutter density, JPDA method)")
+    management: dict[str, Any] = field({}, doc="track management: kind (score or m_of_n), initiation, "
+                                       "confirmation, deletion, coasting, duplicate pruning")
+
+    def build(self, name: str | None = None):
+        """The trackers.Tracker of this spec; ParamError on bad parameters. ``name`` overrides the preset
+        (``--tracker``): the tables' keys that the other tracker does not have are then left out (they were
+        validated against this spec's own tracker when the scenario was loaded)."""
+        from trackers import make_tracker
+
+        return make_tracker(name or self.name, filter=self.filter, associator=self.associator,
+                            management=self.management, lenient=name is not None and name != self.name)
 
 
 @dataclass(frozen=True)
@@ -297,16 +314,18 @@ def apply_overrides(data: dict, overrides: dict[str, Any]) -> dict:
 
 
 def _validate(scn: Scenario) -> Scenario:
-    from trackers import make_tracker, parse_tracker_name
+    from trackers import ParamError, parse_tracker_name
 
     try:
         parse_tracker_name(scn.tracker.name)
     except ValueError as err:
         raise ConfigError("tracker.name", str(err).splitlines()[0]) from None
     try:
-        make_tracker(scn.tracker.name, **scn.tracker.params)
+        scn.tracker.build()
+    except ParamError as err:
+        raise ConfigError(f"tracker.{err.path}", str(err).split(": ", 1)[-1]) from None
     except (ValueError, TypeError) as err:
-        raise ConfigError("tracker.params", str(err).splitlines()[0]) from None
+        raise ConfigError("tracker", str(err).splitlines()[0]) from None
     if scn.env is not None:
         check_env_scenario(scn)
     lanes = 2 if scn.road.kind == "u_turn" else scn.road.lanes

@@ -43,11 +43,12 @@ base_seed = 11
 
 [overrides]
 duration_s = 1.0
-tracker.params.jpda_overflow = "raise"
-tracker.params.gate_alpha = 1e4  # wide gates: every track in one cluster from frame 2 on
+tracker.associator.method = "enumerate"  # the exhaustive enumeration, with its event cap
+tracker.associator.on_overflow = "raise"
+tracker.associator.gate_alpha = 1e4  # wide gates: every track in one cluster from frame 2 on
 
 [grid]
-"tracker.params.max_jpda_events" = [50000, 1]
+"tracker.associator.max_events" = [50000, 1]
 """
 N_RUNS = 8
 
@@ -110,11 +111,12 @@ def test_shipped_campaigns_load():
 
 def test_bare_and_quoted_dotted_keys_mean_the_same(tmp_path):
     bare = load_campaign(_write(tmp_path, CAMPAIGN, "a.toml"))
-    quoted = load_campaign(_write(tmp_path, CAMPAIGN.replace('tracker.params.jpda_overflow',
-                                                             '"tracker.params.jpda_overflow"'), "b.toml"))
-    assert bare.overrides == quoted.overrides == {"duration_s": 1.0, "tracker.params.jpda_overflow": "raise",
-                                                  "tracker.params.gate_alpha": 1e4}
-    assert bare.grid == (("tracker.params.max_jpda_events", (50000, 1)),)
+    quoted = load_campaign(_write(tmp_path, CAMPAIGN.replace('tracker.associator.on_overflow',
+                                                             '"tracker.associator.on_overflow"'), "b.toml"))
+    assert bare.overrides == quoted.overrides == {"duration_s": 1.0, "tracker.associator.method": "enumerate",
+                                                  "tracker.associator.on_overflow": "raise",
+                                                  "tracker.associator.gate_alpha": 1e4}
+    assert bare.grid == (("tracker.associator.max_events", (50000, 1)),)
 
 
 BASE = 'scenarios = ["cut_in_out"]\ntrackers = ["jpda-kf"]\nseeds = 2\n'
@@ -135,13 +137,15 @@ BASE = 'scenarios = ["cut_in_out"]\ntrackers = ["jpda-kf"]\nseeds = 2\n'
     (BASE + "[grid]\nduration_s = 3.0\n", 'grid."duration_s": expected a list of values, got 3.0'),
     (BASE + "[grid]\nconvoy.gap_m = [2.0, 5.0]\n", 'grid."convoy.gap_m": convoy is not set in this scenario'),
     (BASE + "[grid]\nvehicles.7.speed_mps = [20.0]\n", "grid.\"vehicles.7.speed_mps\": vehicles.7: no item '7'"),
-    (BASE + "[grid]\ntracker.params.sigma_q = [1.0]\n",
-     'grid."tracker.params.sigma_q"[0]: tracker.params: unknown parameter(s) [\'sigma_q\']'),
+    (BASE + "[grid]\ntracker.filter.sigma_q = [1.0]\n",
+     'grid."tracker.filter.sigma_q": no tracker of this campaign has filter parameter \'sigma_q\'; allowed: motion, '),
+    (BASE + "[grid]\ntracker.filter.sigma_v = [-1.0]\n",
+     'grid."tracker.filter.sigma_v"[0]: tracker.filter.sigma_v: -1.0 is not allowed; must be >= 0'),
     (BASE + "[overrides]\nduration_s = -5.0\n", 'overrides."duration_s": duration_s: -5.0 is not allowed; must be > 0'),
     (BASE + "[overrides]\nseed = 3\n", 'overrides."seed": cannot be set by a campaign'),
     (BASE + '[grid]\n"tracker.name" = ["gnn-kf"]\n', 'grid."tracker.name": cannot be set by a campaign'),
-    (BASE + '[overrides]\ntracker.params.sigma_v = 1.0\n[grid]\n"tracker.params" = [{sigma_v = 2.0}]\n',
-     'grid."tracker.params": overlaps overrides."tracker.params.sigma_v"'),
+    (BASE + '[overrides]\ntracker.filter.sigma_v = 1.0\n[grid]\n"tracker.filter" = [{sigma_v = 2.0}]\n',
+     'grid."tracker.filter": overlaps overrides."tracker.filter.sigma_v"'),
     (BASE.replace('"jpda-kf"', '"jpda-kf", "jpda-ukf"'), "trackers[1]: unknown tracker name 'jpda-ukf'"),
     (BASE.replace('"jpda-kf"', '"jpda-kf", "jpda-kf"'), "trackers[1]: tracker 'jpda-kf' appears twice"),
     (BASE.replace('"cut_in_out"', '"cut_in_out", "nowhere"'), "scenarios[1]: nowhere: no such scenario file"),
@@ -212,7 +216,7 @@ def test_seeds_are_common_random_numbers(tmp_path):
 def test_failing_run_is_recorded_and_the_others_finish(reference):
     _, df = reference
     assert len(df) == N_RUNS and list(df["run_index"]) == list(range(N_RUNS))
-    bad = df[(df["tracker"] == "jpda-kf") & (df["tracker.params.max_jpda_events"] == 1)]
+    bad = df[(df["tracker"] == "jpda-kf") & (df["tracker.associator.max_events"] == 1)]
     assert len(bad) == 2 and set(bad["status"]) == {"error"}
     assert set(bad["error_type"]) == {"JPDAOverflowError"}
     assert all("max_events=1" in e and "\n" not in e for e in bad["error"])
@@ -229,7 +233,7 @@ def test_failing_run_is_recorded_and_the_others_finish(reference):
 def test_same_seed_gives_same_traffic_whatever_the_parameter(reference):
     # GNN ignores max_jpda_events: with common random numbers its two grid points are the same runs
     _, df = reference
-    gnn = df[df["tracker"] == "gnn-kf"].set_index(["seed_index", "tracker.params.max_jpda_events"])
+    gnn = df[df["tracker"] == "gnn-kf"].set_index(["seed_index", "tracker.associator.max_events"])
     for k in (0, 1):
         a, b = gnn.loc[(k, 50000)], gnn.loc[(k, 1)]
         for col in ("tp_pct", "fp_pct", "pos_rmse_m", "vel_rmse_mps", "n_matched_frames"):
@@ -339,7 +343,9 @@ def test_killed_worker_stops_the_campaign_and_resume_finishes_it(reference, tmp_
 
 def test_full_recording_of_chosen_seeds(tmp_path):
     text = CAMPAIGN.replace('trackers = ["jpda-kf", "gnn-kf"]', 'trackers = ["gnn-kf"]').replace(
-        '"tracker.params.max_jpda_events" = [50000, 1]', "") + "[record]\nfull_seeds = [1]\n"
+        '"tracker.associator.max_events" = [50000, 1]', "") + "[record]\nfull_seeds = [1]\n"
+    text = "\n".join(line for line in text.splitlines()  # JPDA-only keys: no tracker of this campaign has them
+                     if not line.startswith(("tracker.associator.method", "tracker.associator.on_overflow"))) + "\n"
     campaign = load_campaign(_write(tmp_path, text))
     out = tmp_path / "rec"
     store.create(out, tmp_path / "c.toml", campaign)
@@ -364,26 +370,26 @@ def test_report_tables_and_plots(reference):
         assert args.func(args) == 0
     assert f"wrote {out / 'report.md'}" in buf.getvalue()
     md = (out / "report.md").read_text()
-    assert "| tracker | `tracker.params.max_jpda_events` | n | mean | sd | 95 % CI |" in md
+    assert "| tracker | `tracker.associator.max_events` | n | mean | sd | 95 % CI |" in md
     assert "## Failed runs" in md and "JPDAOverflowError" in md
     pngs = sorted(p.name for p in (out / "plots").glob("*.png"))
-    assert pngs == ["rmse_vs_time.png", "scores_vs_tracker.params.max_jpda_events.png"]
+    assert pngs == ["rmse_vs_time.png", "scores_vs_tracker.associator.max_events.png"]
     for p in pngs:
         assert (out / "plots" / p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert f"](plots/{p})" in md
     summary = pd.read_csv(out / "summary.csv")
-    cell = summary[(summary["tracker"] == "gnn-kf") & (summary["tracker.params.max_jpda_events"] == 50000)
+    cell = summary[(summary["tracker"] == "gnn-kf") & (summary["tracker.associator.max_events"] == 50000)
                    & (summary["score"] == "pos_rmse_m")].iloc[0]
-    values = df[(df["tracker"] == "gnn-kf") & (df["tracker.params.max_jpda_events"] == 50000)]["pos_rmse_m"]
+    values = df[(df["tracker"] == "gnn-kf") & (df["tracker.associator.max_events"] == 50000)]["pos_rmse_m"]
     assert cell["n"] == 2 and cell["runs"] == 2 and cell["failed"] == 0
     assert cell["mean"] == pytest.approx(values.mean(), rel=1e-12)
     assert cell["sd"] == pytest.approx(values.std(ddof=1), rel=1e-12)
     half = 12.706204736174698 * values.std(ddof=1) / math.sqrt(2)  # t_{0.975, 1}
     assert cell["ci_hi"] - cell["mean"] == pytest.approx(half, rel=1e-9)
-    failed = summary[(summary["tracker"] == "jpda-kf") & (summary["tracker.params.max_jpda_events"] == 1)]
+    failed = summary[(summary["tracker"] == "jpda-kf") & (summary["tracker.associator.max_events"] == 1)]
     assert (failed["n"] == 0).all() and (failed["failed"] == 2).all()
     # thesis-table form: counts summed over the ok runs, percentages of the sums, thesis rows beside
-    ok = df[(df["tracker"] == "gnn-kf") & (df["tracker.params.max_jpda_events"] == 50000)]
+    ok = df[(df["tracker"] == "gnn-kf") & (df["tracker.associator.max_events"] == 50000)]
     seen, tracked, false = (int(ok[c].sum()) for c in ("cars_seen", "cars_tracked", "false_tracks"))
     row = f"| gnn-kf (ours) | 50000 | 2 | {seen} | {tracked} | {false} | {100 * tracked / seen:.4g} |"
     assert "### Thesis-table form" in md and row in md

@@ -28,7 +28,7 @@ def test_docs_scenarios_md_is_generated_from_the_code():
 def test_keys_reference_lists_nested_keys_with_defaults():
     md = keys_markdown()
     for key in ("`vehicles[].lane_changes[].at_s`", "`sensor.lidar.max_range_m`", "`convoy.gap_m`",
-                "`sensor.perception.ground.method`", "`tracker.params`", "`scoring.match_distance_m`"):
+                "`sensor.perception.ground.method`", "`tracker.filter`", "`tracker.associator.gate_alpha`", "`tracker.management.coast_scans`", "`scoring.match_distance_m`"):
         assert key in md, key
     assert "| `sensor.lidar.max_range_m` | float | `70.0` |" in md
 
@@ -59,7 +59,8 @@ def test_listings():
     (["run", "cut_in_out", "--tracker", "jpda-ukf"], "error: tracker.name: unknown tracker name 'jpda-ukf'"),
     (["run", "cut_in_out", "--set", "sensor.lidar.max_range_m=-3"],
      "error: sensor.lidar.max_range_m: expected a finite number > 0, got -3.0"),
-    (["run", "cut_in_out", "--set", "tracker.params.sigma_q=1"], "error: tracker.params: unknown parameter(s) ['sigma_q']"),
+    (["run", "cut_in_out", "--set", "tracker.filter.sigma_q=1"], "error: tracker.filter.sigma_q: unknown key; allowed: motion, "),
+    (["run", "cut_in_out", "--set", "tracker.associator.pd=2"], "error: tracker.associator.pd: 2.0 is not allowed; must be in (0, 1]"),
     (["view", "no/such/run"], "error: no/such/run/run.rrd: no recording"),
 ])
 def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path):
@@ -73,8 +74,8 @@ def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path):
 def test_a_run_that_fails_mid_way_keeps_its_tables_and_says_where(tmp_path):
     # JPDA told to refuse any cluster with more than one joint event, with gates wide enough to merge tracks
     out = tmp_path / "failed"
-    proc = _cli("run", "cut_in_out", "--set", "duration_s=2", "--set", "tracker.params.max_jpda_events=1",
-                "--set", "tracker.params.jpda_overflow='raise'", "--set", "tracker.params.gate_alpha=1e4",
+    proc = _cli("run", "cut_in_out", "--set", "duration_s=2", "--set", "tracker.associator.max_events=1",
+                "--set", "tracker.associator.method='enumerate'", "--set", "tracker.associator.on_overflow='raise'", "--set", "tracker.associator.gate_alpha=1e4",
                 "--out", str(out), "--quiet")
     assert proc.returncode == 1
     lines = proc.stderr.strip().splitlines()

@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from trackers import FilterError, FilterState, KalmanFilter, cv_noise_gain, cv_process_noise, cv_transition
+from trackers import FilterError, FilterState, cv_noise_gain, cv_process_noise, cv_transition, make_filter
+from trackers.initiation import single_point, two_point
+from trackers.models import PositionMeasurement
 from trackers.gating import mahalanobis2
 
 SIGMA_V, SIGMA_W, DT = 2.0, 0.3, 0.1
@@ -30,7 +32,7 @@ def test_ncv_model_matches_per_axis_closed_form():
 
 def test_predict_equals_closed_form():
     rng = np.random.default_rng(1)
-    kf = KalmanFilter(sigma_v=SIGMA_V, sigma_w=SIGMA_W)
+    kf = make_filter("kf", sigma_v=SIGMA_V, sigma_w=SIGMA_W)
     s = random_state(rng)
     p = kf.predict(s, DT)
     A = np.array([[1, 0, DT, 0], [0, 1, 0, DT], [0, 0, 1, 0], [0, 0, 0, 1.0]])
@@ -41,7 +43,7 @@ def test_predict_equals_closed_form():
 
 def test_single_measurement_update_is_standard_kf_joseph_form():
     rng = np.random.default_rng(2)
-    kf = KalmanFilter(sigma_v=SIGMA_V, sigma_w=SIGMA_W)
+    kf = make_filter("kf", sigma_v=SIGMA_V, sigma_w=SIGMA_W)
     sp = kf.predict(random_state(rng), DT)
     z = sp.x[:2] + rng.normal(size=2)
     H = np.hstack([np.eye(2), np.zeros((2, 2))])
@@ -61,7 +63,7 @@ def test_single_measurement_update_is_standard_kf_joseph_form():
 
 def test_pda_update_equals_thesis_4_15_to_4_17():
     rng = np.random.default_rng(3)
-    kf = KalmanFilter(sigma_v=SIGMA_V, sigma_w=SIGMA_W)
+    kf = make_filter("kf", sigma_v=SIGMA_V, sigma_w=SIGMA_W)
     sp = kf.predict(random_state(rng), DT)
     nu = rng.normal(size=(4, 2))
     beta = np.array([0.3, 0.1, 0.25, 0.05])
@@ -79,7 +81,7 @@ def test_pda_update_equals_thesis_4_15_to_4_17():
 
 def test_empty_or_missed_update_returns_the_prediction():
     rng = np.random.default_rng(4)
-    kf = KalmanFilter(sigma_v=SIGMA_V, sigma_w=SIGMA_W)
+    kf = make_filter("kf", sigma_v=SIGMA_V, sigma_w=SIGMA_W)
     sp = kf.predict(random_state(rng), DT)
     assert kf.update(sp, np.zeros((0, 2)), np.zeros(0), 1.0) is sp
     u = kf.update(sp, rng.normal(size=(2, 2)), np.zeros(2), 1.0)
@@ -89,8 +91,8 @@ def test_empty_or_missed_update_returns_the_prediction():
 
 def test_covariance_symmetric_psd_after_many_steps():
     rng = np.random.default_rng(5)
-    kf = KalmanFilter(sigma_v=SIGMA_V, sigma_w=SIGMA_W)
-    s = kf.initiate(np.array([1.0, 2.0]), 40.0)
+    kf = make_filter("kf", sigma_v=SIGMA_V, sigma_w=SIGMA_W)
+    s = kf.initial_state(*single_point(np.array([1.0, 2.0]), kf.measurement, 40.0))
     min_eig = np.inf
     for _ in range(300):
         s = kf.predict(s, rng.uniform(0.01, 0.5))
@@ -106,7 +108,7 @@ def test_nees_and_nis_within_chi_square_bounds():
     """100 seeded runs x 50 steps of NCV truth; per-step average NEES (4 dof) and NIS (2 dof) inside the
     two-sided 95% chi-square band at >= 90% of steps (expected 95%), overall means within 5% of 4 and 2."""
     runs, steps, dt = 100, 50, 0.1
-    kf = KalmanFilter(sigma_v=SIGMA_V, sigma_w=SIGMA_W)
+    kf = make_filter("kf", sigma_v=SIGMA_V, sigma_w=SIGMA_W)
     rng = np.random.default_rng(20240601)
     A, Q = cv_transition(dt), cv_process_noise(dt, SIGMA_V)
     LQ = np.linalg.cholesky(Q + 1e-18 * np.eye(4))
@@ -133,15 +135,23 @@ def test_nees_and_nis_within_chi_square_bounds():
 
 
 def test_initiate_matches_section_7_2():
-    kf = KalmanFilter(sigma_v=SIGMA_V, sigma_w=SIGMA_W)
-    s = kf.initiate(np.array([3.0, -4.0]), 40.0)
+    kf = make_filter("kf", sigma_v=SIGMA_V, sigma_w=SIGMA_W)
+    s = kf.initial_state(*single_point(np.array([3.0, -4.0]), kf.measurement, 40.0))
     np.testing.assert_allclose(s.x, [3.0, -4.0, 0.0, 0.0], atol=0)
     np.testing.assert_allclose(s.P, np.diag([0.09, 0.09, 1600 / 3, 1600 / 3]), rtol=1e-15)
     np.testing.assert_allclose(s.e_post, [0.0, 0.0], atol=0)
+    x0, P0 = two_point(np.array([1.0, 2.0]), np.array([3.5, 2.0]), 0.1, PositionMeasurement(0.3))
+    np.testing.assert_allclose(x0, [3.5, 2.0, 25.0, 0.0], rtol=1e-12)
+    R = 0.09 * np.eye(2)
+    np.testing.assert_allclose(P0, np.block([[R, R / 0.1], [R / 0.1, 2 * R / 0.01]]), rtol=1e-12)
+    ct = make_filter("ekf", motion="ct", sigma_v=SIGMA_V, sigma_w=SIGMA_W, omega_std0=0.2)
+    s5 = ct.initial_state(x0, P0)  # the CT model appends omega = 0 with variance omega_std0^2
+    np.testing.assert_allclose(s5.x, [3.5, 2.0, 25.0, 0.0, 0.0], rtol=1e-12)
+    assert s5.P[4, 4] == pytest.approx(0.04) and np.all(s5.P[4, :4] == 0)
 
 
 def test_singular_or_nonfinite_covariance_gives_one_line_filter_error():
-    kf = KalmanFilter(sigma_v=SIGMA_V, sigma_w=SIGMA_W)
+    kf = make_filter("kf", sigma_v=SIGMA_V, sigma_w=SIGMA_W)
     singular = FilterState(x=np.zeros(4), P=np.diag([-0.09, 1.0, 1.0, 1.0]))  # S = H P H^T + R has a zero eigenvalue
     with pytest.raises(FilterError, match="not positive definite") as e:
         kf.update(singular, np.ones((1, 2)), np.array([1.0]), 0.0)
@@ -165,10 +175,12 @@ def test_state_is_an_immutable_value_and_inputs_are_checked():
     np.testing.assert_array_equal(s.e_post, np.zeros(2))
     with pytest.raises(ValueError, match="P must be"):
         FilterState(x=np.zeros(4), P=np.eye(3))
-    kf = KalmanFilter(sigma_v=SIGMA_V, sigma_w=SIGMA_W)
+    kf = make_filter("kf", sigma_v=SIGMA_V, sigma_w=SIGMA_W)
     with pytest.raises(ValueError, match="sum to 1"):
         kf.update(s, np.ones((1, 2)), np.array([0.5]), 0.2)
     with pytest.raises(ValueError, match="dt"):
         kf.predict(s, -0.1)
-    with pytest.raises(ValueError, match="sigma_w"):
-        KalmanFilter(sigma_v=1.0, sigma_w=0.0)
+    with pytest.raises(ValueError, match="filter.sigma_w: 0.0 is not allowed; must be > 0"):
+        make_filter("kf", sigma_v=1.0, sigma_w=0.0)
+    with pytest.raises(ValueError, match="filter.motion: 'ct' is nonlinear"):
+        make_filter("kf", motion="ct")

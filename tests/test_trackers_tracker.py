@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 import trackers
-from trackers import (FILTERS, KalmanFilter, Tracker, TrackerParams, available_trackers, cv_noise_gain, cv_transition,
-                      make_tracker, parse_tracker_name)
+from trackers import (FILTERS, ParamError, available_trackers, cv_noise_gain, cv_transition, make_tracker,
+                      parse_tracker_name)
+from trackers.initiation import single_point
 from trackers.registry import WRAPPERS
 
 DT = 0.1
@@ -91,15 +92,15 @@ def test_exclusive_score_increment_formula():
     """Two tracks gate one measurement; each track's increment weights L_i by 1 - W[other, i]."""
     tracker = make_tracker("jpda-kf", score_mode="exclusive")
     kf = tracker.filter
-    s1 = kf.initiate(np.array([0.0, 0.0]), 1.0)
-    s2 = kf.initiate(np.array([0.5, 0.0]), 1.0)
+    s1 = kf.initial_state(*single_point(np.array([0.0, 0.0]), kf.measurement, 1.0))
+    s2 = kf.initial_state(*single_point(np.array([0.5, 0.0]), kf.measurement, 1.0))
     tracks = (trackers.Track(0, s1, 0.0, 0.0, False, 1, 1, 0), trackers.Track(1, s2, 0.0, 0.0, False, 1, 1, 0))
     r = tracker.step(tracks, np.array([[0.2, 0.1]]), DT, 2)
-    ap = tracker.association_params
+    ap = tracker.association
     ll = trackers.log_gaussian((np.array([0.2, 0.1]) - r.info.z_hat)[:, None, :], r.info.S)  # (2, 1)
     for t, other in ((0, 1), (1, 0)):
         L = ap.pd * np.exp(ll[t, 0]) / ap.clutter_density * (1 - r.info.W[other, 0])
-        assert abs(r.tracks[t].score - np.log(1 - ap.pd * ap.pg + L)) <= 1e-12
+        assert abs(r.tracks[t].score - np.log(1 - ap.pd * tracker.pg + L)) <= 1e-12
 
 
 def test_empty_frames_and_no_tracks():
@@ -115,7 +116,7 @@ def test_empty_frames_and_no_tracks():
     np.testing.assert_array_equal(r2.tracks[0].state.x, pred.x)  # a miss leaves the prediction
     np.testing.assert_array_equal(r2.tracks[0].state.P, pred.P)
     assert r2.tracks[0].misses_in_a_row == 1 and r2.tracks[0].age == 2
-    assert abs(r2.tracks[0].score - (r.tracks[0].score + np.log(1 - 0.9 * tracker.params.pg))) <= 1e-12
+    assert abs(r2.tracks[0].score - (r.tracks[0].score + np.log(1 - 0.9 * tracker.pg))) <= 1e-12
 
 
 def test_non_finite_measurements_raise_one_line_value_error():
@@ -162,37 +163,41 @@ def test_runs_are_deterministic():
 # ---- registry --------------------------------------------------------------------------------------------------
 
 def test_registry_names_and_errors():
-    assert available_trackers() == ["gnn-kf", "jpda-kf", "nn-kf", "pda-kf"]
+    assert {"gnn-kf", "jpda-kf", "nn-kf", "pda-kf", "jpda-ekf"} <= set(available_trackers())
     assert parse_tracker_name("jpda-kf") == (None, "jpda", "kf")
     with pytest.raises(ValueError) as e:
         make_tracker("jpda-ukf")
     for valid in ("'gnn'", "'jpda'", "'nn'", "'pda'", "'kf'"):
         assert valid in str(e.value)
-    with pytest.raises(ValueError, match=r"unknown parameter\(s\) \['sigma_q'\].*'sigma_v'"):
+    with pytest.raises(ParamError, match=r"sigma_q: unknown parameter for tracker 'pda-kf'.*'sigma_v'"):
         make_tracker("pda-kf", sigma_q=1.0)
-    with pytest.raises(ValueError, match="score_mode"):
+    with pytest.raises(ParamError, match="management.score_mode: 'best' is not allowed; allowed: gate, exclusive"):
         make_tracker("pda-kf", score_mode="best")
-    with pytest.raises(ValueError, match="pd"):
+    with pytest.raises(ParamError, match="associator.pd: expected a finite number, got '0.9'"):
         make_tracker("pda-kf", pd="0.9")
+    with pytest.raises(ParamError, match="filter.sigma_v: -1.0 is not allowed; must be >= 0"):
+        make_tracker("pda-kf", filter={"sigma_v": -1.0})
+    with pytest.raises(ParamError, match="filter.gate_alpha: unknown key; allowed: motion, "):
+        make_tracker("pda-kf", associator={"gate_alpha": 9.0, "kind": "pda"}, filter={"gate_alpha": 1.0})
+    with pytest.raises(ParamError, match="filter.kind: is set by the tracker name 'pda-kf'"):
+        make_tracker("pda-kf", filter={"kind": "ekf"})
+    with pytest.raises(ParamError, match="management.kind: unknown manager 'mofn'"):
+        make_tracker("pda-kf", management={"kind": "mofn"})
     t = make_tracker("nn-kf", sigma_v=1.5, sigma_w=0.2, pd=0.8)
-    assert (t.filter.sigma_v, t.filter.sigma_w, t.params.pd, t.association_params.pd) == (1.5, 0.2, 0.8, 0.8)
-    assert t.associate is trackers.ASSOCIATORS["nn"]
-    with pytest.raises(ValueError, match="disagrees"):
-        Tracker(filter=KalmanFilter(sigma_v=1.0, sigma_w=0.3), associate=trackers.pda, params=TrackerParams())
+    assert (t.filter.motion.sigma_v, t.filter.measurement.sigma_w, t.association.pd) == (1.5, 0.2, 0.8)
+    assert t.associator is trackers.ASSOCIATORS["nn"]
+    typed = make_tracker("nn-kf", filter={"sigma_v": 1.5, "sigma_w": 0.2}, associator={"pd": 0.8})
+    assert typed.filter == t.filter and typed.association == t.association
 
 
 def test_registry_parses_hyphenated_filter_names_and_wrappers(monkeypatch):
-    def wrap(base, mode_switch=0.05):  # a stand-in wrapper with one parameter (the real one will build an IMM)
-        return base
-
-    monkeypatch.setitem(FILTERS, "gvbl-svsf", KalmanFilter)
-    monkeypatch.setitem(WRAPPERS, "imm", wrap)
-    assert parse_tracker_name("jpda-gvbl-svsf") == (None, "jpda", "gvbl-svsf")
-    assert parse_tracker_name("imm-pda-gvbl-svsf") == ("imm", "pda", "gvbl-svsf")
-    assert "imm-jpda-kf" in available_trackers() and len(available_trackers()) == 16
-    assert make_tracker("imm-jpda-kf", mode_switch=0.1, sigma_v=1.0).filter.sigma_v == 1.0
-    with pytest.raises(ValueError, match="mode_switch"):
-        make_tracker("jpda-kf", mode_switch=0.1)
+    monkeypatch.setitem(FILTERS, "gvbl-test", FILTERS["kf"])
+    monkeypatch.setitem(WRAPPERS, "wrap", lambda base: ("kf", {"sigma_v": 0.5}))
+    assert parse_tracker_name("jpda-gvbl-test") == (None, "jpda", "gvbl-test")
+    assert parse_tracker_name("wrap-pda-gvbl-test") == ("wrap", "pda", "gvbl-test")
+    assert "wrap-jpda-kf" in available_trackers()
+    assert make_tracker("wrap-jpda-kf").filter.motion.sigma_v == 0.5  # the wrapper's table
+    assert make_tracker("wrap-jpda-kf", sigma_v=1.0).filter.motion.sigma_v == 1.0  # overridden key by key
 
 
 @pytest.mark.parametrize("name", available_trackers())
@@ -209,7 +214,10 @@ def test_every_registered_tracker_runs_a_20_frame_scenario(name):
 
 def test_two_point_initiation_pairs_candidates_within_reach():
     tracker = make_tracker("jpda-kf")  # initiation="two_point" by default
-    p = tracker.params
+    p = dict(sigma_w=tracker.filter.measurement.sigma_w, v_max=tracker.management.v_max,
+             new_target_density=tracker.management.new_target_density, pd=tracker.association.pd,
+             clutter_density=tracker.association.clutter_density)
+    p = type("P", (), p)
     r1 = tracker.step((), np.array([[0.0, 0.0], [50.0, 0.0]]), DT, 3)
     assert [t.candidate for t in r1.tracks] == [True, True] and r1.next_id == 3
     assert [t.id for t in r1.tracks] == [-1, -1]
@@ -230,3 +238,20 @@ def test_two_point_initiation_pairs_candidates_within_reach():
     # a measurement farther than reach from every candidate never pairs
     r3 = tracker.step(r2.tracks, np.array([[200.0 + reach + 0.01, 0.0]]), DT, r2.next_id)
     assert r3.next_id == r2.next_id
+
+
+def test_kind_sub_tables_apply_only_to_their_kind_and_reach_imm_modes():
+    tables = dict(filter={"sigma_w": 0.5, "svsf": {"psi": 0.2}, "gvbl-svsf": {"psi_max": 5.0}},
+                  associator={"apda": {"psi_max": 1.0}, "jpda": {"method": "enumerate"}})
+    assert make_tracker("pda-svsf", **tables).filter.psi == (0.2, 0.2)
+    kf = make_tracker("jpda-kf", **tables)
+    assert kf.filter.measurement.sigma_w == 0.5 and kf.association.method == "enumerate"
+    assert make_tracker("apda-gvbl-svsf", **tables).association.psi_max == 1.0
+    imm = make_tracker("imm-pda-svsf", **tables)  # CV mode: svsf, CT mode: gvbl-svsf
+    assert imm.filter.filters[0].psi == (0.2, 0.2) and imm.filter.filters[1].psi_max == 5.0
+    with pytest.raises(ParamError, match="filter.svsf.psy: unknown key; allowed: covariance, gamma"):
+        make_tracker("jpda-kf", filter={"svsf": {"psy": 0.2}})  # a typo in another kind's table still fails
+    with pytest.raises(ParamError, match="filter.svsf.psi: -1.0 is not allowed"):
+        make_tracker("jpda-svsf", filter={"svsf": {"psi": -1.0}})
+    lenient = make_tracker("jpda-kf", filter={"psi": 0.2, "sigma_v": 1.0}, associator={"form": "thesis"}, lenient=True)
+    assert lenient.filter.motion.sigma_v == 1.0  # keys of another tracker dropped, its own kept

@@ -300,7 +300,7 @@ def test_highway_benchmark_scenario_is_the_thesis_length():
     scn = load_scenario("highway_benchmark")
     assert scn.duration_s == 427.4 and scn.rate_hz == 10.0 and scn.n_frames == 4275
     assert scn.road.kind == "motorway" and scn.road.lanes == 4 and scn.traffic.enabled
-    assert scn.tracker.name == "jpda-kf" and scn.tracker.params == {"sigma_w": 0.5, "sigma_v": 4.0}
+    assert scn.tracker.name == "jpda-kf" and scn.tracker.filter["sigma_w"] == 0.5 and scn.tracker.filter["sigma_v"] == 4.0
     # long enough for the sensor car at 30 m/s for the whole run, window ahead included
     assert scn.road.length_m >= scn.ego.position_m + 30.0 * scn.duration_s + scn.traffic.window_ahead_m
 

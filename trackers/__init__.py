@@ -1,27 +1,38 @@
-"""roadtrack multi-target trackers: NCV Kalman filter, NN/GNN/PDA/JPDA association, LLR track management.
+"""roadtrack multi-target trackers: filters (KF, EKF, ...), associators (NN, GNN, PDA, JPDA, ...), track management.
 
-Conventions: state is a value (`s1 = flt.predict(s0, dt)`), association is arithmetic on (T, M) arrays,
-float64, positions first ([px, py, vx, vy]), probabilities in log space. Depends on numpy and scipy only.
+Conventions: state is a value (`s1 = flt.predict(s0, dt)`), models are data (trackers.models), association is
+arithmetic on (T, M) arrays, float64, positions first ([px, py, vx, vy, ...]), probabilities in log space.
+A tracker is named "<associator>-<filter>" (see trackers.registry). Depends on numpy and scipy only.
+
+Comments cite the papers (README, "Papers") by section and equation, e.g. "thesis (4.61)". Tags after a
+citation: [R] reconstructed (the extracted text is garbled or missing, the standard literature form is used),
+[I] inferred from the paper's own numbers, [D] a default chosen here where the paper is silent (always a
+parameter).
 """
 
-from trackers.association import ASSOCIATORS, AssociationParams, global_nearest_neighbour, jpda, nearest_neighbour, pda
+from trackers.association import (ASSOCIATORS, AssociationInput, AssociationParams, AssociatorParams,
+                                  global_nearest_neighbour, jpda, nearest_neighbour, pda)
 from trackers.errors import FilterError, JPDAOverflowError, JPDAOverflowWarning
-from trackers.filters import FILTERS, Filter, KalmanFilter, pda_covariance
+from trackers.filters import FILTERS, ExtendedKalmanFilter, Filter, KalmanFilter, make_filter, pda_covariance
 from trackers.gating import (gate, gate_probability, innovations, log_gaussian, mahalanobis2,
                              mahalanobis2_and_log_gaussian)
-from trackers.management import ManagementParams, decide, initial_score, score_increment
-from trackers.models import (MEASUREMENT_DIM, STATE_DIM, cv_noise_gain, cv_process_noise, cv_transition,
-                             measurement_noise, position_measurement_matrix)
-from trackers.registry import WRAPPERS, available_trackers, make_tracker, parse_tracker_name
+from trackers.management import ManagementParams, initial_score, score_decide, score_increment
+from trackers.models import (ConstantVelocity, CoordinatedTurn, PositionMeasurement, RangeBearing, cv_noise_gain,
+                             cv_process_noise, cv_transition, measurement_noise, position_measurement_matrix)
+from trackers.params import ParamError
+from trackers.registry import (WRAPPERS, available_trackers, describe_tracker, make_tracker, named_trackers,
+                               parse_tracker_name, preset)
 from trackers.state import FilterState
-from trackers.tracker import StepInfo, StepResult, Track, Tracker, TrackerParams
+from trackers.tracker import ScanRecord, StepInfo, StepResult, Track, Tracker
 
 __all__ = [
-    "ASSOCIATORS", "AssociationParams", "FILTERS", "Filter", "FilterError", "FilterState", "JPDAOverflowError",
-    "JPDAOverflowWarning", "KalmanFilter", "MEASUREMENT_DIM", "ManagementParams", "STATE_DIM", "StepInfo", "StepResult",
-    "Track", "Tracker", "TrackerParams", "WRAPPERS", "available_trackers", "cv_noise_gain", "cv_process_noise",
-    "cv_transition", "decide", "gate", "gate_probability", "global_nearest_neighbour", "initial_score", "innovations",
-    "jpda", "log_gaussian", "mahalanobis2", "mahalanobis2_and_log_gaussian", "make_tracker", "measurement_noise",
-    "nearest_neighbour", "parse_tracker_name", "pda", "pda_covariance", "position_measurement_matrix",
+    "ASSOCIATORS", "AssociationInput", "AssociationParams", "AssociatorParams", "ConstantVelocity",
+    "CoordinatedTurn", "ExtendedKalmanFilter", "FILTERS", "Filter", "FilterError", "FilterState",
+    "JPDAOverflowError", "JPDAOverflowWarning", "KalmanFilter", "ManagementParams", "ParamError",
+    "PositionMeasurement", "RangeBearing", "ScanRecord", "StepInfo", "StepResult", "Track", "Tracker", "WRAPPERS",
+    "available_trackers", "describe_tracker", "cv_noise_gain", "cv_process_noise", "cv_transition", "gate", "gate_probability",
+    "global_nearest_neighbour", "initial_score", "innovations", "jpda", "log_gaussian", "mahalanobis2",
+    "mahalanobis2_and_log_gaussian", "make_filter", "make_tracker", "measurement_noise", "named_trackers", "nearest_neighbour",
+    "parse_tracker_name", "pda", "pda_covariance", "position_measurement_matrix", "preset", "score_decide",
     "score_increment",
 ]

@@ -1,11 +1,17 @@
-"""Track management by log-likelihood-ratio score (thesis §7; §7.2 is the implemented definition).
+"""Track management: confirmation and deletion by track score (SPRT) or m-of-n, coasting, duplicate pruning
+(thesis §1.3.4, §7; §7.2 of our reading is the implemented score).
 
 Score L of a track = log likelihood ratio 'real target' vs 'clutter', updated additively per scan (1.35).
     new tentative track:  L_1 = ln(beta_NT / lambda)  (+ ln P_D if `initial_score_pd`)
     per scan:             dL  = ln(1 - P_D P_G + sum_{i gated} P_D N(nu_i; 0, S) / lambda)
     confirm tentative:    L >= T_c = ln((1 - beta_TM) / alpha_FC)
     delete tentative:     L <= T_d = ln(beta_TM / (1 - alpha_FC))
-    delete confirmed:     max_score - L >= delta_del (default |T_d|)
+    delete confirmed:     max_score - L >= delta_del; by default (coast_scans + 1/2) |ln(1 - P_D P_G)|,
+                          so a confirmed track coasts through `coast_scans` missed scans in a row.
+m-of-n (thesis §1.3.4, the alternative): confirm with >= m detections in the last n scans; delete a
+tentative track that can no longer reach m; delete a confirmed one after coast_scans + 1 misses in a row.
+Duplicates [D]: a confirmed track whose prediction stays within `merge_d2` (Mahalanobis, combined S) of an
+older confirmed track while they share gated measurements for `merge_scans` scans is deleted.
 """
 
 from __future__ import annotations
@@ -16,35 +22,46 @@ from dataclasses import dataclass
 import numpy as np
 
 from trackers.association.pda import pda_log_denominator
+from trackers.params import NON_NEGATIVE, OPEN_PROBABILITY, POSITIVE, ParamError, load, param
+
+INITIATIONS = ("two_point", "single")
+SCORE_MODES = ("gate", "exclusive")
 
 
 @dataclass(frozen=True)
 class ManagementParams:
-    """new_target_density beta_NT [m^-2]; alpha_fc false-confirmation and beta_tm true-track-deletion
-    probabilities of the SPRT; delta_del: score drop that deletes a confirmed track (None -> |T_d|);
-    initial_score_pd: add ln P_D to the initial score. Defaults: thesis §7.2 [D]."""
+    """Initiation, confirmation, deletion and duplicate pruning. Defaults: highway traffic at 10 Hz, §7.2 [D]."""
 
-    new_target_density: float = 1e-3
-    alpha_fc: float = 1e-4
-    beta_tm: float = 1e-2
-    delta_del: float | None = None
-    initial_score_pd: bool = False
+    initiation: str = param("two_point", "two_point: a measurement in no gate waits for a partner within "
+                            "v_max dt + 3 sqrt(2) sigma_w in the next scan (two-point differencing, §7.2); "
+                            "single: a tentative track at once, velocity 0", choices=INITIATIONS)
+    v_max: float = param(40.0, "largest target speed [m/s] (initial velocity spread, two-point reach)",
+                         check=POSITIVE)
+    new_target_density: float = param(1e-3, "new-target density beta_NT [1/m^2] (initial score, §7.2)",
+                                      check=POSITIVE)
+    alpha_fc: float = param(1e-4, "SPRT false-confirmation probability", check=OPEN_PROBABILITY)
+    beta_tm: float = param(1e-2, "SPRT true-track-deletion probability", check=OPEN_PROBABILITY)
+    delta_del: float | None = param(None, "score drop [nats] that deletes a confirmed track (default: "
+                                    "coast_scans + 1/2 missed scans' worth)", check=POSITIVE)
+    coast_scans: int = param(5, "missed scans in a row a confirmed track survives (predicting) before deletion",
+                             check=NON_NEGATIVE)
+    initial_score_pd: bool = param(False, "add ln P_D to the initial score")
+    score_mode: str = param("gate", "gate: every measurement in the track's gate counts (§7.2); exclusive: "
+                            "weighted by the probability that no other track claims it [D]", choices=SCORE_MODES)
+    confirm_m: int = param(3, "m_of_n: detections needed ...", check=POSITIVE)
+    confirm_n: int = param(5, "m_of_n: ... in the last n scans", check=POSITIVE)
+    merge_d2: float = param(4.0, "duplicate test: squared Mahalanobis distance between two confirmed tracks' "
+                            "predicted positions (0 disables pruning)", check=NON_NEGATIVE)
+    merge_scans: int = param(5, "duplicate test: scans in a row before the younger track is deleted",
+                             check=POSITIVE)
+    history_length: int = param(32, "scans of innovations, S, gated counts and gate volumes kept per track",
+                                check=POSITIVE)
 
     def __post_init__(self) -> None:
-        for name in ("new_target_density", "alpha_fc", "beta_tm"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"ManagementParams.{name} must be a finite number, got {v!r}")
-        if self.new_target_density <= 0:
-            raise ValueError(f"ManagementParams.new_target_density must be > 0, got {self.new_target_density}")
-        if not (0 < self.alpha_fc < 1 and 0 < self.beta_tm < 1 and self.alpha_fc + self.beta_tm < 1):
-            raise ValueError(f"ManagementParams needs 0 < alpha_fc, beta_tm and alpha_fc + beta_tm < 1, "
-                             f"got {self.alpha_fc}, {self.beta_tm}")
-        d = self.delta_del
-        if d is not None and (isinstance(d, bool) or not isinstance(d, (int, float)) or not d > 0):
-            raise ValueError(f"ManagementParams.delta_del must be None or a number > 0, got {self.delta_del!r}")
-        if not isinstance(self.initial_score_pd, bool):
-            raise ValueError(f"ManagementParams.initial_score_pd must be a bool, got {self.initial_score_pd!r}")
+        if self.alpha_fc + self.beta_tm >= 1:
+            raise ParamError("beta_tm", f"alpha_fc + beta_tm must be < 1, got {self.alpha_fc} + {self.beta_tm}")
+        if self.confirm_m > self.confirm_n:
+            raise ParamError("confirm_m", f"must be <= confirm_n = {self.confirm_n}, got {self.confirm_m}")
 
     @property
     def confirm_threshold(self) -> float:
@@ -56,10 +73,11 @@ class ManagementParams:
         """T_d = ln(beta_TM / (1 - alpha_FC)) (about -4.6 by default)."""
         return math.log(self.beta_tm / (1.0 - self.alpha_fc))  # §7.2 SPRT deletion threshold
 
-    @property
-    def deletion_drop(self) -> float:
-        """Score drop from the running maximum that deletes a confirmed track: delta_del or |T_d|."""
-        return abs(self.delete_threshold) if self.delta_del is None else float(self.delta_del)
+    def deletion_drop(self, pd: float = 0.9, pg: float = 0.99966) -> float:
+        """Score drop from the running maximum that deletes a confirmed track."""
+        if self.delta_del is not None:
+            return float(self.delta_del)
+        return (self.coast_scans + 0.5) * -math.log1p(-pd * pg) if pd * pg < 1 else math.inf
 
 
 def initial_score(mp: ManagementParams, clutter_density: float, pd: float) -> float:
@@ -68,18 +86,60 @@ def initial_score(mp: ManagementParams, clutter_density: float, pd: float) -> fl
     return score + math.log(pd) if mp.initial_score_pd else score
 
 
-def score_increment(log_lik: np.ndarray, gated: np.ndarray, pd: float, pg: float,
+def score_increment(log_lik: np.ndarray, gated: np.ndarray, pd: np.ndarray | float, pg: float,
                     clutter_density: float) -> np.ndarray:
     """dL (T,) = ln(1 - P_D P_G + sum_{gated i} P_D N_i / lambda) from log N (T, M) and gate flags (T, M)."""
     return pda_log_denominator(log_lik, gated, pd, pg, clutter_density)  # §7.2 / (1.35) score increment
 
 
-def decide(score: np.ndarray, max_score: np.ndarray, confirmed: np.ndarray,
-           mp: ManagementParams) -> tuple[np.ndarray, np.ndarray]:
-    """Confirmation and deletion: (confirmed_after (T,) bool, delete (T,) bool). Confirmation is checked
-    first, so a track confirmed in this scan is judged by the confirmed-track rule."""
-    score, max_score = np.asarray(score, dtype=np.float64), np.asarray(max_score, dtype=np.float64)
+def score_decide(score: np.ndarray, max_score: np.ndarray, confirmed: np.ndarray, mp: ManagementParams,
+                 drop: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """SPRT confirmation and deletion: (confirmed_after (T,) bool, delete (T,) bool). Confirmation is checked
+    first, so a track confirmed in this scan is judged by the confirmed-track rule; drop: deletion drop (T,)."""
     confirmed = np.asarray(confirmed, dtype=bool) | (score >= mp.confirm_threshold)  # §7.2 confirm
-    delete = np.where(confirmed, max_score - score >= mp.deletion_drop,  # §7.2 delete confirmed on score drop
+    delete = np.where(confirmed, max_score - score >= drop,  # §7.2 delete confirmed on score drop
                       score <= mp.delete_threshold)  # §7.2 delete tentative
     return confirmed, delete
+
+
+def m_of_n_decide(detected: np.ndarray, misses_in_a_row: np.ndarray, confirmed: np.ndarray,
+                  mp: ManagementParams, known: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """m-of-n (thesis §1.3.4): detected (T, n) flags of the last n scans (newest last); known (T, n) marks the
+    scans of the track's life (scans before its birth are neither hits nor misses; default: all known)."""
+    known = np.ones_like(detected, dtype=bool) if known is None else known
+    hits = (detected & known).sum(axis=1)
+    window_misses = (~detected & known).sum(axis=1)
+    confirmed = np.asarray(confirmed, dtype=bool) | (hits >= mp.confirm_m)  # §1.3.4: m of the last n
+    delete = np.where(confirmed, misses_in_a_row > mp.coast_scans, window_misses > mp.confirm_n - mp.confirm_m)
+    return confirmed, delete
+
+
+def duplicate_counts(z_hat: np.ndarray, S: np.ndarray, gated: np.ndarray, confirmed: np.ndarray,
+                     ids: np.ndarray, counts: np.ndarray, merge_d2: float) -> np.ndarray:
+    """Scans in a row (T,) each confirmed track has sat on an older confirmed track: its predicted measurement
+    within `merge_d2` of the older one's under S_t + S_s, sharing at least one gated measurement."""
+    out = np.zeros(len(ids), dtype=np.int64)
+    conf = np.flatnonzero(confirmed)
+    if merge_d2 <= 0 or conf.size < 2:
+        return out
+    g = gated[conf]
+    share = (g.astype(np.int64) @ g.T.astype(np.int64)) > 0  # (C, C) share a gated measurement
+    older = ids[conf][None, :] < ids[conf][:, None]  # [t, s]: s is older than t
+    cand = np.argwhere(share & older)
+    if cand.size == 0:
+        return out
+    t, s_ = conf[cand[:, 0]], conf[cand[:, 1]]
+    d = z_hat[s_] - z_hat[t]
+    d2 = np.einsum("ki,ki->k", d, np.linalg.solve(S[s_] + S[t], d[..., None])[..., 0])
+    on = np.unique(t[d2 <= merge_d2])
+    out[on] = counts[on] + 1
+    return out
+
+
+MANAGERS = ("score", "m_of_n")
+
+
+def build_management(kind: str, data: dict, path: str = "management") -> ManagementParams:
+    if kind not in MANAGERS:
+        raise ParamError(f"{path}.kind", f"unknown manager {kind!r}; allowed: {', '.join(MANAGERS)}")
+    return load(ManagementParams, data, path)

@@ -1,42 +1,318 @@
-"""Motion and measurement models (thesis §1.1-1.2).
+"""Motion and measurement models as data (thesis §1.1-1.3).
 
-State `[px, py, vx, vy]` in m and m/s (positions first); measurement `[px, py]` in m.
+A motion model gives its state size `ndim`, which entries are position and velocity (`position`,
+`velocity`, index tuples, positions first), the transition `f(x, dt)`, its Jacobian `jacobian(x, dt)`
+(n, n) and the process noise `process_noise(dt)` (n, n). `embed(x, P)` lifts a kinematic Gaussian
+[p; v] (2d,) into the model's state (e.g. a turn rate appended with its prior variance).
+
+A measurement model gives `ndim` (m), `h(x, motion)`, `jacobian(x, motion)` (m, n), the noise `R` (m, m),
+`residual(z, z_hat)` (angle wrapping for bearings) and `position_of(z)`: the position and its
+covariance that one measurement implies (used by initiators). Models are frozen dataclasses; filters
+are generic over them. Units: m, s, rad.
 """
 
 from __future__ import annotations
 
+import functools
+import math
+from dataclasses import dataclass, field
+
 import numpy as np
 
-STATE_DIM = 4
-MEASUREMENT_DIM = 2
+
+def _check_finite(owner: str, **values: float) -> None:
+    for name, v in values.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"{owner}.{name} must be a finite number, got {v!r}")
 
 
-def cv_transition(dt: float) -> np.ndarray:
-    """NCV transition matrix A (4, 4) for a step of `dt` seconds."""
-    A = np.eye(STATE_DIM)  # (1.36)-(1.38) NCV: A = [[I, dt I], [0, I]]
-    A[0, 2] = A[1, 3] = dt
+# --------------------------------------------------------------------------------------------- motion
+@functools.lru_cache(maxsize=64)
+def _cv_transition(dims: int, dt: float) -> np.ndarray:
+    A = np.eye(2 * dims)  # (1.36)-(1.38) NCV: A = [[I, dt I], [0, I]]
+    A[range(dims), range(dims, 2 * dims)] = dt
+    A.setflags(write=False)
     return A
 
 
+@functools.lru_cache(maxsize=64)
+def _cv_noise(dims: int, dt: float, sigma_v: float) -> np.ndarray:
+    G = np.vstack([0.5 * dt * dt * np.eye(dims), dt * np.eye(dims)])  # (1.36)-(1.38) NCV gain G
+    Q = (sigma_v ** 2) * (G @ G.T)  # thesis §1.1 [R]: Q = G Qv G^T (dimensionally consistent (1.38))
+    Q.setflags(write=False)
+    return Q
+
+
+@dataclass(frozen=True)
+class ConstantVelocity:
+    """Near-constant velocity (white acceleration) in `dims` spatial axes: state [p_1..p_d, v_1..v_d].
+
+    sigma_v [m/s^2]: white-acceleration std per axis. dims = 2 for the road plane, 1 for the papers'
+    1-D targets (seed 000, 003)."""
+
+    sigma_v: float
+    dims: int = 2
+    linear: bool = field(default=True, init=False)
+
+    def __post_init__(self) -> None:
+        _check_finite("ConstantVelocity", sigma_v=self.sigma_v)
+        if self.sigma_v < 0:
+            raise ValueError(f"ConstantVelocity.sigma_v must be >= 0, got {self.sigma_v}")
+        if self.dims not in (1, 2, 3):
+            raise ValueError(f"ConstantVelocity.dims must be 1, 2 or 3, got {self.dims!r}")
+
+    @property
+    def ndim(self) -> int:
+        return 2 * self.dims
+
+    @property
+    def position(self) -> tuple[int, ...]:
+        return tuple(range(self.dims))
+
+    @property
+    def velocity(self) -> tuple[int, ...]:
+        return tuple(range(self.dims, 2 * self.dims))
+
+    def transition(self, dt: float) -> np.ndarray:
+        """A (n, n) = [[I, dt I], [0, I]] (read-only, cached per dt)."""
+        return _cv_transition(self.dims, float(dt))
+
+    def f(self, x: np.ndarray, dt: float) -> np.ndarray:
+        return self.transition(dt) @ x
+
+    def jacobian(self, x: np.ndarray, dt: float) -> np.ndarray:
+        return self.transition(dt)
+
+    def noise_gain(self, dt: float) -> np.ndarray:
+        """G (n, d): white acceleration enters as [dt^2/2 I; dt I]."""
+        d = self.dims
+        return np.vstack([0.5 * dt * dt * np.eye(d), dt * np.eye(d)])  # (1.36)-(1.38) NCV gain G
+
+    def process_noise(self, dt: float, x: np.ndarray | None = None) -> np.ndarray:
+        """Q = G Qv G^T (n, n), Qv = sigma_v^2 I (read-only, cached per dt)."""
+        return _cv_noise(self.dims, float(dt), float(self.sigma_v))
+
+    def embed(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Kinematic [p; v] (2d,) and (2d, 2d) -> model state: the identity for NCV."""
+        return np.asarray(x, dtype=np.float64), np.asarray(P, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class CoordinatedTurn:
+    """Near-constant-speed coordinated turn, state [px, py, vx, vy, omega] (thesis §1.3, (1.39)-(1.40);
+    the printed matrices are lost, so the standard form of Bar-Shalom, Li & Kirubarajan §11.7 is used).
+
+    sigma_v [m/s^2] white acceleration on each axis; sigma_omega [rad/s^2] on the turn rate;
+    omega_std0 [rad/s]: prior std of the turn rate of a new track (embed)."""
+
+    sigma_v: float
+    sigma_omega: float = 0.02
+    omega_std0: float = 0.1
+    linear: bool = field(default=False, init=False)
+    dims: int = field(default=2, init=False)
+
+    def __post_init__(self) -> None:
+        _check_finite("CoordinatedTurn", sigma_v=self.sigma_v, sigma_omega=self.sigma_omega,
+                      omega_std0=self.omega_std0)
+        if self.sigma_v < 0 or self.sigma_omega < 0 or self.omega_std0 <= 0:
+            raise ValueError("CoordinatedTurn needs sigma_v, sigma_omega >= 0 and omega_std0 > 0")
+
+    ndim = 5
+    position = (0, 1)
+    velocity = (2, 3)
+
+    @staticmethod
+    def _terms(w: float, dt: float) -> tuple[float, float]:
+        """(sin(w dt) / w, (1 - cos(w dt)) / w), with their limits dt and w dt^2 / 2 as w -> 0."""
+        if abs(w) < 1e-6:
+            return dt, 0.5 * w * dt * dt
+        return math.sin(w * dt) / w, (1.0 - math.cos(w * dt)) / w
+
+    def transition(self, dt: float, omega: float) -> np.ndarray:
+        """A_CT(omega) (5, 5)."""
+        s, c1 = self._terms(omega, dt)
+        co, si = math.cos(omega * dt), math.sin(omega * dt)
+        return np.array([[1, 0, s, -c1, 0], [0, 1, c1, s, 0], [0, 0, co, -si, 0], [0, 0, si, co, 0],
+                         [0, 0, 0, 0, 1]], dtype=np.float64)  # thesis §1.3 [R]: A_CT(omega)
+
+    def f(self, x: np.ndarray, dt: float) -> np.ndarray:
+        return self.transition(dt, float(x[4])) @ x  # §1.3 f(x) = A_CT(omega) x
+
+    def jacobian(self, x: np.ndarray, dt: float) -> np.ndarray:
+        """F_J = df/dx at x: A_CT(omega) with the last column replaced by df/domega (§1.3 [R])."""
+        w, vx, vy = float(x[4]), float(x[2]), float(x[3])
+        F = self.transition(dt, w)
+        if abs(w) < 1e-6:
+            d = [-0.5 * dt * dt * vy, 0.5 * dt * dt * vx, -dt * vy, dt * vx, 1.0]  # §1.3 small-omega limit
+        else:
+            sw, cw = math.sin(w * dt), math.cos(w * dt)
+            a = (w * dt * cw - sw) / w ** 2
+            b = (w * dt * sw - (1.0 - cw)) / w ** 2
+            d = [vx * a - vy * b, vx * b + vy * a, -dt * (sw * vx + cw * vy), dt * (cw * vx - sw * vy), 1.0]
+        F[:, 4] = d
+        return F
+
+    def process_noise(self, dt: float, x: np.ndarray | None = None) -> np.ndarray:
+        """Q = B diag(sigma_v^2, sigma_v^2, sigma_omega^2) B^T (5, 5) (§1.3 [R/D])."""
+        B = np.zeros((5, 3))
+        B[0, 0] = B[1, 1] = 0.5 * dt * dt
+        B[2, 0] = B[3, 1] = B[4, 2] = dt
+        return B @ np.diag([self.sigma_v ** 2, self.sigma_v ** 2, self.sigma_omega ** 2]) @ B.T
+
+    def embed(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Kinematic [px, py, vx, vy] -> [.., omega = 0] with variance omega_std0^2 (thesis §5 IMM [D])."""
+        x5 = np.zeros(5)
+        x5[:4] = x
+        P5 = np.zeros((5, 5))
+        P5[:4, :4] = P
+        P5[4, 4] = self.omega_std0 ** 2
+        return x5, P5
+
+
+MOTION_MODELS = {"cv": ConstantVelocity, "ct": CoordinatedTurn}
+
+
+# ----------------------------------------------------------------------------------------- measurement
+@functools.lru_cache(maxsize=64)
+def _selection(m: int, n: int, position: tuple[int, ...]) -> np.ndarray:
+    H = np.zeros((m, n))
+    H[range(m), position] = 1.0
+    H.setflags(write=False)
+    return H
+
+
+@functools.lru_cache(maxsize=64)
+def _scaled_eye(m: int, variance: float) -> np.ndarray:
+    R = variance * np.eye(m)
+    R.setflags(write=False)
+    return R
+
+
+@dataclass(frozen=True)
+class PositionMeasurement:
+    """z = H x + w: the motion model's position entries, R = sigma_w^2 I (thesis (4.77)-(4.79)). sigma_w [m]."""
+
+    sigma_w: float
+    dims: int = 2
+    linear: bool = field(default=True, init=False)
+
+    def __post_init__(self) -> None:
+        _check_finite("PositionMeasurement", sigma_w=self.sigma_w)
+        if self.sigma_w <= 0:
+            raise ValueError(f"PositionMeasurement.sigma_w must be > 0, got {self.sigma_w}")
+        if self.dims not in (1, 2, 3):
+            raise ValueError(f"PositionMeasurement.dims must be 1, 2 or 3, got {self.dims!r}")
+
+    @property
+    def ndim(self) -> int:
+        return self.dims
+
+    @property
+    def R(self) -> np.ndarray:
+        return _scaled_eye(self.dims, float(self.sigma_w) ** 2)  # (4.77)-(4.79) R = sigma_w^2 I
+
+    def matrix(self, motion) -> np.ndarray:
+        """H (m, n): ones at the motion model's position entries (positions first: H = [I 0], §1.2); read-only."""
+        return _selection(self.dims, motion.ndim, tuple(motion.position[: self.dims]))
+
+    def h(self, x: np.ndarray, motion) -> np.ndarray:
+        return x[list(motion.position[: self.dims])]
+
+    def jacobian(self, x: np.ndarray, motion) -> np.ndarray:
+        return self.matrix(motion)
+
+    def residual(self, z: np.ndarray, z_hat: np.ndarray) -> np.ndarray:
+        """z - z_hat, broadcast over leading axes."""
+        return z - z_hat
+
+    def position_of(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(position (d,), covariance R) implied by one measurement."""
+        return np.asarray(z, dtype=np.float64), self.R
+
+
+@dataclass(frozen=True)
+class RangeBearing:
+    """z = [range, bearing] of the position seen from `origin` (a nonlinear model for the EKF).
+    sigma_r [m], sigma_b [rad]; the bearing residual is wrapped to (-pi, pi]."""
+
+    sigma_r: float
+    sigma_b: float
+    origin: tuple[float, float] = (0.0, 0.0)
+    linear: bool = field(default=False, init=False)
+    ndim = 2
+    dims = 2
+
+    def __post_init__(self) -> None:
+        _check_finite("RangeBearing", sigma_r=self.sigma_r, sigma_b=self.sigma_b)
+        if self.sigma_r <= 0 or self.sigma_b <= 0:
+            raise ValueError("RangeBearing needs sigma_r > 0 and sigma_b > 0")
+
+    @property
+    def R(self) -> np.ndarray:
+        return np.diag([self.sigma_r ** 2, self.sigma_b ** 2])
+
+    def h(self, x: np.ndarray, motion) -> np.ndarray:
+        dx, dy = x[motion.position[0]] - self.origin[0], x[motion.position[1]] - self.origin[1]
+        return np.array([math.hypot(dx, dy), math.atan2(dy, dx)])
+
+    def jacobian(self, x: np.ndarray, motion) -> np.ndarray:
+        dx, dy = x[motion.position[0]] - self.origin[0], x[motion.position[1]] - self.origin[1]
+        r2 = max(dx * dx + dy * dy, 1e-12)
+        r = math.sqrt(r2)
+        H = np.zeros((2, motion.ndim))
+        H[0, motion.position[0]], H[0, motion.position[1]] = dx / r, dy / r  # d range / d position
+        H[1, motion.position[0]], H[1, motion.position[1]] = -dy / r2, dx / r2  # d bearing / d position
+        return H
+
+    def hessians(self, x: np.ndarray, motion) -> np.ndarray:
+        """Second derivatives (m, n, n) of h at x (second-order EKF, seed 000)."""
+        i, j = motion.position[0], motion.position[1]
+        dx, dy = x[i] - self.origin[0], x[j] - self.origin[1]
+        r2 = max(dx * dx + dy * dy, 1e-12)
+        r3 = r2 ** 1.5
+        Hs = np.zeros((2, motion.ndim, motion.ndim))
+        Hs[0, i, i], Hs[0, j, j], Hs[0, i, j] = dy * dy / r3, dx * dx / r3, -dx * dy / r3
+        Hs[0, j, i] = Hs[0, i, j]
+        Hs[1, i, i], Hs[1, j, j], Hs[1, i, j] = 2 * dx * dy / r2 ** 2, -2 * dx * dy / r2 ** 2, (dy * dy - dx * dx) / r2 ** 2
+        Hs[1, j, i] = Hs[1, i, j]
+        return Hs
+
+    def residual(self, z: np.ndarray, z_hat: np.ndarray) -> np.ndarray:
+        nu = np.array(z - z_hat, dtype=np.float64)
+        nu[..., 1] = (nu[..., 1] + math.pi) % (2.0 * math.pi) - math.pi
+        return nu
+
+    def position_of(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r, b = float(z[0]), float(z[1])
+        p = np.array([self.origin[0] + r * math.cos(b), self.origin[1] + r * math.sin(b)])
+        J = np.array([[math.cos(b), -r * math.sin(b)], [math.sin(b), r * math.cos(b)]])
+        return p, J @ self.R @ J.T
+
+
+MEASUREMENT_MODELS = {"position": PositionMeasurement, "range_bearing": RangeBearing}
+
+
+# -------------------------------------------------------------------------- plain functions (2-D NCV)
+def cv_transition(dt: float) -> np.ndarray:
+    """2-D NCV transition matrix A (4, 4) for a step of `dt` seconds."""
+    return ConstantVelocity(0.0).transition(dt).copy()
+
+
 def cv_noise_gain(dt: float) -> np.ndarray:
-    """NCV process-noise gain G (4, 2): white acceleration enters as [dt^2/2 I; dt I]."""
-    G = np.zeros((STATE_DIM, 2))  # (1.36)-(1.38) NCV gain G
-    G[0, 0] = G[1, 1] = 0.5 * dt * dt
-    G[2, 0] = G[3, 1] = dt
-    return G
+    """2-D NCV process-noise gain G (4, 2)."""
+    return ConstantVelocity(0.0).noise_gain(dt)
 
 
 def cv_process_noise(dt: float, sigma_v: float) -> np.ndarray:
-    """NCV process noise Q = G Qv G^T (4, 4), Qv = sigma_v^2 I2; sigma_v in m/s^2."""
-    G = cv_noise_gain(dt)
-    return (sigma_v * sigma_v) * (G @ G.T)  # thesis §1.1 [R]: Q = G Qv G^T (dimensionally consistent form of (1.38))
+    """2-D NCV process noise Q = G Qv G^T (4, 4); sigma_v in m/s^2."""
+    return ConstantVelocity(sigma_v).process_noise(dt).copy()
 
 
-def position_measurement_matrix() -> np.ndarray:
-    """H = [I2 0] (2, 4): positions are measured."""
-    return np.eye(MEASUREMENT_DIM, STATE_DIM)  # (4.77)-(4.79) H = [I 0], positions-first ordering (§1.2 [R])
+def position_measurement_matrix(n: int = 4) -> np.ndarray:
+    """H = [I2 0] (2, n): positions are measured."""
+    return np.eye(2, n)  # (4.77)-(4.79) H = [I 0], positions-first ordering (§1.2 [R])
 
 
 def measurement_noise(sigma_w: float) -> np.ndarray:
     """R = sigma_w^2 I2 (2, 2); sigma_w in m."""
-    return (sigma_w * sigma_w) * np.eye(MEASUREMENT_DIM)  # (4.77)-(4.79) R = sigma_w^2 I
+    return PositionMeasurement(sigma_w).R

@@ -9,6 +9,7 @@ Update a state with `dataclasses.replace(s, x=..., P=...)`, which keeps any subc
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Mapping
 
 import numpy as np
 
@@ -25,11 +26,16 @@ def _frozen(a, name: str, ndim: int) -> np.ndarray:
 class FilterState:
     """x (n,) state [px, py, vx, vy, ...]; P (n, n) covariance; e_post (m,) previous a-posteriori
     measurement error e_{z,k|k} (thesis §2.3 step 7, §4.3 step 7), used by the SVSF family and
-    carried unchanged-or-recomputed by the KF. Arrays are float64 copies and read-only."""
+    carried unchanged-or-recomputed by the KF; F (n, n) the transition Jacobian of the last `predict`
+    (None after an update or at birth), which the SVSF's partitioned gain reads (thesis (3.29)-(3.35));
+    info: named per-track diagnostics of the last update (e.g. boundary-layer widths, (m,) arrays or
+    scalars), reported to the tables and the viewer. Arrays are float64 copies and read-only."""
 
     x: np.ndarray
     P: np.ndarray
     e_post: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    F: np.ndarray | None = None
+    info: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         x = _frozen(self.x, "x", 1)
@@ -39,3 +45,17 @@ class FilterState:
         object.__setattr__(self, "x", x)
         object.__setattr__(self, "P", P)
         object.__setattr__(self, "e_post", _frozen(self.e_post, "e_post", 1))
+        if self.F is not None:
+            object.__setattr__(self, "F", _frozen(self.F, "F", 2))
+
+
+def derive(s: FilterState, **arrays: np.ndarray) -> FilterState:
+    """A copy of `s` with fields replaced by arrays the caller has just computed and will not touch again
+    (made read-only here, not copied or re-validated): the fast path of the batched filters."""
+    new = object.__new__(type(s))
+    new.__dict__.update(s.__dict__)
+    for name, a in arrays.items():
+        if isinstance(a, np.ndarray):
+            a.setflags(write=False)
+        object.__setattr__(new, name, a)
+    return new

@@ -7,23 +7,35 @@ random numbers and reads no clock.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
-from typing import Callable
+from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
+from scipy.special import gammaln
 
-from trackers.association.params import OVERFLOW_MODES, AssociationParams
-from trackers.filters.base import Filter
-from trackers.gating import gate, gate_probability, innovations, mahalanobis2_and_log_gaussian
-from trackers.management import ManagementParams, decide, initial_score, score_increment
-from trackers.models import MEASUREMENT_DIM
+from trackers.association.roles import AssociationInput, AssociatorKind, AssociatorParams
+from trackers.filters.base import Filter, batch_predict, batch_predicted_measurements, batch_update
+from trackers.gating import gate, gate_probability, mahalanobis2_and_log_gaussian
+from trackers.initiation import pair_candidates, single_point, two_point
+from trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, score_decide,
+                                 score_increment)
 from trackers.state import FilterState
 
-SCORE_MODES = ("gate", "exclusive")
-INITIATIONS = ("two_point", "single")
+PdInput = np.ndarray | float | Callable[[np.ndarray], np.ndarray] | None
 
-Associator = Callable[[np.ndarray, np.ndarray, AssociationParams], tuple[np.ndarray, np.ndarray]]
+
+@dataclass(frozen=True, eq=False)
+class ScanRecord:
+    """What one scan told a track: nu_c (m,) combined innovation; S (m, m); n_gated measurements in the gate;
+    gate_volume [m^m]; nis = nu_c^T S^-1 nu_c; detected (at least one gated measurement); pd used."""
+
+    nu_c: np.ndarray
+    S: np.ndarray
+    n_gated: int
+    gate_volume: float
+    nis: float
+    detected: bool
+    pd: float
 
 
 @dataclass(frozen=True, eq=False)
@@ -32,7 +44,8 @@ class Track:
     track LLR score and its running maximum; confirmed; age: scans since birth (1 at birth);
     hits: scans with at least one gated measurement (birth counts); misses_in_a_row: consecutive
     scans without one; candidate: a one-measurement track candidate waiting for a second measurement
-    (two-point initiation; id -1, not associated, not reported)."""
+    (two-point initiation; id -1, not associated, not reported); history: the last
+    `history_length` ScanRecords, oldest first; duplicate_scans: scans in a row spent on an older track."""
 
     id: int
     state: FilterState
@@ -43,77 +56,21 @@ class Track:
     hits: int
     misses_in_a_row: int
     candidate: bool = False
+    history: tuple[ScanRecord, ...] = ()
+    duplicate_scans: int = 0
 
-
-@dataclass(frozen=True)
-class TrackerParams:
-    """Tracker parameters. Units: m, s. Defaults: highway traffic seen at 10 Hz, thesis §4, §7.2 [D].
-
-    sigma_v [m/s^2] white-acceleration std; sigma_w [m] position noise std; pd detection probability;
-    gate_alpha chi-square gate (2 dof); clutter_density lambda [m^-2]; new_target_density beta_NT [m^-2];
-    v_max [m/s] initial velocity bound; alpha_fc, beta_tm SPRT error probabilities; delta_del score drop
-    deleting a confirmed track (None -> |T_d|); initial_score_pd add ln P_D to the initial score;
-    use_pg JPDA/GNN in the P_D P_G form; max_jpda_events, jpda_overflow: JPDA cluster cap and fallback;
-    score_mode: "gate" (thesis §7.2: every measurement in the track's own gate counts) or "exclusive"
-    ([D], not in the thesis: measurement i counts for track t with weight 1 - sum_{s != t} W[s, i], the
-    probability that no other track claims it, which stops duplicate tracks from feeding on a target
-    that another track already holds); initiation: "two_point" ([D], thesis §7.2's alternative: a
-    measurement in no track's gate becomes a candidate, and a track is started only when a measurement of
-    the next scan lies within v_max dt + 3 sqrt(2) sigma_w of it, with two-point differencing) or "single"
-    (§7.2: a tentative track at once, velocity 0, P_v = v_max^2/3)."""
-
-    sigma_v: float = 2.0
-    sigma_w: float = 0.3
-    pd: float = 0.9
-    gate_alpha: float = 16.0
-    clutter_density: float = 1e-2
-    new_target_density: float = 1e-3
-    v_max: float = 40.0
-    alpha_fc: float = 1e-4
-    beta_tm: float = 1e-2
-    delta_del: float | None = None
-    initial_score_pd: bool = False
-    use_pg: bool = False
-    max_jpda_events: int = 50_000
-    jpda_overflow: str = "pda"
-    score_mode: str = "gate"
-    initiation: str = "two_point"
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if f.type == "float" and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
-                raise ValueError(f"TrackerParams.{f.name} must be a finite number, got {v!r}")
-        if self.sigma_v < 0 or self.sigma_w <= 0 or self.gate_alpha <= 0 or self.v_max <= 0:
-            raise ValueError("TrackerParams needs sigma_v >= 0 and sigma_w, gate_alpha, v_max > 0")
-        if self.score_mode not in SCORE_MODES:
-            raise ValueError(f"TrackerParams.score_mode must be one of {list(SCORE_MODES)}, got {self.score_mode!r}")
-        if self.initiation not in INITIATIONS:
-            raise ValueError(f"TrackerParams.initiation must be one of {list(INITIATIONS)}, got {self.initiation!r}")
-        if self.jpda_overflow not in OVERFLOW_MODES:
-            raise ValueError(f"TrackerParams.jpda_overflow must be one of {list(OVERFLOW_MODES)}, "
-                             f"got {self.jpda_overflow!r}")
-        self.association()  # the remaining fields are validated by the parameter objects they feed
-        self.management()
-
-    @property
-    def pg(self) -> float:
-        """Gate probability P_G = F_chi2_2(gate_alpha)."""
-        return gate_probability(self.gate_alpha, MEASUREMENT_DIM)
-
-    def association(self) -> AssociationParams:
-        return AssociationParams(pd=self.pd, pg=self.pg, clutter_density=self.clutter_density, use_pg=self.use_pg,
-                                 max_events=self.max_jpda_events, on_overflow=self.jpda_overflow)
-
-    def management(self) -> ManagementParams:
-        return ManagementParams(new_target_density=self.new_target_density, alpha_fc=self.alpha_fc,
-                                beta_tm=self.beta_tm, delta_del=self.delta_del, initial_score_pd=self.initial_score_pd)
+    def history_array(self, name: str) -> np.ndarray:
+        """One ScanRecord field over the history, oldest first: e.g. history_array("n_gated") (L,)."""
+        return np.array([getattr(r, name) for r in self.history])
 
 
 @dataclass(frozen=True, eq=False)
 class StepInfo:
     """Per-step internals for viewers, for the T tracks that existed at the start of the step (input order),
-    after prediction: ids (T,) int64, z_hat (T, m), S (T, m, m), gated (T, M) bool, W (T, M), w0 (T,)."""
+    after prediction: ids (T,) int64, z_hat (T, m), S (T, m, m), gated (T, M) bool, W (T, M), w0 (T,),
+    layers (T, m) boundary-layer half widths (NaN without one), diagnostics: name -> (T,) float64 (NIS,
+    gated count, gate volume, P_D, the filters' `info` after the update and the associator's extras;
+    vector quantities as name_0, name_1, ...)."""
 
     ids: np.ndarray
     z_hat: np.ndarray
@@ -121,6 +78,8 @@ class StepInfo:
     gated: np.ndarray
     W: np.ndarray
     w0: np.ndarray
+    layers: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,128 +93,242 @@ class StepResult:
     info: StepInfo
 
 
-def _check_measurements(Z) -> np.ndarray:
+@dataclass(frozen=True, eq=False)
+class _Prediction:
+    states: list
+    z_hat: np.ndarray  # (T, m)
+    S: np.ndarray  # (T, m, m)
+    layers: np.ndarray  # (T, m)
+
+
+def _check_measurements(Z, m: int) -> np.ndarray:
     Z = np.asarray(Z, dtype=np.float64)
     if Z.size == 0:
-        return np.zeros((0, MEASUREMENT_DIM))
-    if Z.ndim != 2 or Z.shape[1] != MEASUREMENT_DIM:
-        raise ValueError(f"Z must have shape (M, {MEASUREMENT_DIM}), got {Z.shape}")
+        return np.zeros((0, m))
+    if Z.ndim != 2 or Z.shape[1] != m:
+        raise ValueError(f"Z must have shape (M, {m}), got {Z.shape}")
     bad = np.flatnonzero(~np.isfinite(Z).all(axis=1))
     if bad.size:
         raise ValueError(f"Z has non-finite rows {bad.tolist()}")
     return Z
 
 
+def _evolve(tr: Track, **fields: Any) -> Track:
+    """`dataclasses.replace` for a Track without re-running __init__ (the tracker's per-scan hot path)."""
+    new = object.__new__(Track)
+    new.__dict__.update(tr.__dict__)
+    new.__dict__.update(fields)
+    return new
+
+
+def gate_volume(S: np.ndarray, alpha: float) -> np.ndarray:
+    """V = c_m alpha^(m/2) sqrt|S| (T,), c_m the unit-ball volume (thesis §4.1 [R]; c_2 = pi)."""
+    m = S.shape[-1]
+    log_cm = 0.5 * m * math.log(math.pi) - float(gammaln(0.5 * m + 1.0))
+    return np.exp(log_cm + 0.5 * m * math.log(alpha) + 0.5 * np.linalg.slogdet(S)[1])
+
+
+def _expand(name: str, v: Any, T: int, out: dict[str, np.ndarray], t: int) -> None:
+    a = np.atleast_1d(np.asarray(v, dtype=np.float64))
+    keys = [name] if a.size == 1 else [f"{name}_{i}" for i in range(a.size)]
+    for k, x in zip(keys, a.reshape(-1)):
+        out.setdefault(k, np.full(T, np.nan))[t] = x
+
+
 @dataclass(frozen=True)
 class Tracker:
-    """filter: a `Filter`; associate: fn(log_lik, gated, AssociationParams) -> (W, w0); params: TrackerParams.
-
-    A filter attribute that is also a TrackerParams field (e.g. sigma_v, sigma_w) must agree with it."""
+    """A tracker = filter (updater) + associator + manager (confirmer/deleter and initiator), each with typed
+    parameters. Build one by name with `trackers.make_tracker`. `step` is the pipeline:
+    predict -> gate -> associate -> update -> manage -> initiate."""
 
     filter: Filter
-    associate: Associator
-    params: TrackerParams = field(default_factory=TrackerParams)
-    association_params: AssociationParams = field(init=False, repr=False)
-    management_params: ManagementParams = field(init=False, repr=False)
+    associator: AssociatorKind
+    association: AssociatorParams = field(default_factory=AssociatorParams)
+    management: ManagementParams = field(default_factory=ManagementParams)
+    manager: str = "score"
+    name: str = ""
 
-    def __post_init__(self) -> None:
-        for f in fields(self.params):
-            if hasattr(self.filter, f.name) and getattr(self.filter, f.name) != getattr(self.params, f.name):
-                raise ValueError(f"filter.{f.name}={getattr(self.filter, f.name)!r} disagrees with "
-                                 f"params.{f.name}={getattr(self.params, f.name)!r}")
-        object.__setattr__(self, "association_params", self.params.association())
-        object.__setattr__(self, "management_params", self.params.management())
+    def kinematics(self, tracks: tuple[Track, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """Position-velocity estimates of `tracks` from each filter's output: kin (T, 2d) [p; v] and its
+        covariance (T, 2d, 2d), d the number of position entries of the filter's motion model."""
+        mot = self.filter.motion
+        idx = np.array(list(mot.position) + list(mot.velocity))
+        kin = np.zeros((len(tracks), idx.size))
+        cov = np.zeros((len(tracks), idx.size, idx.size))
+        for t, tr in enumerate(tracks):
+            x, P = self.filter.output(tr.state)
+            kin[t], cov[t] = x[idx], P[np.ix_(idx, idx)]
+        return kin, cov
 
-    def step(self, tracks: tuple[Track, ...], Z: np.ndarray, dt: float, next_id: int) -> StepResult:
-        """One scan. tracks: current tracks; Z (M, 2) measurements [m]; dt [s] since the last scan;
-        next_id: label for the next new track. Raises ValueError on non-finite Z or dt before any update."""
-        Z = _check_measurements(Z)
+    @property
+    def pg(self) -> float:
+        """Gate probability P_G = F_chi2_m(gate_alpha)."""
+        return gate_probability(self.association.gate_alpha, self.filter.measurement.ndim)
+
+    def step(self, tracks: tuple[Track, ...], Z: np.ndarray, dt: float, next_id: int,
+             pd: PdInput = None) -> StepResult:
+        """One scan. tracks: current tracks; Z (M, m) measurements; dt [s] since the last scan; next_id: label
+        for the next new track; pd: detection probability per track, as an array (T,) over the non-candidate
+        tracks in input order, or a function of their predicted measurements (T, m) -> (T,) (occlusion-aware
+        P_D), or None for the associator's pd. Raises ValueError on non-finite Z or dt before any update."""
+        Z = _check_measurements(Z, self.filter.measurement.ndim)
         dt = float(dt)
         if not math.isfinite(dt) or dt < 0:
             raise ValueError(f"dt must be finite and >= 0, got {dt}")
         candidates = tuple(tr for tr in tracks if tr.candidate)
-        tracks = tuple(tr for tr in tracks if not tr.candidate)
-        p, ap, mp = self.params, self.association_params, self.management_params
-        flt = self.filter
-        T, M, m = len(tracks), len(Z), MEASUREMENT_DIM
+        live = tuple(tr for tr in tracks if not tr.candidate)
+        pred = self._predict(live, dt)
+        inp = self._gate(pred, Z, self._pd(pd, pred))
+        W, w0, extra = self._associate(inp)
+        states = batch_update(self.filter, pred.states, inp.nu, W, w0)
+        survivors, deleted, diag = self._manage(live, states, inp, W, w0, pred)
+        for k, v in extra.items():
+            diag[k] = np.asarray(v, dtype=np.float64)
+        births, next_id = self._initiate(candidates, Z, inp, dt, next_id)
+        info = StepInfo(ids=np.array([tr.id for tr in live], dtype=np.int64).reshape(len(live)), z_hat=pred.z_hat,
+                        S=pred.S, gated=inp.gated, W=W, w0=w0, layers=pred.layers, diagnostics=diag)
+        return StepResult(tracks=tuple(survivors + births), next_id=int(next_id), deleted=tuple(deleted), info=info)
 
-        preds = [flt.predict(tr.state, dt) for tr in tracks]  # 1. predict all
-        zs = [flt.predicted_measurement(s) for s in preds]
-        z_hat = np.array([z for z, _ in zs], dtype=np.float64).reshape(T, m)
-        S = np.array([s for _, s in zs], dtype=np.float64).reshape(T, m, m)
+    # ------------------------------------------------------------------ roles
+    def _predict(self, live: tuple[Track, ...], dt: float) -> _Prediction:
+        flt, m = self.filter, self.filter.measurement.ndim
+        states = batch_predict(flt, [tr.state for tr in live], dt)
+        z_hat, S = batch_predicted_measurements(flt, states)
+        T = len(live)
+        layers = np.full((T, m), np.nan)
+        for t, s in enumerate(states):
+            lay = flt.layer(s)
+            if lay is not None:
+                layers[t] = lay
+        return _Prediction(states, z_hat.reshape(T, m), S.reshape(T, m, m), layers)
 
-        nu = innovations(z_hat, Z)  # 2. gate
-        d2, log_lik = mahalanobis2_and_log_gaussian(nu, S)
-        gated = gate(d2, p.gate_alpha)
+    def _pd(self, pd: PdInput, pred: _Prediction) -> np.ndarray:
+        T = len(pred.states)
+        if pd is None:
+            return np.full(T, self.association.pd)
+        values = pd(pred.z_hat) if callable(pd) else pd
+        out = np.broadcast_to(np.asarray(values, dtype=np.float64), (T,)).copy()
+        if not np.all((out >= 0.0) & (out <= 1.0)):
+            raise ValueError("per-track detection probabilities must lie in [0, 1]")
+        return out
 
-        W, w0 = self.associate(log_lik, gated, ap)  # 3. associate
-        W, w0 = np.asarray(W, dtype=np.float64), np.asarray(w0, dtype=np.float64)
+    def _gate(self, pred: _Prediction, Z: np.ndarray, pdt: np.ndarray) -> AssociationInput:
+        meas = self.filter.measurement
+        nu = meas.residual(Z[None, :, :], pred.z_hat[:, None, :])  # §4.1 / (4.15) innovation z - h(x_pred)
+        d2, log_lik = mahalanobis2_and_log_gaussian(nu, pred.S)
+        alpha = self.association.gate_alpha
+        return AssociationInput(log_lik=log_lik, gated=gate(d2, alpha), d2=d2, nu=nu, S=pred.S, pd=pdt, pg=self.pg,
+                                gate_volume=gate_volume(pred.S, alpha) if len(pred.S) else np.zeros(0),
+                                layers=pred.layers)
+
+    def _associate(self, inp: AssociationInput) -> tuple[np.ndarray, np.ndarray, dict]:
+        out = self.associator.run(inp, self.association)
+        W, w0 = np.asarray(out[0], dtype=np.float64), np.asarray(out[1], dtype=np.float64)
+        T, M = inp.gated.shape
         if W.shape != (T, M) or w0.shape != (T,):
             raise ValueError(f"associator returned W {W.shape} and w0 {w0.shape}, expected ({T}, {M}) and ({T},)")
+        return W, w0, (out[2] if len(out) > 2 else {})
 
-        states = []  # 4. update each track
-        for t in range(T):
-            idx = np.flatnonzero(W[t] > 0.0)
-            states.append(flt.update(preds[t], nu[t, idx], W[t, idx], float(w0[t])))
+    def _score(self, live, inp: AssociationInput, W: np.ndarray) -> np.ndarray:
+        score = np.array([tr.score for tr in live], dtype=np.float64).reshape(len(live))
+        lam = self.association.clutter_density
+        if self.management.score_mode == "gate":
+            return score + score_increment(inp.log_lik, inp.gated, inp.pd, inp.pg, lam)  # §7.2 / (1.35)
+        # "exclusive" [D]: L_ti weighted by rho_ti = 1 - sum_{s != t} W[s, i] (no other track claims z_i)
+        rho = np.clip(1.0 - (W.sum(axis=0)[None, :] - W), 0.0, 1.0)
+        with np.errstate(divide="ignore"):
+            return score + score_increment(inp.log_lik + np.log(rho), inp.gated & (rho > 0.0), inp.pd, inp.pg, lam)
 
-        score = np.array([tr.score for tr in tracks], dtype=np.float64).reshape(T)  # 5. score
-        if p.score_mode == "gate":
-            score = score + score_increment(log_lik, gated, ap.pd, ap.pg, ap.clutter_density)
-        else:  # "exclusive" [D]: L_ti weighted by rho_ti = 1 - sum_{s != t} W[s, i] (no other track claims z_i)
-            rho = np.clip(1.0 - (W.sum(axis=0)[None, :] - W), 0.0, 1.0)
-            with np.errstate(divide="ignore"):
-                score = score + score_increment(log_lik + np.log(rho), gated & (rho > 0.0), ap.pd, ap.pg,
-                                                ap.clutter_density)
-        max_score = np.maximum(np.array([tr.max_score for tr in tracks], dtype=np.float64).reshape(T), score)
-        confirmed, delete = decide(score, max_score, np.array([tr.confirmed for tr in tracks], dtype=bool), mp)  # 6.
-
-        hit = gated.any(axis=1)
+    def _manage(self, live, states, inp: AssociationInput, W, w0, pred: _Prediction):
+        mp, T = self.management, len(live)
+        hit = inp.gated.any(axis=1)
+        score = self._score(live, inp, W)
+        max_score = np.maximum(np.array([tr.max_score for tr in live], dtype=np.float64).reshape(T), score)
+        was_confirmed = np.array([tr.confirmed for tr in live], dtype=bool)
+        misses = np.array([0 if hit[t] else tr.misses_in_a_row + 1 for t, tr in enumerate(live)], dtype=np.int64)
+        records, diag = self._records(states, inp, W, hit)
+        if self.manager == "m_of_n":
+            det, known = self._windows(live, hit)
+            confirmed, delete = m_of_n_decide(det, misses, was_confirmed, mp, known)
+        else:  # the drop follows the nominal P_D: a track whose caller-given P_D is 0 is not deleted for it
+            drop = mp.deletion_drop(self.association.pd, inp.pg)
+            confirmed, delete = score_decide(score, max_score, was_confirmed, mp, drop)
+        ids = np.array([tr.id for tr in live], dtype=np.int64).reshape(T)
+        dup = duplicate_counts(pred.z_hat, pred.S, inp.gated, confirmed & was_confirmed, ids,
+                               np.array([tr.duplicate_scans for tr in live], dtype=np.int64).reshape(T), mp.merge_d2)
+        delete = delete | (dup >= mp.merge_scans)
         survivors, deleted = [], []
-        for t, tr in enumerate(tracks):
-            new = replace(tr, state=states[t], score=float(score[t]), max_score=float(max_score[t]),
+        for t, tr in enumerate(live):
+            new = _evolve(tr, state=states[t], score=float(score[t]), max_score=float(max_score[t]),
                           confirmed=bool(confirmed[t]), age=tr.age + 1, hits=tr.hits + int(hit[t]),
-                          misses_in_a_row=0 if hit[t] else tr.misses_in_a_row + 1)
+                          misses_in_a_row=int(misses[t]), duplicate_scans=int(dup[t]),
+                          history=(tr.history + (records[t],))[-mp.history_length:])
             (deleted if delete[t] else survivors).append(new)
+        diag["score"] = score
+        diag["w0"] = np.asarray(w0, dtype=np.float64)
+        return survivors, deleted, diag
 
-        score0 = initial_score(mp, ap.clutter_density, ap.pd)  # 7. initiate from measurements in no gate (§7.2)
-        free = np.flatnonzero(~gated.any(axis=0))
-        if p.initiation == "single":
+    def _windows(self, live, hit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """m-of-n windows: detected and known (T, n) flags of the last n scans, newest last. Scans before the
+        history (the birth scans, `hits` at birth) count as detections; scans before birth are unknown."""
+        n, T = self.management.confirm_n, len(live)
+        det = np.zeros((T, n), dtype=bool)
+        known = np.zeros((T, n), dtype=bool)
+        for t, tr in enumerate(live):
+            flags = [True] * max(tr.age - len(tr.history), 0) + [r.detected for r in tr.history] + [bool(hit[t])]
+            flags = flags[-n:]
+            det[t, n - len(flags):] = flags
+            known[t, n - len(flags):] = True
+        return det, known
+
+    def _records(self, states, inp: AssociationInput, W, hit) -> tuple[list[ScanRecord], dict[str, np.ndarray]]:
+        T = len(states)
+        nu_c = np.einsum("tj,tjm->tm", W, inp.nu) if T else np.zeros((0, inp.nu.shape[-1]))
+        nis = np.einsum("tm,tm->t", nu_c, np.linalg.solve(inp.S, nu_c[..., None])[..., 0]) if T else np.zeros(0)
+        n_gated = inp.gated.sum(axis=1)
+        records = [ScanRecord(nu_c=nu_c[t], S=inp.S[t], n_gated=int(n_gated[t]), gate_volume=float(inp.gate_volume[t]),
+                              nis=float(nis[t]), detected=bool(hit[t]), pd=float(inp.pd[t])) for t in range(T)]
+        diag = {"nis": nis, "n_gated": n_gated.astype(np.float64), "gate_volume": inp.gate_volume.astype(np.float64),
+                "pd": inp.pd.astype(np.float64)}
+        for t, s in enumerate(states):
+            for name, v in s.info.items():
+                _expand(name, v, T, diag, t)
+        return records, diag
+
+    def _initiate(self, candidates, Z: np.ndarray, inp: AssociationInput, dt: float, next_id: int):
+        """New tentative tracks from measurements in no gate (§7.2): at once ("single") or from a candidate of
+        the previous scan paired within reach ("two_point", [D]). A candidate keeps its position in x[:d]."""
+        mp, flt, meas = self.management, self.filter, self.filter.measurement
+        lam, pd = self.association.clutter_density, self.association.pd
+        score0 = initial_score(mp, lam, pd)
+        free = np.flatnonzero(~inp.gated.any(axis=0))
+        out, used = [], set()
+
+        def new(state, score, label, age, candidate=False):
+            return Track(id=label, state=state, score=score, max_score=score, confirmed=False, age=age,
+                         hits=age, misses_in_a_row=0, candidate=candidate)
+
+        if mp.initiation == "single":
             for j in free:
-                survivors.append(Track(id=int(next_id), state=flt.initiate(Z[j], p.v_max), score=score0,
-                                       max_score=score0, confirmed=False, age=1, hits=1, misses_in_a_row=0))
+                out.append(new(flt.initial_state(*single_point(Z[j], meas, mp.v_max)), score0, int(next_id), 1))
                 next_id += 1
-        else:
-            pairs = _pair_candidates(candidates, Z[free], dt, p) if dt > 0 else []
-            used = set()
-            for c, f, score in pairs:
-                j = free[f]
+            return out, next_id
+        positions = [meas.position_of(Z[j]) for j in free]
+        if dt > 0 and candidates and free.size:
+            d = len(positions[0][0])
+            sigma = math.sqrt(float(np.max(np.linalg.eigvalsh(positions[0][1]))))
+            reach = mp.v_max * dt + 3.0 * math.sqrt(2.0) * sigma  # [D] two-point reach v_max dt + 3 sqrt(2) sigma_w
+            ball = math.exp(0.5 * d * math.log(math.pi) - float(gammaln(0.5 * d + 1.0))) * reach ** d
+            inc = math.log(pd / ball / lam)  # §7.2-style LLR of the second point: ln(P_D g / lambda), g = 1 / ball
+            C = np.array([c.state.x[:d] for c in candidates])
+            for c, f in pair_candidates(C, np.array([p for p, _ in positions]), reach):
                 used.add(f)
-                s0 = flt.initiate_two_point(candidates[c].state.x[:MEASUREMENT_DIM], Z[j], dt)
-                survivors.append(Track(id=int(next_id), state=s0, score=score0 + score, max_score=score0 + score,
-                                       confirmed=False, age=2, hits=2, misses_in_a_row=0))
+                x0, P0 = two_point(C[c], Z[free[f]], dt, meas)
+                out.append(new(flt.initial_state(x0, P0), score0 + inc, int(next_id), 2))
                 next_id += 1
-            for f, j in enumerate(free):
-                if f not in used:
-                    survivors.append(Track(id=-1, state=flt.initiate(Z[j], p.v_max), score=score0,
-                                           max_score=score0, confirmed=False, age=1, hits=1, misses_in_a_row=0,
-                                           candidate=True))
-
-        info = StepInfo(ids=np.array([tr.id for tr in tracks], dtype=np.int64).reshape(T), z_hat=z_hat, S=S,
-                        gated=gated, W=W, w0=w0)
-        return StepResult(tracks=tuple(survivors), next_id=int(next_id), deleted=tuple(deleted), info=info)
-
-
-def _pair_candidates(candidates: tuple[Track, ...], Zf: np.ndarray, dt: float,
-                     p: TrackerParams) -> list[tuple[int, int, float]]:
-    """Two-point initiation [D]: one-to-one pairs (candidate, free measurement, score increment) within
-    reach = v_max dt + 3 sqrt(2) sigma_w, nearest first (min total distance). The increment is the
-    likelihood ratio of the second measurement, ln(P_D g / lambda), g = 1 / (pi reach^2) its density
-    under a velocity uniform on the disk |v| <= v_max (§7.2-style LLR)."""
-    if not candidates or len(Zf) == 0:
-        return []
-    C = np.array([c.state.x[:MEASUREMENT_DIM] for c in candidates], dtype=np.float64)
-    D = np.linalg.norm(C[:, None, :] - Zf[None, :, :], axis=-1)
-    reach = p.v_max * dt + 3.0 * math.sqrt(2.0) * p.sigma_w
-    rows, cols = linear_sum_assignment(np.where(D <= reach, D, 1e12))
-    inc = math.log(p.pd / (math.pi * reach * reach) / p.clutter_density)
-    return [(int(r), int(c), inc) for r, c in zip(rows, cols) if D[r, c] <= reach]
+        for f, (p, Rp) in enumerate(positions):
+            if f not in used:
+                d = len(p)
+                out.append(new(FilterState(x=np.concatenate([p, np.zeros(d)]), P=np.eye(2 * d), e_post=np.zeros(meas.ndim)),
+                               score0, -1, 1, candidate=True))
+        return out, next_id

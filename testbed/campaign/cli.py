@@ -151,9 +151,15 @@ def add_campaign_parser(subparsers) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m testbed.campaign.cli run|resume|report ...`` = ``testbed campaign ...``."""
-    from testbed.cli import main as testbed_main
-
-    return testbed_main(["campaign", *(sys.argv[1:] if argv is None else argv)])
+    p = argparse.ArgumentParser(prog="python -m testbed.campaign.cli",
+                                description="Monte Carlo campaigns (see docs/campaigns.md).")
+    _add_subcommands(p.add_subparsers(dest="campaign_command", required=True))
+    args = p.parse_args(argv)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -25,7 +25,6 @@ depend on any of it.
 from __future__ import annotations
 
 import concurrent.futures as cf
-import functools
 import multiprocessing
 import os
 import signal
@@ -40,11 +39,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 from . import store
-from .spec import Campaign, RunSpec, plan
+from .spec import Campaign, RunSpec, for_tracker, plan
 
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-_DISTRIBUTIONS = {"roadtrack": ("roadtrack",), "numpy": ("numpy",), "highway_env": ("highway-env",),
-                  "open3d": ("open3d-cpu", "open3d"), "rerun": ("rerun-sdk",)}
 
 
 def usable_cores() -> int:
@@ -52,23 +49,6 @@ def usable_cores() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not Linux
         return os.cpu_count() or 1
-
-
-@functools.cache
-def versions() -> dict[str, str]:
-    """Installed versions of roadtrack and the packages that shape its numbers (``v_<name>`` columns)."""
-    from importlib import metadata
-
-    out = {"python": ".".join(map(str, sys.version_info[:3]))}
-    for name, dists in _DISTRIBUTIONS.items():
-        out[name] = ""
-        for dist in dists:
-            try:
-                out[name] = metadata.version(dist)
-                break
-            except metadata.PackageNotFoundError:
-                continue
-    return out
 
 
 def pin_process(cpus: list[int]) -> None:
@@ -119,7 +99,8 @@ def make_task(campaign: Campaign, run: RunSpec, out_dir: str | Path | None) -> d
     return dict(run_id=run.run_id, run_index=run.run_index, campaign=campaign.name, scenario=run.scenario,
                 tracker=run.tracker, params=dict(run.params), columns=dict(run.columns),
                 grid_index=".".join(map(str, run.grid_index)), seed_index=run.seed_index, seed=run.seed,
-                scenario_data=apply_overrides(src.data, campaign.overrides), record_dir=record_dir)
+                scenario_data=apply_overrides(src.data, for_tracker(campaign.overrides, run.tracker)),
+                record_dir=record_dir)
 
 
 def _where(err: BaseException) -> str:
@@ -167,8 +148,8 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     try:
         from ..run import run_scenario
 
-        data = apply_overrides(task["scenario_data"],
-                               {**task["params"], "tracker.name": task["tracker"], "seed": task["seed"]})
+        data = apply_overrides(task["scenario_data"], {**for_tracker(task["params"], task["tracker"]),
+                                                       "tracker.name": task["tracker"], "seed": task["seed"]})
         scn = parse_scenario(data)
         dt = scn.dt
         with warnings.catch_warnings(record=True) as caught:
@@ -194,7 +175,7 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     row["recorded"] = task["record_dir"] is not None and row["status"] == "ok"
     row.update(summary)
     row[store.SERIES_COLUMN] = series
-    row.update({f"v_{k}": v for k, v in versions().items()})
+    row.update({f"v_{k}": v for k, v in store.versions().items()})
     row["wall_s"] = time.perf_counter() - t0
     row["worker"] = f"{socket.gethostname()}:{os.getpid()}"
     row["finished_at"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
@@ -407,6 +388,61 @@ def _submit_order(runs: list[RunSpec]) -> list[RunSpec]:
     return sorted(runs, key=lambda r: (r.seed_index, r.run_index))
 
 
+def _install_sigint(stop: threading.Event):
+    """From the main thread: Ctrl-C sets ``stop`` (a second one interrupts the clean-up). Returns the old handler."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def on_sigint(signum, frame):
+        stop.set()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    return signal.signal(signal.SIGINT, on_sigint) or signal.default_int_handler
+
+
+class _Loop:
+    """Submits pending runs to a backend (at most 2 per slot in flight) and writes each result as it arrives."""
+
+    def __init__(self, campaign: Campaign, out: Path, backend, bar, failed: int):
+        self.campaign, self.out, self.backend, self.bar = campaign, out, backend, bar
+        self.in_flight: dict[Any, RunSpec] = {}
+        self.ran, self.failed = 0, failed
+
+    def take(self, fut) -> None:
+        run = self.in_flight.pop(fut)
+        try:
+            row = self.backend.result(fut)
+        except InfrastructureError:
+            raise
+        except Exception as err:  # noqa: BLE001 - e.g. Dask KilledWorker: the run itself kills workers
+            row = _error_row(self.campaign, run, err)
+        store.write_run(self.out, row)
+        self.ran += 1
+        self.failed += row["status"] != "ok"
+        self.bar.update(1)
+        self.bar.set_postfix(failed=self.failed)
+
+    def run(self, pending: list[RunSpec], stop: threading.Event) -> None:
+        queue, exhausted = iter(pending), False
+        while not stop.is_set():
+            while not exhausted and len(self.in_flight) < 2 * self.backend.slots and not stop.is_set():
+                run = next(queue, None)
+                if run is None:
+                    exhausted = True
+                    break
+                self.in_flight[self.backend.submit(make_task(self.campaign, run, self.out))] = run
+            if not self.in_flight:
+                break
+            for fut in self.backend.wait(set(self.in_flight), timeout=0.25):
+                self.take(fut)
+        if stop.is_set():  # keep whatever already finished
+            for fut in [f for f in self.in_flight if f.done() and not f.cancelled()]:
+                try:
+                    self.take(fut)
+                except InfrastructureError:
+                    self.in_flight.pop(fut, None)
+
+
 def run_campaign(campaign: Campaign, out_dir: str | Path, engine: EngineOptions | None = None,
                  quiet: bool = False, retry_errors: bool = False,
                  say: Callable[[str], None] | None = None, stop: threading.Event | None = None,
@@ -435,34 +471,10 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, engine: EngineOptions 
         return Outcome(len(runs), before, 0, failed)
 
     stop = stop or threading.Event()
-    old_handler = None
-    if threading.current_thread() is threading.main_thread():
-        def on_sigint(signum, frame):
-            stop.set()
-            signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C interrupts the clean-up
-        old_handler = signal.signal(signal.SIGINT, on_sigint) or signal.default_int_handler
-
+    old_handler = _install_sigint(stop)
     own_backend = backend is None
-    ran = 0
     broken: str | None = None
-    bar = None
-    in_flight: dict[Any, RunSpec] = {}
-
-    def take(fut) -> None:
-        nonlocal ran, failed
-        run = in_flight.pop(fut)
-        try:
-            row = backend.result(fut)
-        except InfrastructureError:
-            raise
-        except Exception as err:  # noqa: BLE001 - e.g. Dask KilledWorker: the run itself kills workers
-            row = _error_row(campaign, run, err)
-        store.write_run(out, row)
-        ran += 1
-        failed += row["status"] != "ok"
-        bar.update(1)
-        bar.set_postfix(failed=failed)
-
+    loop = None
     try:
         if own_backend:
             backend = make_backend(engine or EngineOptions())
@@ -471,36 +483,20 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, engine: EngineOptions 
         bar = tqdm(total=len(runs), initial=before, unit="run", desc=campaign.name, disable=quiet or None,
                    file=sys.stderr, dynamic_ncols=True, smoothing=0.05)
         bar.set_postfix(failed=failed)
-        queue = iter(pending)
-        exhausted = False
-        while not stop.is_set():
-            while not exhausted and len(in_flight) < 2 * backend.slots and not stop.is_set():
-                run = next(queue, None)
-                if run is None:
-                    exhausted = True
-                    break
-                in_flight[backend.submit(make_task(campaign, run, out))] = run
-            if not in_flight:
-                break
-            for fut in backend.wait(set(in_flight), timeout=0.25):
-                take(fut)
-        if stop.is_set():  # keep whatever already finished
-            for fut in [f for f in in_flight if f.done() and not f.cancelled()]:
-                try:
-                    take(fut)
-                except InfrastructureError:
-                    in_flight.pop(fut, None)
+        loop = _Loop(campaign, out, backend, bar, failed)
+        loop.run(pending, stop)
     except InfrastructureError as err:
         broken = str(err)
     finally:
-        if bar is not None:
-            bar.close()
+        if loop is not None:
+            loop.bar.close()
         if old_handler is not None:
             signal.signal(signal.SIGINT, old_handler)
-        abandon = bool(in_flight) or stop.is_set() or broken is not None
+        abandon = (loop is not None and bool(loop.in_flight)) or stop.is_set() or broken is not None
         if backend is not None and (own_backend or abandon):
             backend.close(abandon=abandon)
         store.consolidate(out)
+    ran, failed = (loop.ran, loop.failed) if loop is not None else (0, failed)
     return Outcome(len(runs), before, ran, failed, interrupted=stop.is_set(), broken=broken)
 
 
@@ -514,6 +510,6 @@ def _error_row(campaign: Campaign, run: RunSpec, err: BaseException) -> dict[str
                status="error", error_type=type(err).__name__, error=_one_line(err), error_where="", warnings="",
                n_frames=0, dt_s=float("nan"), recorded=False)
     row[store.SERIES_COLUMN] = np.zeros(0)
-    row.update({f"v_{k}": "" for k in versions()})
+    row.update({f"v_{k}": "" for k in store.versions()})
     row.update(wall_s=float("nan"), worker="", finished_at=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
     return row

@@ -1,7 +1,7 @@
 """Campaign files: typed, frozen, strict (``campaigns/*.toml``), and the run plan they expand to.
 
 A campaign is scenarios x trackers x grid points x seeds. Every scenario or tracker key is addressed by
-its dotted path (``sensor.clutter.density_per_m2``, ``convoy.gap_m``, ``tracker.params.sigma_v``); TOML
+its dotted path (``sensor.clutter.density_per_m2``, ``convoy.gap_m``, ``tracker.filter.sigma_v``); TOML
 lets it be written bare (``sensor.clutter.density_per_m2 = [...]``, a nested table) or quoted, both mean
 the same. :func:`load_campaign` loads every scenario with every override and grid value before any run,
 so a bad key or value fails at once with a one-line :class:`~testbed.config.ConfigError` naming the
@@ -32,7 +32,7 @@ CAMPAIGN_DIR = Path(__file__).resolve().parent.parent.parent / "campaigns"
 # numbers), the tracker is the `trackers` axis, and the scenario name keys the seeds and the results.
 FORBIDDEN_KEYS = {"seed": "the seed of every run is derived from base_seed, the scenario and the seed index",
                   "name": "the scenario name identifies its runs and seeds",
-                  "tracker": "set trackers with `trackers` and tracker parameters with tracker.params.<name>",
+                  "tracker": "set trackers with `trackers` and tracker parameters with tracker.filter.<name>, tracker.associator.<name>, tracker.management.<name>",
                   "tracker.name": "set trackers with `trackers`"}
 
 # Columns of the results table that a grid key may not shadow.
@@ -191,10 +191,46 @@ def _address_error(resolved: dict, key: str) -> str | None:
     return None
 
 
+TRACKER_TABLES = ("tracker.filter.", "tracker.associator.", "tracker.management.")
+
+
+def for_tracker(params: dict[str, Any], tracker: str) -> dict[str, Any]:
+    """``params`` without the tracker-table keys (``tracker.filter.X``, ...) that ``tracker`` does not have, so a
+    grid over, e.g., ``tracker.associator.max_events`` can compare JPDA with GNN (GNN runs without the key)."""
+    from trackers.registry import known_keys
+
+    known = known_keys(tracker)
+    out = {}
+    for key, value in params.items():
+        table = next((t for t in TRACKER_TABLES if key.startswith(t)), None)
+        if table is None or key[len(table):].split(".")[0] in known[table.split(".")[1]]:
+            out[key] = value
+    return out
+
+
+def _check_tracker_keys(keys: list[tuple[str, str]], trackers: tuple[str, ...]) -> None:
+    """A tracker-table key must belong to at least one of the campaign's trackers."""
+    from trackers.registry import known_keys
+
+    known = [known_keys(t) for t in trackers]
+    for where, key in keys:
+        table = next((t for t in TRACKER_TABLES if key.startswith(t)), None)
+        if table is None:
+            continue
+        role, name = table.split(".")[1], key[len(table):].split(".")[0]
+        if not any(name in k[role] for k in known):
+            from trackers import ASSOCIATORS, FILTERS
+
+            kinds = set(FILTERS) | set(ASSOCIATORS)  # per-kind sub-tables, accepted by every tracker
+            allowed = sorted(set().union(*(k[role] for k in known)) - {"kind"} - kinds)
+            raise ConfigError(f'{where}."{key}"', f"no tracker of this campaign has {role} parameter {name!r}; "
+                              f"allowed: {', '.join(allowed)}")
+
+
 def _scenario(data: dict, overrides: dict[str, Any], tracker: str):
     from ..scenario import apply_overrides, parse_scenario
 
-    return parse_scenario(apply_overrides(data, {**overrides, "tracker.name": tracker}))
+    return parse_scenario(apply_overrides(data, {**for_tracker(overrides, tracker), "tracker.name": tracker}))
 
 
 def _one_line(err: Exception) -> str:
@@ -218,20 +254,11 @@ def _safe(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.+-]", "_", text)
 
 
-def parse_campaign(data: dict, source: str = "<dict>", base_dir: Path | None = None,
-                   scenario_data: dict[str, dict] | None = None, default_name: str | None = None) -> Campaign:
-    """Build and validate a :class:`Campaign` from a TOML dict (errors without the file prefix).
+def _load_sources(spec: "CampaignFile", base_dir: Path | None,
+                  scenario_data: dict[str, dict] | None) -> list[ScenarioSource]:
+    """Each scenario entry loaded as it is (a broken scenario file is reported at its entry)."""
+    from ..scenario import parse_scenario, read_toml
 
-    ``scenario_data`` maps scenario entries to their TOML dicts (a results directory keeps the ones a
-    campaign started with, so a resumed campaign runs the same scenarios even if the files changed).
-    """
-    from ..scenario import apply_overrides, parse_scenario, read_toml
-    from trackers import parse_tracker_name
-
-    spec: CampaignFile = from_dict(CampaignFile, data)
-    name = spec.name or default_name or Path(source).stem
-
-    # Scenarios: load each one as it is (a broken scenario file is reported at its entry).
     sources: list[ScenarioSource] = []
     for i, entry in enumerate(spec.scenarios):
         where = f"scenarios[{i}]"
@@ -252,17 +279,22 @@ def parse_campaign(data: dict, source: str = "<dict>", base_dir: Path | None = N
         if any(_safe(s.name) == _safe(scn.name) for s in sources):
             raise ConfigError(where, f"scenario name {scn.name!r} appears twice (names key the run ids)")
         sources.append(ScenarioSource(scn.name, entry, raw))
+    return sources
 
-    for i, tracker in enumerate(spec.trackers):
+
+def _check_trackers(trackers: tuple[str, ...]) -> None:
+    from trackers import parse_tracker_name
+
+    for i, tracker in enumerate(trackers):
         try:
             parse_tracker_name(tracker)
         except ValueError as err:
             raise ConfigError(f"trackers[{i}]", _one_line(err)) from None
-        if tracker in spec.trackers[:i]:
+        if tracker in trackers[:i]:
             raise ConfigError(f"trackers[{i}]", f"tracker {tracker!r} appears twice")
 
-    overrides = _flatten(spec.overrides, "", False, "overrides")
-    grid = _flatten(spec.grid, "", True, "grid")
+
+def _check_keys(overrides: dict[str, Any], grid: dict[str, Any], trackers: tuple[str, ...]) -> None:
     for key in overrides:
         _check_key(key, "overrides")
     for key in grid:
@@ -271,64 +303,90 @@ def parse_campaign(data: dict, source: str = "<dict>", base_dir: Path | None = N
             raise ConfigError(f'grid."{key}"',
                               f"clashes with a results column; reserved: {', '.join(RESERVED_COLUMNS)}")
     keys = [("overrides", k) for k in overrides] + [("grid", k) for k in grid]
+    _check_tracker_keys(keys, trackers)
     for (wa, a), (wb, b) in itertools.combinations(keys, 2):
         if a == b or b.startswith(a + ".") or a.startswith(b + "."):
             raise ConfigError(f'{wb}."{b}"', f"overlaps {wa}.\"{a}\": set each value once")
 
-    def context(src: ScenarioSource, tracker: str) -> str:
-        return f" (scenario {src.name}, tracker {tracker})"
 
-    # Overrides: each one alone (precise blame), then all together.
+def _context(src: ScenarioSource, tracker: str) -> str:
+    return f" (scenario {src.name}, tracker {tracker})"
+
+
+def _check_overrides(sources: list[ScenarioSource], overrides: dict[str, Any], trackers: tuple[str, ...]) -> None:
+    """Each override alone (precise blame), then all together, for every scenario and tracker."""
+    from ..scenario import parse_scenario
+
     for src in sources:
         resolved = to_dict(parse_scenario(src.data))
         for key, value in overrides.items():
             why = _address_error(resolved, key)
             if why is not None:
                 raise ConfigError(f'overrides."{key}"', f"{why} (scenario {src.name})")
-            for tracker in spec.trackers:
+            for tracker in trackers:
                 try:
                     _scenario(src.data, {key: value}, tracker)
                 except ConfigError as err:
-                    raise ConfigError(f'overrides."{key}"', f"{err}{context(src, tracker)}") from None
-        for tracker in spec.trackers:
+                    raise ConfigError(f'overrides."{key}"', f"{err}{_context(src, tracker)}") from None
+        for tracker in trackers:
             try:
                 _scenario(src.data, overrides, tracker)
             except ConfigError as err:
-                raise ConfigError("overrides", f"{err}{context(src, tracker)}") from None
+                raise ConfigError("overrides", f"{err}{_context(src, tracker)}") from None
 
-    # Grid: each value alone on top of the overrides, then (if not too many) every combination.
+
+def _check_grid(sources: list[ScenarioSource], overrides: dict[str, Any], grid: dict[str, Any],
+                trackers: tuple[str, ...]) -> None:
+    """Each grid value alone on top of the overrides, then (if not too many) every combination."""
+    from ..scenario import apply_overrides, parse_scenario
+
     for src in sources:
-        base = apply_overrides(src.data, overrides)
-        resolved = to_dict(parse_scenario(base))
+        resolved = to_dict(parse_scenario(apply_overrides(src.data, for_tracker(overrides, trackers[0]))))
         for key, values in grid.items():
             why = _address_error(resolved, key)
             if why is not None:
                 raise ConfigError(f'grid."{key}"', f"{why} (scenario {src.name})")
             for j, value in enumerate(values):
-                for tracker in spec.trackers:
+                for tracker in trackers:
                     try:
-                        _scenario(base, {key: value}, tracker)
+                        _scenario(src.data, {**overrides, key: value}, tracker)
                     except ConfigError as err:
-                        raise ConfigError(f'grid."{key}"[{j}]', f"{err}{context(src, tracker)}") from None
+                        raise ConfigError(f'grid."{key}"[{j}]', f"{err}{_context(src, tracker)}") from None
     n_points = 1
     for values in grid.values():
         n_points *= len(values)
-    if len(grid) > 1 and n_points * len(sources) * len(spec.trackers) <= MAX_VALIDATED_COMBINATIONS:
-        for src in sources:
-            base = apply_overrides(src.data, overrides)
-            for combo in itertools.product(*grid.values()):
-                point = dict(zip(grid, combo))
-                for tracker in spec.trackers:
-                    try:
-                        _scenario(base, point, tracker)
-                    except ConfigError as err:
-                        text = ", ".join(f"{k}={v!r}" for k, v in point.items())
-                        raise ConfigError("grid", f"combination {text}: {err}{context(src, tracker)}") from None
+    if len(grid) < 2 or n_points * len(sources) * len(trackers) > MAX_VALIDATED_COMBINATIONS:
+        return
+    for src in sources:
+        for combo in itertools.product(*grid.values()):
+            point = dict(zip(grid, combo))
+            for tracker in trackers:
+                try:
+                    _scenario(src.data, {**overrides, **point}, tracker)
+                except ConfigError as err:
+                    text = ", ".join(f"{k}={v!r}" for k, v in point.items())
+                    raise ConfigError("grid", f"combination {text}: {err}{_context(src, tracker)}") from None
 
+
+def parse_campaign(data: dict, source: str = "<dict>", base_dir: Path | None = None,
+                   scenario_data: dict[str, dict] | None = None, default_name: str | None = None) -> Campaign:
+    """Build and validate a :class:`Campaign` from a TOML dict (errors without the file prefix).
+
+    ``scenario_data`` maps scenario entries to their TOML dicts (a results directory keeps the ones a
+    campaign started with, so a resumed campaign runs the same scenarios even if the files changed).
+    """
+    spec: CampaignFile = from_dict(CampaignFile, data)
+    name = spec.name or default_name or Path(source).stem
+    sources = _load_sources(spec, base_dir, scenario_data)
+    _check_trackers(spec.trackers)
+    overrides = _flatten(spec.overrides, "", False, "overrides")
+    grid = _flatten(spec.grid, "", True, "grid")
+    _check_keys(overrides, grid, spec.trackers)
+    _check_overrides(sources, overrides, spec.trackers)
+    _check_grid(sources, overrides, grid, spec.trackers)
     for i, s in enumerate(spec.record.full_seeds):
         if s >= spec.seeds:
             raise ConfigError(f"record.full_seeds[{i}]", f"{s} is not a seed index; allowed: 0..{spec.seeds - 1}")
-
     return Campaign(name=name, description=spec.description, base_seed=spec.base_seed, seeds=spec.seeds,
                     scenarios=tuple(sources), trackers=spec.trackers, overrides=overrides,
                     grid=tuple((k, tuple(v)) for k, v in grid.items()), record=spec.record, source=source)

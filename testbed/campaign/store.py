@@ -22,6 +22,8 @@ from __future__ import annotations
 import json
 import os
 import time
+import functools
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -78,14 +80,33 @@ def _write_table_atomic(table, path: Path) -> None:
     _fsync_dir(path.parent)
 
 
+_DISTRIBUTIONS = {"roadtrack": ("roadtrack",), "numpy": ("numpy",), "highway_env": ("highway-env",),
+                  "open3d": ("open3d-cpu", "open3d"), "rerun": ("rerun-sdk",)}
+
+
+@functools.cache
+def versions() -> dict[str, str]:
+    """Installed versions of roadtrack and the packages that shape its numbers (``v_<name>`` columns)."""
+    from importlib import metadata
+
+    out = {"python": ".".join(map(str, sys.version_info[:3]))}
+    for name, dists in _DISTRIBUTIONS.items():
+        out[name] = ""
+        for dist in dists:
+            try:
+                out[name] = metadata.version(dist)
+                break
+            except metadata.PackageNotFoundError:
+                continue
+    return out
+
+
 def is_campaign_dir(out_dir: str | Path) -> bool:
     return (Path(out_dir) / CAMPAIGN_FILE).is_file()
 
 
 def create(out_dir: str | Path, campaign_path: str | Path, campaign) -> Path:
     """Start a results directory: copy the campaign file, the scenario dicts and meta data into it."""
-    from .engine import versions
-
     out = Path(out_dir)
     if is_campaign_dir(out):
         raise ConfigError("", f"{out} already holds a campaign: continue it with `testbed campaign resume {out}` "

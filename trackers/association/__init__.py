@@ -1,19 +1,25 @@
 """Data association: (T, M) log-likelihoods and gate flags in, weights (T, M) and miss weights (T,) out.
 
-Registry: name -> fn(log_lik, gated, p: AssociationParams) -> (W, w0). Adding an associator = one
-module, one line here; the registry contract tests then run it."""
+Two layers:
+* plain functions on arrays, testable with hand-made arrays: `fn(log_lik, gated, p: AssociationParams,
+  pd=None) -> (W, w0)` (nn, gnn, pda, jpda), `all_neighbours(D, gated)` (an), `apda(nu, S, ...)` (apda);
+* the role registry ASSOCIATORS: name -> AssociatorKind(run, params dataclass, doc), where
+  `run(inp: AssociationInput, params) -> (W, w0)` or `(W, w0, info)`; `info` maps names to per-track
+  (T,) arrays reported as diagnostics. The tracker builds the AssociationInput once per scan (it also
+  carries innovations, S, per-track P_D and the filters' boundary layers for APDA).
 
+Adding an associator = one module, one line here; the registry contract tests then run it."""
+
+from trackers.association.an import all_neighbours
+from trackers.association.apda import apda
 from trackers.association.gnn import global_nearest_neighbour
 from trackers.association.jpda import jpda
 from trackers.association.nn import nearest_neighbour
 from trackers.association.params import AssociationParams
 from trackers.association.pda import pda
+from trackers.association.roles import (ASSOCIATORS, AssociationInput, AssociatorKind, AssociatorParams, ANParams,
+                                        APDAParams, JPDAParams, build_associator)
 
-ASSOCIATORS = {
-    "nn": nearest_neighbour,
-    "gnn": global_nearest_neighbour,
-    "pda": pda,
-    "jpda": jpda,
-}
-
-__all__ = ["ASSOCIATORS", "AssociationParams", "global_nearest_neighbour", "jpda", "nearest_neighbour", "pda"]
+__all__ = ["ANParams", "APDAParams", "ASSOCIATORS", "AssociationInput", "AssociationParams", "AssociatorKind",
+           "AssociatorParams", "JPDAParams", "all_neighbours", "apda", "build_associator", "global_nearest_neighbour",
+           "jpda", "nearest_neighbour", "pda"]

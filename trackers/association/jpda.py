@@ -1,20 +1,25 @@
-"""Joint probabilistic data association with exact per-cluster enumeration (thesis §4.4, (4.18)-(4.21)).
+"""Joint probabilistic data association, exact per cluster (thesis §4.4, (4.18)-(4.21)).
 
 1. Validation matrix: measurement j may come from track t iff gated[t, j] (clutter always).
 2. Clusters: connected components of the bipartite track-measurement gate graph [R] (Fortmann et al.).
    A track with no gated measurement has w0 = 1; one-track clusters are computed together in one batch
    (their events are 'all clutter' and 'z_j is the track's', so this is the same formula).
-3. Feasible joint events of a cluster: every measurement gets one source (clutter or a gated track),
-   every track at most one measurement. They are enumerated exactly, measurement by measurement,
-   with a 'used tracks' set per partial event. This is the depth-first tree of thesis §4.4 step 3
-   expanded one level at a time, so that each level is one vectorised numpy operation.
-4. Event log-weight (4.19): sum of a[t, j] over assigned pairs + b per undetected track (see
-   `joint_event_terms`); normalised per cluster with logsumexp (the constant c); marginals (4.21).
+3. Event log-weight (4.19): sum of a[t, j] over assigned pairs + b[t] per undetected track (see
+   `joint_event_terms`: thesis form or P_D P_G form, per-track P_D); normalised per cluster (the
+   constant c); marginals beta_jt and beta_0t (4.21).
 
-Combinatorial guard: if a cluster would have more than `p.max_events` feasible events, then with
-`p.on_overflow == "raise"` a JPDAOverflowError is raised, and with "pda" (default) that cluster's
-tracks get per-track PDA weights (`pda`) and a JPDAOverflowWarning is issued. The check is made
-before each level is allocated, so an oversized cluster costs at most about `max_events` rows.
+Methods for a cluster of two or more tracks (`method=`):
+* "ehm" (default): exact marginals from the efficient-hypothesis-management net (`ehm.py`), without
+  listing the joint events. Bounded by the net's frontier width w (<= min(T, M) of the cluster): at
+  most 2^w nodes per layer. Guard: `max_nodes` edges in one layer, above which JPDAOverflowError
+  (one line, naming the cluster size); max_events / on_overflow do not apply.
+* "enumerate": every feasible joint event listed, measurement by measurement, with a 'used tracks'
+  set per partial event (the depth-first tree of thesis §4.4 step 3, one vectorised level at a time).
+  Exponential; kept as the test oracle. Guard: above `p.max_events` feasible events of a cluster,
+  `p.on_overflow == "raise"` raises JPDAOverflowError and "pda" (default) gives that cluster's tracks
+  per-track PDA weights with a JPDAOverflowWarning. The check is made before each level is allocated.
+* "k_best": the k most probable events by Murty's ranked assignment (`kbest.py`), renormalised:
+  approximate, exact when k >= the number of feasible events; measured errors in `kbest.py`.
 """
 
 from __future__ import annotations
@@ -24,30 +29,36 @@ import warnings
 import numpy as np
 from scipy.special import logsumexp
 
-from trackers.association.params import AssociationParams, check_inputs, joint_event_terms
+from trackers.association.ehm import net_marginals
+from trackers.association.kbest import k_best_marginals
+from trackers.association.params import AssociationParams, check_inputs, joint_event_terms, track_pd
 from trackers.association.pda import pda
 from trackers.errors import JPDAOverflowError, JPDAOverflowWarning
+
+METHODS = ("ehm", "enumerate", "k_best")
+DEFAULT_K = 100
+DEFAULT_MAX_NODES = 1 << 20
+
+
+def components(gated: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Connected components of the gate graph by label propagation: (track labels (T,), measurement labels
+    (M,)); a label is the smallest track index of the component, T for a track or measurement without edges."""
+    T, M = gated.shape
+    lab = np.where(gated.any(axis=1), np.arange(T), T)
+    while True:
+        mlab = np.where(gated, lab[:, None], T).min(axis=0, initial=T)
+        new = np.minimum(lab, np.where(gated, mlab[None, :], T).min(axis=1, initial=T))
+        if np.array_equal(new, lab):
+            return lab, mlab
+        lab = new
 
 
 def clusters(gated: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
     """Connected components of the gate graph: list of (track indices, measurement indices), each sorted.
 
     Only tracks with at least one gated measurement appear; clusters are ordered by their first track."""
-    todo = gated.any(axis=1)
-    out = []
-    while todo.any():
-        t_in = np.zeros(len(gated), dtype=bool)
-        t_in[np.argmax(todo)] = True
-        m_in = gated[t_in].any(axis=0)
-        while True:  # grow: tracks gating any member measurement, measurements gated by any member track
-            t_new = gated[:, m_in].any(axis=1)
-            m_new = gated[t_new].any(axis=0)
-            if (t_new == t_in).all() and (m_new == m_in).all():
-                break
-            t_in, m_in = t_new, m_new
-        todo &= ~t_in
-        out.append((np.flatnonzero(t_in), np.flatnonzero(m_in)))
-    return out
+    lab, mlab = components(gated)
+    return [(np.flatnonzero(lab == c), np.flatnonzero(mlab == c)) for c in np.unique(lab[lab < len(lab)])]
 
 
 def enumerate_events(gated: np.ndarray, max_events: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -74,7 +85,7 @@ def enumerate_events(gated: np.ndarray, max_events: int) -> tuple[np.ndarray, np
     return assign, used
 
 
-def _cluster_marginals(a: np.ndarray, b: float, assign: np.ndarray,
+def _cluster_marginals(a: np.ndarray, b: np.ndarray, assign: np.ndarray,
                        used: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     Tc, Mc = a.shape
     E = len(assign)
@@ -83,8 +94,7 @@ def _cluster_marginals(a: np.ndarray, b: float, assign: np.ndarray,
         tj = assign[:, j]
         hit = tj >= 0
         log_w[hit] += a[tj[hit], j]  # (4.19) lambda^-1 N(z_j; z_hat_t, S_t) P_D per assigned pair
-    n_miss = Tc - used.sum(axis=1)
-    log_w += np.where(n_miss > 0, n_miss * b if np.isfinite(b) else -np.inf, 0.0)  # (4.19) (1 - P_D) per missed track
+    log_w += np.where(used, 0.0, b[None, :]).sum(axis=1)  # (4.19) (1 - P_D^t) per missed track t
     with np.errstate(divide="ignore", invalid="ignore"):
         log_c = logsumexp(log_w)  # (4.19) normalising constant c
     if not np.isfinite(log_c):
@@ -97,38 +107,64 @@ def _cluster_marginals(a: np.ndarray, b: float, assign: np.ndarray,
     return np.minimum(W, 1.0), np.minimum(w0, 1.0)  # sums of normalised probabilities may exceed 1 by an ulp
 
 
-def jpda(log_lik: np.ndarray, gated: np.ndarray, p: AssociationParams) -> tuple[np.ndarray, np.ndarray]:
-    """JPDA marginal association probabilities (T, M) and miss probabilities (T,). See module docstring."""
+def _ehm(a: np.ndarray, b: np.ndarray, g: np.ndarray, max_nodes: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Exact cluster marginals by the EHM net; rows are the larger side (keys over the smaller)."""
+    Tc, Mc = g.shape
+    if Mc >= Tc:  # rows = measurements (unmatched: clutter, factor 1), columns = tracks (unmatched: b)
+        res = net_marginals(a.T, g.T, np.zeros(Mc), b, max_nodes)
+        return None if res is None else (res[0].T, res[2])
+    res = net_marginals(a, g, b, np.zeros(Mc), max_nodes)
+    return None if res is None else (res[0], res[1])
+
+
+def _cluster(ts, ms, log_lik, gated, p, pdt, method, k, max_nodes):
+    g = gated[np.ix_(ts, ms)]
+    a, b = joint_event_terms(log_lik[np.ix_(ts, ms)], p, pdt[ts])
+    if method == "ehm":
+        return _ehm(a, b, g, max_nodes)
+    if method == "k_best":
+        return k_best_marginals(a, b, g, k)
+    events = enumerate_events(g, p.max_events)
+    if events is not None:
+        return _cluster_marginals(a, b, *events)
+    if p.on_overflow == "raise":
+        raise JPDAOverflowError(f"JPDA cluster of {ts.size} tracks and {ms.size} measurements has more than "
+                                f"max_events={p.max_events} feasible joint events")
+    warnings.warn(f"JPDA cluster of {ts.size} tracks and {ms.size} measurements exceeds max_events="
+                  f"{p.max_events}; using per-track PDA for it", JPDAOverflowWarning, stacklevel=3)
+    return pda(log_lik[np.ix_(ts, ms)], g, p, pdt[ts])
+
+
+def jpda(log_lik: np.ndarray, gated: np.ndarray, p: AssociationParams, pd: np.ndarray | float | None = None, *,
+         method: str = "ehm", k: int = DEFAULT_K,
+         max_nodes: int = DEFAULT_MAX_NODES) -> tuple[np.ndarray, np.ndarray]:
+    """JPDA marginal association probabilities (T, M) and miss probabilities (T,). pd: per-track P_D (T,) or
+    None for p.pd; method: "ehm" | "enumerate" | "k_best"; k: events kept by "k_best"; max_nodes: guard of
+    "ehm". See module docstring. A cluster in which no event has positive probability (only possible with
+    P_D = 1) is left unassociated (w0 = 1)."""
+    if method not in METHODS:
+        raise ValueError(f"jpda method must be one of {list(METHODS)}, got {method!r}")
     log_lik, gated = check_inputs(log_lik, gated)
     T, M = log_lik.shape
+    pdt = track_pd(p, T, pd)
     W = np.zeros((T, M))
     w0 = np.ones(T)
-    found = clusters(gated)
-    single = np.array([ts[0] for ts, _ in found if ts.size == 1], dtype=np.int64)
-    multi = [(ts, ms) for ts, ms in found if ts.size > 1]
+    lab, _ = components(gated)
+    size = np.bincount(lab, minlength=T + 1)[:T]
+    single = np.flatnonzero((lab < T) & (size[np.minimum(lab, T - 1)] == 1))
     if single.size:  # one-track clusters in one batch: the events are 'all clutter' or 'z_j is the track's'
-        a, b = joint_event_terms(log_lik[single], p)
-        terms = np.concatenate([np.full((single.size, 1), b), np.where(gated[single], a, -np.inf)], axis=1)
+        a, b = joint_event_terms(log_lik[single], p, pdt[single])
+        terms = np.concatenate([b[:, None], np.where(gated[single], a, -np.inf)], axis=1)
         log_c = logsumexp(terms, axis=1, keepdims=True)  # (4.19) normalising constant c per cluster
         prob = np.exp(terms - log_c)  # finite: every such track has a gated measurement
         w0[single] = prob[:, 0]  # (4.21) beta_0t
         W[single] = prob[:, 1:]  # (4.21) beta_jt
-    for ts, ms in multi:
-        g = gated[np.ix_(ts, ms)]
-        events = enumerate_events(g, p.max_events)
-        if events is None:
-            if p.on_overflow == "raise":
-                raise JPDAOverflowError(f"JPDA cluster of {ts.size} tracks and {ms.size} measurements has more than "
-                                        f"max_events={p.max_events} feasible joint events")
-            warnings.warn(f"JPDA cluster of {ts.size} tracks and {ms.size} measurements exceeds max_events="
-                          f"{p.max_events}; using per-track PDA for it", JPDAOverflowWarning, stacklevel=2)
-            Wc, w0c = pda(log_lik[np.ix_(ts, ms)], g, p)
-        else:
-            a, b = joint_event_terms(log_lik[np.ix_(ts, ms)], p)
-            res = _cluster_marginals(a, b, *events)
-            if res is None:  # no event has positive probability (only possible with P_D = 1): no update
-                continue
-            Wc, w0c = res
-        W[np.ix_(ts, ms)] = Wc
-        w0[ts] = w0c
+    for c in np.flatnonzero(size > 1):
+        ts = np.flatnonzero(lab == c)
+        ms = np.flatnonzero(gated[ts].any(axis=0))
+        res = _cluster(ts, ms, log_lik, gated, p, pdt, method, k, max_nodes)
+        if res is None:  # no event has positive probability (only possible with P_D = 1): no update
+            continue
+        W[np.ix_(ts, ms)] = np.clip(res[0], 0.0, 1.0)  # sums of probabilities may exceed 1 by an ulp
+        w0[ts] = np.clip(res[1], 0.0, 1.0)
     return W, w0

@@ -38,7 +38,7 @@ class AssociationParams:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
                 raise ValueError(f"AssociationParams.{name} must be a finite number, got {v!r}")
-        if not (0.0 < self.pd <= 1.0 and 0.0 < self.pg <= 1.0):
+        if not (0.0 <= self.pd <= 1.0 and 0.0 < self.pg <= 1.0):
             raise ValueError(f"AssociationParams needs 0 < pd <= 1 and 0 < pg <= 1, got pd={self.pd}, pg={self.pg}")
         if self.clutter_density <= 0.0:
             raise ValueError(f"AssociationParams.clutter_density must be > 0, got {self.clutter_density}")
@@ -65,14 +65,25 @@ def check_inputs(log_lik: np.ndarray, gated: np.ndarray) -> tuple[np.ndarray, np
     return log_lik, gated
 
 
-def joint_event_terms(log_lik: np.ndarray, p: AssociationParams) -> tuple[np.ndarray, float]:
-    """Log factors of a JPDA joint event (4.19): a (T, M) for 'measurement j is track t's', b for 'track t missed'.
+def track_pd(p: AssociationParams, T: int, pd: np.ndarray | float | None = None) -> np.ndarray:
+    """Per-track detection probabilities (T,): `pd` if given (scalar or (T,), e.g. occlusion-aware), else p.pd."""
+    out = np.broadcast_to(np.asarray(p.pd if pd is None else pd, dtype=np.float64), (T,)).copy()
+    if not np.all((out >= 0.0) & (out <= 1.0)):
+        raise ValueError(f"per-track detection probabilities must lie in [0, 1], got {out[(out < 0) | (out > 1)][:3]}")
+    return out
 
-    log P(Theta) = sum_{assigned (t, j)} a[t, j] + (number of missed tracks) * b + const.
+
+def joint_event_terms(log_lik: np.ndarray, p: AssociationParams,
+                      pd: np.ndarray | float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Log factors of a JPDA joint event (4.19): a (T, M) for 'measurement j is track t's', b (T,) for 'track t
+    missed'. pd: per-track P_D (T,) or None for p.pd.
+
+    log P(Theta) = sum_{assigned (t, j)} a[t, j] + sum_{missed t} b[t] + const.
     Thesis form: a = ln(P_D N / lambda), b = ln(1 - P_D). P_D P_G form: P_D -> P_D P_G and N -> N / P_G."""
-    pd = p.pd * p.pg if p.use_pg else p.pd
+    pdt = track_pd(p, log_lik.shape[0], pd)
+    pdt = pdt * p.pg if p.use_pg else pdt
     log_n = log_lik - np.log(p.pg) if p.use_pg else log_lik
-    a = np.log(pd) + log_n - np.log(p.clutter_density)  # (4.19) lambda^-1 N P_D per assigned pair
     with np.errstate(divide="ignore"):
-        b = float(np.log1p(-pd))  # (4.19) (1 - P_D) per undetected target (-inf if P_D = 1)
+        a = np.log(pdt)[:, None] + log_n - np.log(p.clutter_density)  # (4.19) lambda^-1 N P_D per assigned pair
+        b = np.log1p(-pdt)  # (4.19) (1 - P_D) per undetected target (-inf if P_D = 1)
     return a, b

@@ -1,24 +1,31 @@
-"""The filter contract and the PDA-form helpers every filter shares.
+"""The filter contract, the shared model-based predict, and the PDA-form helpers every filter uses.
 
-A filter is a frozen dataclass constructed from keyword parameters, with four stateless methods:
+A filter is a frozen dataclass holding its models (`motion`, `measurement`, see trackers.models) and
+parameters, with stateless methods:
 
-    predict(s, dt)                 -> FilterState         prior at the next scan
+    initial_state(x0, P0)          -> FilterState   from a kinematic Gaussian [p; v] (2d,), (2d, 2d)
+    predict(s, dt)                 -> FilterState   prior at the next scan (stores the Jacobian F used)
     predicted_measurement(s_pred)  -> (z_hat (m,), S (m, m))
-    update(s_pred, nu, beta, beta0)-> FilterState         PDA-form update (thesis §4.2/§4.3)
-    initiate(z, v_max)             -> FilterState         new track from one measurement (§7.2)
-    initiate_two_point(z_prev, z, dt) -> FilterState      new track from two measurements (§7.2)
+    update(s_pred, nu, beta, beta0)-> FilterState   PDA-form update (thesis §4.2/§4.3)
+    output(s)                      -> (x, P)        estimate in `motion`'s layout (IMM: combined)
+    layer(s_pred)                  -> (m,) or None  boundary-layer half widths in measurement space
+                                                    (SVSF family; read by APDA and drawn by the viewer)
 
 `update` takes the innovations nu (M, m) of the measurements a track may use, their association
 weights beta (M,) and the miss weight beta0, with beta0 + sum(beta) = 1. Hard association (NN, GNN)
-is beta = [1], beta0 = 0; PDA and JPDA pass soft weights. An SVSF-family filter implements the same
-method: it sets e_{z,k|k-1} to the combined innovation (2.27), computes its own gain, combines the
-covariance with `pda_covariance` (4.16)-(4.17) and stores e_{z,k|k} (3.65) in `FilterState.e_post`.
-An IMM filter returns a `FilterState` subclass whose x, P are the combined output and whose extra
-fields carry the mode-matched states; the tracker only reads x and P and passes states back.
+is beta = [1], beta0 = 0; PDA and JPDA pass soft weights. M = 0 or beta0 = 1 returns the prediction.
+An SVSF-family filter sets e_{z,k|k-1} to the combined innovation (2.27), computes its own gain (reading
+dt and the partition of `s_pred.F`), combines the covariance with `pda_covariance` (4.16)-(4.17) and
+stores e_{z,k|k} (3.65) in `e_post`. Per-track diagnostics go into `FilterState.info` (a dict of
+scalars or (m,) arrays); the tracker adds NIS and association quantities and the testbed logs them.
+An IMM returns a `FilterState` subclass whose x, P are the combined output and whose extra fields
+carry the mode-matched states.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -29,15 +36,96 @@ from trackers.state import FilterState
 
 @runtime_checkable
 class Filter(Protocol):
+    motion: object
+    measurement: object
+
+    def initial_state(self, x0: np.ndarray, P0: np.ndarray) -> FilterState: ...
+
     def predict(self, s: FilterState, dt: float) -> FilterState: ...
 
     def predicted_measurement(self, s_pred: FilterState) -> tuple[np.ndarray, np.ndarray]: ...
 
     def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState: ...
 
-    def initiate(self, z: np.ndarray, v_max: float) -> FilterState: ...
+    def output(self, s: FilterState) -> tuple[np.ndarray, np.ndarray]: ...
 
-    def initiate_two_point(self, z_prev: np.ndarray, z: np.ndarray, dt: float) -> FilterState: ...
+    def layer(self, s_pred: FilterState) -> np.ndarray | None: ...
+
+
+class ModelFilter:
+    """Shared parts of every single-model filter (KF, EKF, the SVSF family): `self.motion` and
+    `self.measurement` models. Predict is the (E)KF predict; subclasses write `update`."""
+
+    motion: object
+    measurement: object
+
+    def initial_state(self, x0: np.ndarray, P0: np.ndarray) -> FilterState:
+        x, P = self.motion.embed(x0, P0)
+        return FilterState(x=x, P=P, e_post=np.zeros(self.measurement.ndim))  # §7.2: SVSF memory e_{z,0|0} = 0
+
+    def predict(self, s: FilterState, dt: float) -> FilterState:
+        """Prior after `dt` seconds (dt >= 0): x = f(x), P = F P F^T + Q (4.24), (4.26); F kept in the state."""
+        dt = float(dt)
+        if not math.isfinite(dt) or dt < 0:
+            raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
+        F = self.motion.jacobian(s.x, dt)
+        x = self.motion.f(s.x, dt)  # (4.3)-(4.8), (4.24) predict; EKF (1.11) for a nonlinear f
+        P = symmetrise(F @ s.P @ F.T + self.motion.process_noise(dt, s.x))  # (4.26), Q = G Qv G^T (§1.1 [R])
+        check_covariance(P, "predicted covariance P")
+        return replace(s, x=x, P=P, F=F, info={})
+
+    def measurement_jacobian(self, s_pred: FilterState) -> np.ndarray:
+        return self.measurement.jacobian(s_pred.x, self.motion)
+
+    def predicted_measurement(self, s_pred: FilterState) -> tuple[np.ndarray, np.ndarray]:
+        """z_hat = h(x) (m,), S = H P H^T + R (m, m)."""
+        H = self.measurement_jacobian(s_pred)
+        S = symmetrise(H @ s_pred.P @ H.T + self.measurement.R)  # (4.3)-(4.8) innovation covariance S
+        return self.measurement.h(s_pred.x, self.motion), S
+
+    def output(self, s: FilterState) -> tuple[np.ndarray, np.ndarray]:
+        return s.x, s.P
+
+    def layer(self, s_pred: FilterState) -> np.ndarray | None:
+        return None
+
+    # Batched forms used by the tracker; a filter may override them with vectorised code (the KF does).
+    def predict_many(self, states: list[FilterState], dt: float) -> list[FilterState]:
+        return [self.predict(s, dt) for s in states]
+
+    def predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
+        """z_hat (T, m) and S (T, m, m) of T predicted states."""
+        m = self.measurement.ndim
+        zs = [self.predicted_measurement(s) for s in preds]
+        return (np.array([z for z, _ in zs], dtype=np.float64).reshape(len(preds), m),
+                np.array([S for _, S in zs], dtype=np.float64).reshape(len(preds), m, m))
+
+    def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
+                    w0: np.ndarray) -> list[FilterState]:
+        """PDA-form updates of T tracks: nu (T, M, m) innovations, W (T, M) weights, w0 (T,) miss weights."""
+        out = []
+        for t, s in enumerate(preds):
+            use = W[t] > 0.0
+            out.append(self.update(s, nu[t, use], W[t, use], float(w0[t])))
+        return out
+
+
+def batch_predict(filter_, states: list[FilterState], dt: float) -> list[FilterState]:
+    """`predict_many` of any filter (the per-track loop for filters without one)."""
+    many = getattr(filter_, "predict_many", None)
+    return many(states, dt) if many is not None else [filter_.predict(s, dt) for s in states]
+
+
+def batch_predicted_measurements(filter_, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
+    many = getattr(filter_, "predicted_measurements", None)
+    if many is not None:
+        return many(preds)
+    return ModelFilter.predicted_measurements(filter_, preds)
+
+
+def batch_update(filter_, preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray) -> list:
+    many = getattr(filter_, "update_many", None)
+    return many(preds, nu, W, w0) if many is not None else ModelFilter.update_many(filter_, preds, nu, W, w0)
 
 
 def symmetrise(P: np.ndarray) -> np.ndarray:

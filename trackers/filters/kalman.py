@@ -1,100 +1,163 @@
-"""Linear Kalman filter, NCV motion with position measurements, in PDA form (thesis §1.1-1.2, §4.2)."""
+"""Kalman filter and extended Kalman filter in PDA form (thesis §1.1-1.2, §4.2; EKF (1.11); seed 000 §3
+for the second-order measurement terms).
+
+Both are generic over the motion and measurement models. The KF requires linear models; the EKF
+linearises f and h at the current estimate (first order) and optionally adds the second-order terms
+of h to the innovation covariance and the predicted measurement.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from trackers.errors import FilterError
-from trackers.filters.base import (check_covariance, check_weights, cholesky, combined_innovation, pda_covariance,
-                                   symmetrise)
-from trackers.models import (MEASUREMENT_DIM, STATE_DIM, cv_process_noise, cv_transition, measurement_noise,
-                             position_measurement_matrix)
-from trackers.state import FilterState
+from trackers.filters.base import (ModelFilter, check_covariance, check_weights, cholesky, combined_innovation,
+                                   pda_covariance, symmetrise)
+from trackers.state import FilterState, derive
+
+
+def gain_update(s_pred: FilterState, H: np.ndarray, R: np.ndarray, S: np.ndarray, K: np.ndarray,
+                nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState:
+    """PDA-form update with gain K (n, m): x = x_pred + K nu_c; P = beta0 P_pred + (1 - beta0) P* + P~
+    with the Joseph-form P* = (I - K H) P (I - K H)^T + K R K^T; e_post = (I - H K) nu_c (3.65)."""
+    P = s_pred.P
+    nu_c = combined_innovation(nu, beta)  # (4.15) combined innovation
+    x = s_pred.x + K @ nu_c  # §4.2 PDA state update x = x_pred + K nu_c, (4.10)-(4.17)
+    I_KH = np.eye(len(x)) - K @ H
+    P_star = I_KH @ P @ I_KH.T + K @ R @ K.T  # (4.8), (2.12), (4.37): single-measurement posterior, Joseph form
+    P_post = pda_covariance(P, P_star, K, nu, beta, beta0)  # (4.16)-(4.17)
+    if not np.isfinite(x).all():
+        raise FilterError("updated state x is not finite")
+    check_covariance(P_post, "updated covariance P")
+    e_post = nu_c - H @ (K @ nu_c)  # (3.65) e_{z,k|k} = (I - H K) e_{z,k|k-1}
+    return replace(s_pred, x=x, P=P_post, e_post=e_post, F=None)
 
 
 @dataclass(frozen=True)
-class KalmanFilter:
-    """KF for state [px, py, vx, vy]. sigma_v: white-acceleration std [m/s^2]; sigma_w: position noise std [m]."""
+class KalmanFilter(ModelFilter):
+    """Linear KF. motion: a linear motion model (e.g. ConstantVelocity); measurement: a linear one."""
 
-    sigma_v: float
-    sigma_w: float
-    _H: np.ndarray = field(init=False, repr=False, compare=False)
-    _R: np.ndarray = field(init=False, repr=False, compare=False)
+    motion: object
+    measurement: object
 
     def __post_init__(self) -> None:
-        for name in ("sigma_v", "sigma_w"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
-                raise ValueError(f"KalmanFilter.{name} must be a finite number, got {v!r}")
-        if self.sigma_v < 0 or self.sigma_w <= 0:
-            raise ValueError(f"KalmanFilter needs sigma_v >= 0 and sigma_w > 0, got {self.sigma_v}, {self.sigma_w}")
-        object.__setattr__(self, "_H", position_measurement_matrix())
-        object.__setattr__(self, "_R", measurement_noise(self.sigma_w))
-
-    def predict(self, s: FilterState, dt: float) -> FilterState:
-        """Prior after `dt` seconds (dt >= 0)."""
-        dt = float(dt)
-        if not np.isfinite(dt) or dt < 0:
-            raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
-        A = cv_transition(dt)
-        x = A @ s.x  # (4.3)-(4.8) KF predict: x = A x
-        P = symmetrise(A @ s.P @ A.T + cv_process_noise(dt, self.sigma_v))  # P = A P A^T + G Qv G^T (§1.1 [R])
-        check_covariance(P, "predicted covariance P")
-        return replace(s, x=x, P=P)
-
-    def predicted_measurement(self, s_pred: FilterState) -> tuple[np.ndarray, np.ndarray]:
-        """z_hat = H x (m,), S = H P H^T + R (m, m)."""
-        H = self._H
-        S = symmetrise(H @ s_pred.P @ H.T + self._R)  # (4.3)-(4.8) innovation covariance S
-        return H @ s_pred.x, S
+        if not (self.motion.linear and self.measurement.linear):
+            raise ValueError(f"KalmanFilter needs linear models, got {type(self.motion).__name__} and "
+                             f"{type(self.measurement).__name__}; use the EKF")
 
     def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState:
         """PDA-form update. nu (M, m) innovations z_i - z_hat; beta (M,) weights; beta0 miss weight.
 
         M = 0 or beta0 = 1 returns `s_pred` itself. beta = [1], beta0 = 0 is the standard KF update with
-        the Joseph-form covariance. e_post is set to the a-posteriori error (I - H K) nu_c (3.65)."""
-        nu, beta, beta0 = check_weights(nu, beta, beta0, MEASUREMENT_DIM)
+        the Joseph-form covariance."""
+        nu, beta, beta0 = check_weights(nu, beta, beta0, self.measurement.ndim)
         if nu.shape[0] == 0 or beta0 == 1.0:
             return s_pred  # (4.16) with beta0 = 1: no update
-        H, R, P = self._H, self._R, s_pred.P
-        S = symmetrise(H @ P @ H.T + R)
+        H, R = self.measurement_jacobian(s_pred), self.measurement.R
+        S = symmetrise(H @ s_pred.P @ H.T + R)
         cholesky(S, "innovation covariance S")
-        K = np.linalg.solve(S, H @ P).T  # (4.3)-(4.8) KF gain K = P H^T S^-1
-        nu_c = combined_innovation(nu, beta)  # (4.15) combined innovation
-        x = s_pred.x + K @ nu_c  # §4.2 PDA state update x = x_pred + K nu_c, (4.10)-(4.17)
-        I_KH = np.eye(STATE_DIM) - K @ H
-        P_star = I_KH @ P @ I_KH.T + K @ R @ K.T  # (4.8) single-measurement posterior, Joseph form
-        P_post = pda_covariance(P, P_star, K, nu, beta, beta0)  # (4.16)-(4.17)
-        if not np.isfinite(x).all():
-            raise FilterError("updated state x is not finite")
-        check_covariance(P_post, "updated covariance P")
-        e_post = nu_c - H @ (K @ nu_c)  # (3.65) e_{z,k|k} = (I - H K) e_{z,k|k-1}
-        return replace(s_pred, x=x, P=P_post, e_post=e_post)
+        K = np.linalg.solve(S, H @ s_pred.P).T  # (4.3)-(4.8) KF gain K = P H^T S^-1
+        return gain_update(s_pred, H, R, S, K, nu, beta, beta0)
 
-    def initiate(self, z: np.ndarray, v_max: float) -> FilterState:
-        """New track at position z (2,) with zero velocity, P0 = diag(R, v_max^2/3 I) (thesis §7.2 [D])."""
-        z = np.asarray(z, dtype=np.float64)
-        if z.shape != (MEASUREMENT_DIM,) or not np.isfinite(z).all():
-            raise ValueError(f"initiate needs a finite z of shape ({MEASUREMENT_DIM},), got {z!r}")
-        if not np.isfinite(v_max) or v_max <= 0:
-            raise ValueError(f"initiate needs v_max > 0, got {v_max}")
-        P0 = np.zeros((STATE_DIM, STATE_DIM))
-        P0[:2, :2] = self._R  # §7.2: position variance R
-        P0[2:, 2:] = (v_max * v_max / 3.0) * np.eye(2)  # §7.2: velocity uniform on [-v_max, v_max]
-        return FilterState(x=np.concatenate([z, np.zeros(2)]), P=P0, e_post=np.zeros(MEASUREMENT_DIM))
+    # ---- batched forms (same equations over T tracks at once; used by the tracker)
+    def predict_many(self, states: list[FilterState], dt: float) -> list[FilterState]:
+        dt = float(dt)
+        if not np.isfinite(dt) or dt < 0:
+            raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
+        if not states:
+            return []
+        A, Q = self.motion.transition(dt), self.motion.process_noise(dt)
+        X = np.array([s.x for s in states]) @ A.T  # (4.3)-(4.8) KF predict: x = A x
+        P = A @ np.array([s.P for s in states]) @ A.T + Q  # P = A P A^T + G Qv G^T (§1.1 [R])
+        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+        check_covariance(P, "predicted covariance P")
+        return [derive(s, x=X[t], P=P[t], F=A, info={}) for t, s in enumerate(states)]
 
-    def initiate_two_point(self, z_prev: np.ndarray, z: np.ndarray, dt: float) -> FilterState:
-        """New track from two measurements dt apart (thesis §7.2 [D], two-point differencing):
-        x = [z; (z - z_prev)/dt], P0 = [[R, R/dt], [R/dt, 2R/dt^2]]."""
-        z_prev, z = np.asarray(z_prev, dtype=np.float64), np.asarray(z, dtype=np.float64)
-        if z.shape != (MEASUREMENT_DIM,) or z_prev.shape != (MEASUREMENT_DIM,) or not (
-                np.isfinite(z).all() and np.isfinite(z_prev).all()):
-            raise ValueError(f"initiate_two_point needs finite z, z_prev of shape ({MEASUREMENT_DIM},)")
-        if not np.isfinite(dt) or dt <= 0:
-            raise ValueError(f"initiate_two_point needs dt > 0, got {dt}")
-        R = self._R
-        P0 = np.block([[R, R / dt], [R / dt, 2.0 * R / dt**2]])  # §7.2 two-point differencing covariance
-        x = np.concatenate([z, (z - z_prev) / dt])  # §7.2 x = [z_k; (z_k - z_{k-1}) / T_s]
-        return FilterState(x=x, P=P0, e_post=np.zeros(MEASUREMENT_DIM))
+    def predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
+        m = self.measurement.ndim
+        if not preds:
+            return np.zeros((0, m)), np.zeros((0, m, m))
+        H = self.measurement.matrix(self.motion)
+        P = np.array([s.P for s in preds])
+        S = H @ P @ H.T + self.measurement.R  # (4.3)-(4.8) innovation covariance S
+        return np.array([s.x for s in preds]) @ H.T, 0.5 * (S + np.swapaxes(S, 1, 2))
+
+    def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
+                    w0: np.ndarray) -> list[FilterState]:
+        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,). A track with w0 = 1 keeps its prediction."""
+        T = len(preds)
+        active = np.flatnonzero((w0 < 1.0) & (W.sum(axis=1) > 0.0)) if T else np.zeros(0, dtype=np.int64)
+        out = list(preds)
+        if active.size == 0:
+            return out
+        if not (np.isfinite(nu[active]).all() and np.isfinite(W[active]).all() and np.isfinite(w0[active]).all()):
+            raise ValueError("update got non-finite innovations or weights")
+        H, R = self.measurement.matrix(self.motion), self.measurement.R
+        X = np.array([preds[t].x for t in active])
+        P = np.array([preds[t].P for t in active])
+        Wa, nua, b0 = W[active], nu[active], w0[active]
+        S = H @ P @ H.T + R
+        S = 0.5 * (S + np.swapaxes(S, 1, 2))
+        try:
+            np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            raise FilterError("innovation covariance S is not positive definite") from None
+        K = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)  # (4.3)-(4.8) KF gain K = P H^T S^-1, (a, n, m)
+        nu_c = np.einsum("aj,ajm->am", Wa, nua)  # (4.15) combined innovation
+        Xn = X + np.einsum("anm,am->an", K, nu_c)  # §4.2 PDA state update
+        I_KH = np.eye(X.shape[1]) - K @ H
+        P_star = I_KH @ P @ np.swapaxes(I_KH, 1, 2) + K @ R @ np.swapaxes(K, 1, 2)  # (4.8) Joseph form
+        spread = np.einsum("aj,aji,ajk->aik", Wa, nua, nua) - np.einsum("ai,ak->aik", nu_c, nu_c)
+        Pn = b0[:, None, None] * P + (1.0 - b0)[:, None, None] * P_star + K @ spread @ np.swapaxes(K, 1, 2)  # (4.16)-(4.17)
+        Pn = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
+        if not (np.isfinite(Xn).all() and np.isfinite(Pn).all()):
+            raise FilterError("updated state is not finite")
+        e_post = nu_c - np.einsum("im,am->ai", H, np.einsum("anm,am->an", K, nu_c))  # (3.65)
+        for i, t in enumerate(active):
+            out[t] = derive(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
+        return out
+
+
+@dataclass(frozen=True)
+class ExtendedKalmanFilter(ModelFilter):
+    """EKF (thesis (1.11)): f, h linearised at the estimate. second_order: add the second-order terms of
+    h (seed 000 §3: z_hat += 1/2 sum_i e_i tr(Hxx_i P), S_ij += 1/2 tr(Hxx_i P Hxx_j P)); needs a
+    measurement model with `hessians`."""
+
+    motion: object
+    measurement: object
+    second_order: bool = False
+
+    def __post_init__(self) -> None:
+        if self.second_order and not hasattr(self.measurement, "hessians"):
+            raise ValueError(f"second_order EKF needs a measurement model with hessians; "
+                             f"{type(self.measurement).__name__} has none")
+
+    def _second_order_terms(self, s: FilterState) -> tuple[np.ndarray, np.ndarray]:
+        m = self.measurement.ndim
+        if not self.second_order:
+            return np.zeros(m), np.zeros((m, m))
+        Hs = self.measurement.hessians(s.x, self.motion)  # (m, n, n)
+        HP = Hs @ s.P  # (m, n, n)
+        dz = 0.5 * np.trace(HP, axis1=1, axis2=2)  # seed 000 §3: second-order bias of h
+        dS = 0.5 * np.einsum("iab,jba->ij", HP, HP)  # seed 000 §3: 1/2 tr(Hxx_i P Hxx_j P)
+        return dz, dS
+
+    def predicted_measurement(self, s_pred: FilterState) -> tuple[np.ndarray, np.ndarray]:
+        z_hat, S = super().predicted_measurement(s_pred)
+        dz, dS = self._second_order_terms(s_pred)
+        return z_hat + dz, symmetrise(S + dS)
+
+    def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState:
+        """PDA-form EKF update with K = P H^T S^-1, H the Jacobian of h at the prediction."""
+        nu, beta, beta0 = check_weights(nu, beta, beta0, self.measurement.ndim)
+        if nu.shape[0] == 0 or beta0 == 1.0:
+            return s_pred
+        H = self.measurement_jacobian(s_pred)
+        _, S = self.predicted_measurement(s_pred)
+        cholesky(S, "innovation covariance S")
+        K = np.linalg.solve(S, H @ s_pred.P).T  # (1.11) EKF gain with the Jacobian H
+        R_eff = S - H @ s_pred.P @ H.T  # R plus the second-order terms: keeps the Joseph form consistent
+        return gain_update(s_pred, H, R_eff, S, K, nu, beta, beta0)

@@ -1,0 +1,381 @@
+"""Smooth variable structure filters in PDA form: the standard SVSF (thesis ch. 2) and the generalised,
+covariance-modified SVSF (thesis ch. 3, restated in ch. 4 §4.4). The GVBL-SVSF of ch. 4 is in `gvbl.py`.
+
+Shared pieces (also used by `gvbl.py`):
+* `svsf_gain_factor(E, e, psi)`: the diagonal of diag(E o sat(e, psi)) diag(e)^-1, thesis (2.10)/(3.12);
+* `Partition`: the measured / unmeasured split of the state, H = [H1 0] (thesis (3.29)-(3.35), (4.31)-(4.32))
+  and the reduced-order maps Phi22 Phi12^+ and Phi12^+ read from the transition Jacobian F that `predict`
+  stored in the state (for NCV Phi12 = dt I, Phi22 = I; for the 5-D CT model Phi12 is 2 x 3 and its
+  Moore-Penrose pseudo-inverse is used [D], in the GVBL-SVSF's E_y and Psi_y only: the
+  generalised SVSF's lower gain needs Phi12 invertible, see `GeneralisedSVSF`);
+* `generalised_covariance`: thesis (4.37), which equals the Joseph form for any gain (S = H1 P11 H1^T + R).
+
+Every update follows the PDA form of thesis §2.1.5/§3.5.1: the a priori measurement error is the combined
+innovation e_{z,k|k-1} := sum_i beta_i nu_i (2.27)/(3.54); the gain is computed from it and the stored
+a posteriori error e_{z,k-1|k-1} (`FilterState.e_post`); the covariance is the PDA combination (4.16)-(4.17)
+with the filter's single-measurement covariance P*; the new memory is e_{z,k|k} = (I - H K) e_{z,k|k-1} (3.65).
+M = 0 or beta0 = 1 returns the prediction unchanged, so after an empty gate the memory is kept, not reset
+([D]: the thesis is silent; keeping it is what "no update" means in (4.16)).
+Units: positions m, velocities m/s, boundary-layer widths in the units of the component they bound.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from trackers.errors import FilterError
+from trackers.filters.base import (ModelFilter, check_covariance, check_weights, cholesky, combined_innovation,
+                                   pda_covariance, symmetrise)
+from trackers.filters.params import ModelParams
+from trackers.params import POSITIVE, ParamError, param
+from trackers.state import FilterState
+
+EY_MEMORY = ("a_priori", "a_posteriori")
+
+
+# ------------------------------------------------------------------------------------------ shared maths
+def svsf_gain_factor(E: np.ndarray, e: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    """Diagonal of diag(E o sat(e, psi)) diag(e)^-1 (m,): E_j / psi_j inside the layer (|e_j| <= psi_j) and
+    E_j / |e_j| outside. E, e, psi (m,), psi > 0.
+
+    Written as E / max(|e|, psi): identical to E_j sat(e_j / psi_j) / e_j for e_j != 0, and equal to its
+    limit E_j / psi_j at e_j = 0, which is the thesis's division guard (§2.1.3 after (2.10))."""
+    return E / np.maximum(np.abs(e), psi)  # (2.10), (3.12): E o sat(e / psi) / e
+
+
+def generalised_covariance(P: np.ndarray, K: np.ndarray, H: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """P - K H P - P H^T K^T + K S K^T (n, n) for any gain K (n, m); S = H P H^T + R (m, m)."""
+    KHP = K @ H @ P
+    return symmetrise(P - KHP - KHP.T + K @ S @ K.T)  # (4.37), (3.45)-(3.49): generalised SVSF covariance
+
+
+@dataclass(frozen=True)
+class Partition:
+    """Measured / unmeasured split of the state for H = [H1 0] up to a column permutation.
+
+    u (m,) state indices seen by the measurement, in measurement order; l (n - m,) the others;
+    H1 (m, m) invertible. Built from the measurement Jacobian by `Partition.of(H)`."""
+
+    u: np.ndarray
+    l: np.ndarray
+    H1: np.ndarray
+
+    @staticmethod
+    def of(H: np.ndarray) -> "Partition":
+        m, n = H.shape
+        used = np.flatnonzero(np.any(H != 0.0, axis=0))
+        if used.size != m:
+            raise FilterError(f"SVSF partition needs H = [H1 0] with {m} measured states, H uses {used.size}")
+        H1 = H[:, used]
+        if abs(np.linalg.det(H1)) < 1e-12:
+            raise FilterError("SVSF partition needs an invertible H1 (thesis (3.29))")
+        return Partition(u=used, l=np.setdiff1d(np.arange(n), used), H1=H1)
+
+    def maps(self, F: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(Phi22 Phi12^+ (n-m, m), Phi12^+ (n-m, m)) from the transition Jacobian F (n, n) of the last predict.
+
+        With T = blockdiag(H1, I): Phi = T F T^-1, so Phi12 = H1 F_ul and Phi22 = F_ll. Phi12^+ is the
+        Moore-Penrose pseudo-inverse (the inverse for NCV, where Phi12 = dt I)."""
+        if F is None:
+            raise ValueError("SVSF update needs s_pred.F, the transition Jacobian stored by predict")
+        Phi12 = self.H1 @ F[np.ix_(self.u, self.l)]  # (4.31)-(4.32) partition, T = blockdiag(H1, I)
+        Phi22 = F[np.ix_(self.l, self.l)]
+        Phi12_pinv = np.linalg.pinv(Phi12)  # §2.3.5 [D]: Phi12^+ (Phi12^-1 for NCV)
+        return Phi22 @ Phi12_pinv, Phi12_pinv
+
+    def assemble(self, K_u: np.ndarray, K_l: np.ndarray) -> np.ndarray:
+        """The full gain K (n, m) from its measured (m, m) and unmeasured (n-m, m) rows."""
+        K = np.zeros((self.u.size + self.l.size, K_u.shape[1]))
+        K[self.u] = K_u
+        K[self.l] = K_l
+        return K  # (4.35): K = [K_u; K_l]
+
+
+def lower_error(M: np.ndarray, Phi12_pinv: np.ndarray, e: np.ndarray, e_post: np.ndarray, gamma_y: float,
+                memory: str) -> tuple[np.ndarray, np.ndarray]:
+    """(e_y (n-m,), E_y (n-m,)) for the unmeasured partition: e_y = Phi22 Phi12^+ e and
+    E_y = |e_y| + gamma_y |Phi12^+ e| (thesis form, a priori e in both terms) or gamma_y |Phi12^+ e_post|
+    (memory = "a_posteriori", Habibi's original reading [D])."""
+    e_y = M @ e  # (3.37): a priori lower error e_y = Phi22 Phi12^-1 e_z
+    mem = e if memory == "a_priori" else e_post
+    return e_y, np.abs(e_y) + gamma_y * np.abs(Phi12_pinv @ mem)  # (4.34) E_y
+
+
+def _promote(cls: type, s: FilterState) -> FilterState:
+    """s as an instance of the FilterState subclass `cls` (extra fields at their defaults)."""
+    if isinstance(s, cls):
+        return s
+    return cls(**{f.name: getattr(s, f.name) for f in fields(FilterState)})
+
+
+# ----------------------------------------------------------------------------------------- standard SVSF
+@dataclass(frozen=True, eq=False)
+class SVSFState(FilterState):
+    """FilterState of the standard SVSF with artificial velocity measurements.
+
+    z_prev (m,): projected measurement z^a of the last update (2.32) (NaN before the first update);
+    tau [s]: time since that update (predict adds dt); e_vel (m,): the a posteriori error of the artificial
+    velocity components (the position part is `e_post`)."""
+
+    z_prev: np.ndarray | None = None
+    tau: float = 0.0
+    e_vel: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("z_prev", "e_vel"):
+            if getattr(self, name) is not None:
+                a = np.array(getattr(self, name), dtype=np.float64)
+                a.setflags(write=False)
+                object.__setattr__(self, name, a)
+
+
+@dataclass(frozen=True)
+class SVSF(ModelFilter):
+    """Standard SVSF (thesis ch. 2, §2.1.3 (2.7)-(2.13); PDA form §2.1.5 (2.27)-(2.34)).
+
+    K = H^+ diag[(|e_{k|k-1}| + gamma |e_{k-1|k-1}|) o sat(e_{k|k-1}, psi)] diag(e_{k|k-1})^-1   (2.30)
+    P* = (I - K H) P (I - K H)^T + K R K^T (2.31, Joseph, default) or (I - K H) P ("short", (2.54)/(2.89)).
+
+    Fewer measurements than states (m < n), `unmeasured`:
+    * "pinv": the literal (2.10)/(2.30) with H^+. For H = [I 0], H^+ = H^T, so the velocity rows of K are
+      zero and velocities are never corrected (they keep their initial value under NCV). This is what the
+      ch. 2 text prints.
+    * "artificial" (default): the artificial-measurement construction of [17], which the thesis names in
+      §4.5.1 ("In [17], an artificial measurement construction approach is suggested to form a full
+      measurement matrix"): z_bar = [z; (z - z_prev) / tau], H_bar = [H; H_v] (= I for NCV),
+      R_bar = [[R, R/tau], [R/tau, 2R/tau^2]] (differenced noise; its correlation in time is ignored).
+      The thesis text supports "pinv" literally, but its ch. 2 velocity RMSEs (close to the KF's, Table 2.4)
+      and the ch. 3 PDA-SVSF baseline (velocity RMSE 5.9 m/s ~ sqrt(2) sigma_w / Ts, Table 3.1) are only
+      consistent with velocities being corrected, i.e. with the artificial measurement; hence the default.
+      In PDA form z_prev is the projected measurement z^a = e_{z,k|k-1} + H x_{k|k-1} of the last update
+      (2.32), tau the time since it (so after missed scans the difference spans them), and every validated
+      measurement gets its own augmented innovation nu_bar_i = [nu_i; (z_hat + nu_i - z_prev)/tau - H_v x],
+      which the PDA spread term (4.17) then uses. The first update (no z_prev) uses the position rows only.
+
+    gamma: SVSF memory in [0, 1); psi (m,) [m]: the fixed position layer half widths (the registry default
+    3 sigma_w is [D]: ch. 2-3 give no value); psi_v [m/s]: the layer of the artificial velocity components,
+    None for 3 sqrt(R_bar_vv) = 3 sqrt(2) sigma_w / tau. The sign(e / psi) printed in (2.10) is the limit
+    psi -> 0 (e.g. psi = 1e-6): full correction plus gamma times the memory on every scan.
+    Needs a linear position measurement (H = [H1 0]) and, for "artificial", a motion model whose
+    unmeasured states are exactly the velocities (NCV)."""
+
+    motion: object
+    measurement: object
+    gamma: float = 0.1
+    psi: tuple[float, ...] = (1.0, 1.0)
+    psi_v: float | None = None
+    unmeasured: str = "artificial"
+    covariance: str = "joseph"
+
+    def __post_init__(self) -> None:
+        m = self.measurement.ndim
+        if not (0.0 <= self.gamma < 1.0):
+            raise ValueError(f"SVSF gamma must be in [0, 1), got {self.gamma}")
+        if len(self.psi) != m or not all(math.isfinite(p) and p > 0 for p in self.psi):
+            raise ValueError(f"SVSF psi must be {m} finite widths > 0, got {self.psi}")
+        if self.psi_v is not None and not (math.isfinite(self.psi_v) and self.psi_v > 0):
+            raise ValueError(f"SVSF psi_v must be a finite width > 0 or None, got {self.psi_v}")
+        if self.unmeasured not in ("artificial", "pinv") or self.covariance not in ("joseph", "short"):
+            raise ValueError(f"SVSF unmeasured must be artificial|pinv and covariance joseph|short, "
+                             f"got {self.unmeasured!r}, {self.covariance!r}")
+        if self.unmeasured == "artificial" and not (self.measurement.linear and self.motion.linear
+                                                    and len(self.motion.velocity) == m
+                                                    and self.motion.ndim == 2 * m):
+            raise ValueError("SVSF artificial measurements need a linear position measurement and an NCV motion "
+                             "model whose unmeasured states are the velocities")
+
+    def initial_state(self, x0: np.ndarray, P0: np.ndarray) -> SVSFState:
+        s = super().initial_state(x0, P0)
+        m = self.measurement.ndim
+        return SVSFState(x=s.x, P=s.P, e_post=s.e_post, z_prev=np.full(m, np.nan), tau=0.0, e_vel=np.zeros(m))
+
+    def predict(self, s: FilterState, dt: float) -> SVSFState:
+        """(E)KF predict (2.7)-(2.8); also advances tau, the time since the last projected measurement."""
+        s = _promote(SVSFState, s)
+        return replace(super().predict(s, dt), tau=s.tau + float(dt))
+
+    def layer(self, s_pred: FilterState) -> np.ndarray:
+        """The fixed position layer psi (m,) [m]."""
+        return np.array(self.psi, dtype=np.float64)
+
+    def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState:
+        """PDA-form SVSF update; nu (M, m) innovations, beta (M,), beta0 (see module docstring)."""
+        m = self.measurement.ndim
+        nu, beta, beta0 = check_weights(nu, beta, beta0, m)
+        if nu.shape[0] == 0 or beta0 == 1.0:
+            return s_pred  # (4.16) with beta0 = 1: no update
+        s = _promote(SVSFState, s_pred)
+        H, R = self.measurement_jacobian(s), self.measurement.R
+        z_hat = self.measurement.h(s.x, self.motion)
+        nu_c = combined_innovation(nu, beta)  # (2.27) e_{z,k|k-1} := combined innovation
+        z_a = z_hat + nu_c  # (2.32) projected measurement
+        e_prev = s.e_post
+        psi = np.array(self.psi, dtype=np.float64)
+        with_vel = (self.unmeasured == "artificial" and s.tau > 0.0 and s.z_prev is not None
+                    and np.isfinite(s.z_prev).all())
+        if with_vel:
+            tau = s.tau
+            Hv = np.zeros((m, len(s.x)))
+            Hv[range(m), self.motion.velocity] = 1.0
+            H = np.vstack([H, Hv])  # [17] artificial measurement: H_bar = [H; H_v]
+            R = np.block([[R, R / tau], [R / tau, 2.0 * R / tau ** 2]])  # [17]: covariance of [z; (z - z_prev)/tau]
+            v_hat = Hv @ s.x
+            nu = np.hstack([nu, (z_hat + nu - s.z_prev) / tau - v_hat])  # per-measurement augmented innovations
+            nu_c = combined_innovation(nu, beta)
+            e_prev = np.concatenate([s.e_post, s.e_vel if s.e_vel is not None else np.zeros(m)])
+            psi_v = self.psi_v if self.psi_v is not None else 3.0 * np.sqrt(np.diag(R)[m:])  # §2.3 [D] 3 sigma
+            psi = np.concatenate([psi, np.broadcast_to(psi_v, (m,))])
+        E = np.abs(nu_c) + self.gamma * np.abs(e_prev)  # (2.10) |e_{k|k-1}| + gamma |e_{k-1|k-1}|
+        K = np.linalg.pinv(H) * svsf_gain_factor(E, nu_c, psi)  # (2.30) K = H^+ diag(E o sat(e/psi)) diag(e)^-1
+        I_KH = np.eye(len(s.x)) - K @ H
+        if self.covariance == "joseph":
+            P_star = symmetrise(I_KH @ s.P @ I_KH.T + K @ R @ K.T)  # (2.31)/(2.12) Joseph form
+        else:
+            P_star = symmetrise(I_KH @ s.P)  # (2.54)/(2.89) short form as printed
+        P = pda_covariance(s.P, P_star, K, nu, beta, beta0)  # (4.16)-(4.17) with the SVSF P*
+        x = s.x + K @ nu_c  # (2.29)
+        if not np.isfinite(x).all():
+            raise FilterError("SVSF updated state x is not finite")
+        check_covariance(P, "SVSF updated covariance P")
+        e_post = nu_c - H @ (K @ nu_c)  # (2.34)/(3.65) e_{z,k|k} = (I - H K) e_{z,k|k-1}
+        info = {"psi_z": psi[:m], "chatter": np.maximum(0.0, np.abs(nu_c[:m]) - psi[:m])}  # (5.37) chattering
+        if with_vel:
+            info["psi_v"] = psi[m:]
+        return replace(s, x=x, P=P, e_post=e_post[:m], e_vel=e_post[m:] if with_vel else np.zeros(m),
+                       z_prev=z_a, tau=0.0, F=None, info=info)
+
+
+# ------------------------------------------------------------------------------- generalised (CM-) SVSF
+@dataclass(frozen=True)
+class GeneralisedSVSF(ModelFilter):
+    """Generalised / covariance-modified SVSF, "CM-SVSF" (thesis ch. 3 §3.5.1; ch. 4 §4.4, (4.24)-(4.37)).
+
+    Measured partition:   K_u = H1^-1 diag(E_z o sat(e, psi_z)) diag(e)^-1,  E_z = |e| + gamma |e_{k-1|k-1}|
+                          (4.29)-(4.30)
+    Unmeasured partition: K_l = diag(E_y o sat(e_y, psi_y)) diag(e_y)^-1 Phi22 Phi12^+,  e_y = Phi22 Phi12^+ e,
+                          E_y = |e_y| + gamma_y |Phi12^+ e|  (4.33)-(4.34)
+    Covariance:           P* = P - K H P - P H^T K^T + K S K^T,  K = [K_u; K_l]  (4.37)
+    with e = e_{z,k|k-1} the combined innovation (3.54) and Phi from the transition Jacobian of the last
+    predict. psi_z (m,) [m] and psi_y are fixed layers; psi_y None uses 3 sqrt(diag(M R M^T)) each scan,
+    M = Phi22 Phi12^+ (the 3-sigma width of e_y from measurement noise alone; 3 sigma_w / dt for NCV).
+    ey_memory: the gamma_y term of E_y with the a priori error (thesis (3.38)/(4.34), default) or
+    with the previous a posteriori error ("a_posteriori").
+
+    Needs Phi12 invertible, i.e. n = 2m (NCV). For the 5-D CT model Phi12 is 2 x 3 and the pseudo-inverse
+    map Phi22 Phi12^+ puts most of a position error into the turn rate (the minimum-norm solution in mixed
+    units); the saturated lower gain then corrects omega dead-beat from one scan and the filter diverged in
+    test (velocity errors of 1e7 m/s after 50 scans), so CT is refused; use the GVBL-SVSF for CT."""
+
+    motion: object
+    measurement: object
+    gamma: float = 0.1
+    gamma_y: float = 0.1
+    psi_z: tuple[float, ...] = (1.0, 1.0)
+    psi_y: float | None = None
+    ey_memory: str = "a_priori"
+
+    def __post_init__(self) -> None:
+        m = self.measurement.ndim
+        if not (0.0 <= self.gamma < 1.0 and 0.0 <= self.gamma_y < 1.0):
+            raise ValueError(f"GeneralisedSVSF gamma and gamma_y must be in [0, 1), got {self.gamma}, {self.gamma_y}")
+        if len(self.psi_z) != m or not all(math.isfinite(p) and p > 0 for p in self.psi_z):
+            raise ValueError(f"GeneralisedSVSF psi_z must be {m} finite widths > 0, got {self.psi_z}")
+        if self.psi_y is not None and not (math.isfinite(self.psi_y) and self.psi_y > 0):
+            raise ValueError(f"GeneralisedSVSF psi_y must be a finite width > 0 or None, got {self.psi_y}")
+        if self.ey_memory not in EY_MEMORY:
+            raise ValueError(f"GeneralisedSVSF ey_memory must be one of {EY_MEMORY}, got {self.ey_memory!r}")
+        if self.motion.ndim != 2 * m:
+            raise ValueError(f"GeneralisedSVSF needs as many unmeasured as measured states (Phi12 invertible, "
+                             f"(3.36)-(3.37)); {type(self.motion).__name__} has {self.motion.ndim} states")
+
+    def layer(self, s_pred: FilterState) -> np.ndarray:
+        """The fixed measured-partition layer psi_z (m,) [m]."""
+        return np.array(self.psi_z, dtype=np.float64)
+
+    def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState:
+        """PDA-form generalised SVSF update (see class docstring); nu (M, m), beta (M,), beta0."""
+        nu, beta, beta0 = check_weights(nu, beta, beta0, self.measurement.ndim)
+        if nu.shape[0] == 0 or beta0 == 1.0:
+            return s_pred  # (4.16) with beta0 = 1: no update
+        H, R = self.measurement_jacobian(s_pred), self.measurement.R
+        part = Partition.of(H)
+        M, Phi12_pinv = part.maps(s_pred.F)
+        S = symmetrise(H @ s_pred.P @ H.T + R)  # (4.37): S = H1 P11 H1^T + R
+        cholesky(S, "innovation covariance S")
+        e = combined_innovation(nu, beta)  # (3.54) e_{z,k|k-1} := combined innovation
+        psi_z = np.array(self.psi_z, dtype=np.float64)
+        E_z = np.abs(e) + self.gamma * np.abs(s_pred.e_post)  # (4.30)
+        K_u = np.linalg.solve(part.H1, np.diag(svsf_gain_factor(E_z, e, psi_z)))  # (4.29)
+        e_y, E_y = lower_error(M, Phi12_pinv, e, s_pred.e_post, self.gamma_y, self.ey_memory)
+        psi_y = (np.full(e_y.size, self.psi_y) if self.psi_y is not None
+                 else 3.0 * np.sqrt(np.maximum(np.diag(M @ R @ M.T), 1e-300)))  # [D] 3-sigma of e_y from R
+        K_l = svsf_gain_factor(E_y, e_y, psi_y)[:, None] * M  # (4.33) diag(E_y o sat(e_y/psi_y)) diag(e_y)^-1 M
+        K = part.assemble(K_u, K_l)
+        P = pda_covariance(s_pred.P, generalised_covariance(s_pred.P, K, H, S), K, nu, beta, beta0)  # (4.16), (4.37)
+        x = s_pred.x + K @ e  # (4.35)
+        if not np.isfinite(x).all():
+            raise FilterError("generalised SVSF updated state x is not finite")
+        check_covariance(P, "generalised SVSF updated covariance P")
+        info = {"psi_z": psi_z, "psi_y": psi_y, "chatter": np.maximum(0.0, np.abs(e) - psi_z)}  # (5.37)
+        return replace(s_pred, x=x, P=P, e_post=e - H @ (K @ e), F=None, info=info)  # (3.65)
+
+
+# ------------------------------------------------------------------------------- registry parameters
+
+GAMMA = (lambda v: 0.0 <= v < 1.0, "in [0, 1)")
+
+
+def noise_layer(R: np.ndarray, sigmas: float = 3.0) -> tuple[float, ...]:
+    """Default fixed layer half widths sigmas * sqrt(R_jj) (m,) (thesis §2.3 [D]: about 3 sqrt(S_jj))."""
+    return tuple(float(v) for v in sigmas * np.sqrt(np.diag(R)))
+
+
+@dataclass(frozen=True)
+class SVSFParams(ModelParams):
+    gamma: float = param(0.1, "SVSF memory / convergence rate gamma (thesis ch. 2-5; 0.1 in ch. 4)", check=GAMMA)
+    psi: float | None = param(None, "position boundary-layer half width [m]; None: 3 sigma_w (thesis §2.3 [D])",
+                              check=POSITIVE)
+    psi_v: float | None = param(None, "artificial-velocity layer half width [m/s]; None: 3 sqrt(2) sigma_w / dt",
+                                check=POSITIVE)
+    unmeasured: str = param("artificial", "m < n: artificial velocity measurements of [17] (thesis §4.5.1) or "
+                            "the literal H^+ of (2.30), which never corrects velocities",
+                            choices=("artificial", "pinv"))
+    covariance: str = param("joseph", "P*: Joseph form (2.12)/(2.31) or the short (I - K H) P of (2.54)/(2.89)",
+                            choices=("joseph", "short"))
+
+
+@dataclass(frozen=True)
+class GCSVSFParams(ModelParams):
+    gamma: float = param(0.1, "memory gamma_z of the measured partition (4.30)", check=GAMMA)
+    gamma_y: float | None = param(None, "memory gamma_y of the unmeasured partition (4.34); None: gamma",
+                                  check=GAMMA)
+    psi_z: float | None = param(None, "measured-partition layer half width [m]; None: 3 sigma_w [D]", check=POSITIVE)
+    psi_y: float | None = param(None, "unmeasured-partition layer half width (velocity units); None: "
+                                "3 sqrt(diag(M R M^T)) per scan, M = Phi22 Phi12^+ (3 sigma_w / dt for NCV) [D]",
+                                check=POSITIVE)
+    ey_memory: str = param("a_priori", "gamma_y term of E_y: a priori error (thesis (4.34)) or the previous "
+                           "a posteriori error (Habibi's original)", choices=EY_MEMORY)
+
+
+def build_svsf(p: SVSFParams) -> SVSF:
+    if p.motion != "cv":
+        raise ParamError("motion", f"{p.motion!r}: the standard SVSF corrects only measured and differenced "
+                         "states (the turn rate never); use 'cv', or gc-svsf / gvbl-svsf for 'ct'")
+    meas = p.measurement_model()
+    psi = noise_layer(meas.R) if p.psi is None else (p.psi,) * meas.ndim
+    return SVSF(p.motion_model(), meas, gamma=p.gamma, psi=psi, psi_v=p.psi_v, unmeasured=p.unmeasured,
+                covariance=p.covariance)
+
+
+def build_gc_svsf(p: GCSVSFParams) -> GeneralisedSVSF:
+    if p.motion != "cv":
+        raise ParamError("motion", f"{p.motion!r}: the generalised SVSF needs Phi12 invertible (n = 2m, 'cv'); "
+                         "its pseudo-inverse form diverges for 'ct' (use gvbl-svsf)")
+    meas = p.measurement_model()
+    psi_z = noise_layer(meas.R) if p.psi_z is None else (p.psi_z,) * meas.ndim
+    return GeneralisedSVSF(p.motion_model(), meas, gamma=p.gamma, gamma_y=p.gamma if p.gamma_y is None else p.gamma_y,
+                           psi_z=psi_z, psi_y=p.psi_y, ey_memory=p.ey_memory)
