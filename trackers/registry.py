@@ -66,8 +66,10 @@ def named_trackers(all_combinations: bool = False) -> list[str]:
 def describe_tracker(name: str) -> str:
     """One line: what the associator and the filter (and wrapper) of `name` are."""
     wrapper, assoc, filt = parse_tracker_name(name)
-    text = f"{ASSOCIATORS[assoc].doc}; {FILTERS[filt].doc}"
-    return f"{FILTERS[wrapper].doc} of: {text}" if wrapper and wrapper in FILTERS else text
+    if wrapper is None:
+        return f"{ASSOCIATORS[assoc].doc}; {FILTERS[filt].doc}"
+    modes = ", ".join(f"{m.get('kind')} {m.get('motion', 'cv')}" for m in preset(name)["filter"].get("modes", ()))
+    return f"{ASSOCIATORS[assoc].doc}; {wrapper.upper()} (thesis §2.3.4) of {modes} modes; base: {FILTERS[filt].doc}"
 
 
 def preset(name: str) -> dict[str, dict[str, Any]]:
