@@ -294,6 +294,43 @@ def test_resume_after_sigkill_gives_exactly_the_uninterrupted_rows(reference, tm
     assert code == 0 and "0 run now" in stdout
 
 
+def _children(pid: int) -> list[int]:
+    """Live (not zombie) processes whose parent is ``pid``."""
+    out = []
+    for status in Path("/proc").glob("[0-9]*/status"):
+        try:
+            fields = dict(line.split(":\t", 1) for line in status.read_text().splitlines() if ":\t" in line)
+        except OSError:
+            continue
+        if fields.get("PPid", "").strip() == str(pid) and not fields.get("State", "").startswith("Z"):
+            out.append(int(status.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return not Path(f"/proc/{pid}/status").read_text().split("State:\t", 1)[1].startswith("Z")
+    except (OSError, IndexError):
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux-only")
+def test_workers_die_with_a_sigkilled_campaign(tmp_path):
+    """kill -9 of the campaign process alone (not its process group): its pool workers follow within 10 s."""
+    path = _write(tmp_path, CAMPAIGN)
+    out = tmp_path / "orphans"
+    proc = _start(tmp_path, "run", str(path), "--out", str(out), "--workers", "2", "--quiet")
+    _wait_for_runs(out, 1, proc)
+    workers = [c for c in _children(proc.pid) if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()]
+    assert len(workers) == 2, workers
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    t0 = time.monotonic()
+    while any(_alive(w) for w in workers) and time.monotonic() - t0 < 10.0:
+        time.sleep(0.1)
+    assert not any(_alive(w) for w in workers), [w for w in workers if _alive(w)]
+
+
 def test_ctrl_c_keeps_finished_runs_and_exits_130(tmp_path):
     path = _write(tmp_path, CAMPAIGN)
     out = tmp_path / "stopped"

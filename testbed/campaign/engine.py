@@ -71,6 +71,22 @@ def _core_block(k: int, threads: int) -> list[int]:
     return sorted({cores[(k * threads + j) % len(cores)] for j in range(threads)})
 
 
+def die_with_parent() -> None:
+    """Linux: have the kernel SIGKILL this process when its parent dies, so a `kill -9` of `testbed campaign
+    run` leaves no worker behind (they would otherwise run on, holding memory and the parent's pipes)."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        return
+    if os.getppid() == 1:  # the parent died before the request took effect
+        os._exit(1)
+
+
 def init_worker(threads: int | None, counter=None) -> None:
     """Local-pool worker start-up: thread limits (before open3d loads), no rerun analytics, Ctrl-C left
     to the parent (which stops the campaign and terminates the workers), and, with ``counter`` (a shared
@@ -86,6 +102,7 @@ def init_worker(threads: int | None, counter=None) -> None:
         pin_process(_core_block(k, threads))
     os.environ.setdefault("RERUN_ANALYTICS", "0")
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent()
 
 
 def make_task(campaign: Campaign, run: RunSpec, out_dir: str | Path | None) -> dict[str, Any]:
