@@ -169,21 +169,11 @@ def test_ct_probability_rises_during_a_known_turn():
 DT = 0.1
 
 
-def two_targets(seed, n=100, lam=1e-3, pd=0.9, sigma_w=0.3, sigma_a=0.5):
-    """Two NCV cars 3.5 m apart at 25 m/s, 10 Hz, Poisson clutter lam [m^-2] in a 60 m x 30 m window."""
-    rng_truth, rng_det, rng_noise, rng_clut = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4)]
-    x = np.array([[0.0, 0.0, 25.0, 0.0], [0.0, 3.5, 25.0, 0.0]])
-    A = np.eye(4) + DT * np.eye(4, k=2)
-    G = np.vstack([0.5 * DT**2 * np.eye(2), DT * np.eye(2)])
-    X, Zs = np.empty((n, 2, 4)), []
-    for k in range(n):
-        X[k] = x
-        det = rng_det.random(2) < pd
-        z = x[det, :2] + sigma_w * rng_noise.normal(size=(int(det.sum()), 2))
-        clutter = x[:, :2].mean(axis=0) + rng_clut.uniform(-1, 1, size=(rng_clut.poisson(lam * 1800), 2)) * [30.0, 15.0]
-        Zs.append(np.concatenate([z, clutter]))
-        x = x @ A.T + rng_truth.normal(0.0, sigma_a, size=(2, 2)) @ G.T
-    return X, Zs
+def two_targets(seed, n=100):
+    """Two NCV cars 3.5 m apart at 25 m/s, 10 Hz, clutter 1e-3 m^-2: the generator of the tracker tests."""
+    from test_trackers_tracker import two_targets as parallel_pair  # tests/ is on sys.path (rootdir conftest)
+
+    return parallel_pair(seed, "parallel", n=n)
 
 
 def test_imm_pda_kf_tracker_follows_two_targets():
