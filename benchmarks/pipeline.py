@@ -41,7 +41,7 @@ def perception_split(scn) -> dict[str, float]:
         scan = sensors.scan(scn.sensor.lidar, truth.ego_pose, np.vstack([boxes, static[near]]),
                             np.concatenate([ids, np.full(int(near.sum()), -1)]), rngs["lidar"])
         t0 = time.perf_counter()
-        g = sensors.segment_ground(scan.points, cfg.ground)
+        g = sensors.segment_ground(scan.points, cfg.ground, scan.origin)
         t1 = time.perf_counter()
         keep = ~g & (scan.points[:, 2] <= cfg.ground.ground_z_m + cfg.max_height_m)
         sensors.cluster(scan.points[keep], cfg.cluster)

@@ -4,28 +4,62 @@ Only this package imports open3d (lazily, see sensors/_o3d.py). It does not impo
 trackers or testbed.
 """
 
+from sensors.boxfit import SHAPES, BoxFit, BoxFitConfig, SizePrior, fit_vehicle_box, shape_class
 from sensors.clustering import CLUSTER_METHODS, ClusterConfig, cluster
 from sensors.clutter import clutter_detections, poisson_clutter
 from sensors.ground import GROUND_METHODS, GroundConfig, segment_ground
-from sensors.lidar import GROUND, LidarConfig, Scan, scan
-from sensors.perception import REPRESENTATIVES, Detections, PerceptionConfig, PerceptionResult, perceive
+from sensors.lidar import GROUND, LIDAR_PRESETS, LidarConfig, Scan, scan
+from sensors.occlusion import OcclusionConfig, detection_probability, shadows
+from sensors.perception import (
+    COMPLETED,
+    FITS,
+    MERGED,
+    OFF_ROAD,
+    REJECT_REASONS,
+    REPRESENTATIVES,
+    SPLIT,
+    Detections,
+    PerceptionConfig,
+    PerceptionResult,
+    Rejected,
+    perceive,
+)
+from sensors.roi import RoadMap
 
 __all__ = [
     "CLUSTER_METHODS",
+    "COMPLETED",
+    "FITS",
     "GROUND",
     "GROUND_METHODS",
+    "LIDAR_PRESETS",
+    "MERGED",
+    "OFF_ROAD",
+    "REJECT_REASONS",
     "REPRESENTATIVES",
+    "SHAPES",
+    "SPLIT",
+    "BoxFit",
+    "BoxFitConfig",
     "ClusterConfig",
     "Detections",
     "GroundConfig",
     "LidarConfig",
+    "OcclusionConfig",
     "PerceptionConfig",
     "PerceptionResult",
+    "Rejected",
+    "RoadMap",
     "Scan",
+    "SizePrior",
     "cluster",
     "clutter_detections",
+    "detection_probability",
+    "fit_vehicle_box",
     "perceive",
     "poisson_clutter",
     "scan",
     "segment_ground",
+    "shadows",
+    "shape_class",
 ]

@@ -4,9 +4,11 @@ Methods (registry CLUSTER_METHODS):
   "grid":   bird's-eye occupancy grid of `cell_m` cells, connected components with 8-connectivity
             (scipy.ndimage.label); two points share a cluster when a chain of occupied cells joins them.
   "dbscan": open3d tensor `cluster_dbscan(eps_m, min_points)` in 3-D.
-Clusters with fewer than `min_points` points become noise (-1). Points are sorted lexicographically
-before clustering and clusters are numbered by their first point in that order, so the labels do not
-depend on the input point order (DBSCAN's border points otherwise go to whichever cluster came first).
+Clusters with fewer than `min_points` points become noise (-1). Clusters are numbered by their first
+point in lexicographic (x, y, z) order, so the labels do not depend on the input point order. DBSCAN
+clusters the points in that order (its border points otherwise go to whichever cluster came first);
+the grid's components depend on the occupied cells only, so it clusters the points as given and only
+the clusters' lexicographically first points are sorted (the same labels, without sorting every point).
 """
 
 from __future__ import annotations
@@ -43,12 +45,36 @@ def cluster(points: np.ndarray, cfg: ClusterConfig) -> np.ndarray:
     pts = _checks.float_array("points", points, (None, 3))
     if len(pts) == 0:
         return np.zeros(0, np.int64)
+    if cfg.method in ORDER_FREE:
+        return _numbered(pts, ORDER_FREE[cfg.method](pts, cfg), cfg.min_points)
     order = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0]))
     raw = CLUSTER_METHODS[cfg.method](pts[order], cfg)  # labels of the sorted points, -1 = noise
     sorted_labels = _canonical(raw, cfg.min_points)
     labels = np.empty(len(pts), np.int64)
     labels[order] = sorted_labels
     return labels
+
+
+def _numbered(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.ndarray:
+    """What _canonical gives on the lexicographically sorted points, for raw labels (N,) that do not depend
+    on the point order: clusters under min_points dropped, the rest numbered 0.. in the lexicographic
+    (x, y, z) order of their first points. Only each cluster's lowest-x points are sorted."""
+    out = np.full(len(raw), -1, np.int64)
+    valid = np.flatnonzero(raw >= 0)
+    if len(valid) == 0:
+        return out
+    lab = raw[valid]
+    counts = np.bincount(lab)
+    x = pts[valid, 0]
+    min_x = np.full(len(counts), np.inf)
+    np.minimum.at(min_x, lab, x)
+    first = np.flatnonzero((x == min_x[lab]) & (counts[lab] >= min_points))  # candidates for a first point
+    order = np.lexsort((pts[valid[first], 2], pts[valid[first], 1], x[first]))
+    ids, at = np.unique(lab[first[order]], return_index=True)  # each cluster's first point in that order
+    new = np.full(len(counts), -1, np.int64)
+    new[ids[np.argsort(at)]] = np.arange(len(ids))
+    out[valid] = new[lab]
+    return out
 
 
 def _canonical(raw: np.ndarray, min_points: int) -> np.ndarray:
@@ -85,3 +111,4 @@ CLUSTER_METHODS: dict[str, Callable[[np.ndarray, ClusterConfig], np.ndarray]] = 
     "grid": _grid,
     "dbscan": _dbscan,
 }
+ORDER_FREE = {"grid": _grid}  # methods whose clusters do not depend on the point order (labelled unsorted)

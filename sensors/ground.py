@@ -1,13 +1,28 @@
 """Ground segmentation: label each LiDAR point as road surface or not.
 
 Methods (registry GROUND_METHODS):
+  "road_plane" (default): fits the road plane z = a x + b y + c robustly (least squares on the lowest point
+            of every `cell_m` BEV cell, trimmed in 3 rounds, then on the points near that plane), so a pitched
+            or rolled ego (the road then appears tilted: 0.5 deg is 0.6 m at 70 m), a road higher than expected
+            or a curve does not matter. A point is road when it lies at most `tol` above the plane. With the
+            sensor origin given, `tol` follows the sensor's error model: a road return at range r has a height
+            error h / r times its range error (h: the sensor's height above the plane), so
+            tol = road_tol_m + range_tol_m * h / r + r * tan(angle_tol_deg), capped at height_tol_m: 4 cm
+            near, 7 mm at 70 m, which keeps most of the bottom of guard rails and car bodies out. Without an
+            origin, tol = height_tol_m. Last, a point of the upper 3/4 of its band that shares a `foot_cell_m`
+            cell with a point 5-50 cm above its band stands at the foot of an object, and is not road.
+            Assumes one plane over the sensor's range (the simulated roads are flat; a real road's grade
+            changes would need piecewise planes).
   "grid":   Cartesian BEV grid of `cell_m` cells; the lowest point of a cell and its 8 neighbours is the local
             road height when it lies within `max_ground_offset_m` of the expected `ground_z_m`, else (road not
             seen nearby: under a roof, behind a car, beside a raised panel) ground_z_m is; a point is ground
-            when z <= local road height + height_tol_m. Absorbs road-height errors up to max_ground_offset_m.
+            when z <= local road height + height_tol_m. Absorbs road-height errors up to max_ground_offset_m,
+            not a tilted road.
   "ransac": open3d tensor `segment_plane` (distance height_tol_m); inliers are ground, unless the best plane
             is tilted more than `max_tilt_deg` (then it is a wall, not the road, and no point is ground).
   "height": z <= ground_z_m + height_tol_m (exact for a flat road at a known height).
+
+`ground_scores` compares a mask with the scan's per-ray truth labels (precision and recall of GROUND).
 """
 
 from __future__ import annotations
@@ -16,24 +31,33 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy import ndimage
 
 from sensors import _checks
 from sensors._grid import bev_cells
 from sensors._o3d import open3d
+from sensors.lidar import GROUND
+
+_COARSE_BANDS_M = (1.0, 0.3, 0.1)  # road_plane: trimming schedule of the fit on the cells' lowest points
+_FINE_BAND_M = 0.05  # road_plane: the refit takes the points within this of the coarse plane
+_FOOT_ABOVE_M = (0.05, 0.5)  # road_plane: heights above its band of the object points that mark a foot
+_FOOT_KEEP = 0.25  # road_plane: a point in the lowest quarter of its band stays road even at a foot
 
 
 @dataclass(frozen=True)
 class GroundConfig:
     """Ground segmentation settings; lengths in metres, world frame z."""
 
-    method: str = "grid"
-    height_tol_m: float = 0.2  # band above local road (grid) or road (height); plane distance (ransac)
+    method: str = "road_plane"  # road_plane, grid, ransac, height
+    height_tol_m: float = 0.2  # band above local road (grid, height; road_plane's cap); plane distance (ransac)
     ground_z_m: float = 0.0  # expected road height
-    cell_m: float = 1.0  # grid: cell size
+    cell_m: float = 1.0  # grid, road_plane: cell size
     max_ground_offset_m: float = 0.25  # grid: a local lowest point counts as road only this close to ground_z_m
+    range_tol_m: float = 0.08  # road_plane: a road return's range may fall this short of the plane (~4 noise sigmas)
+    angle_tol_deg: float = 0.0  # road_plane: beam direction error allowed on top (~4 sigmas of the angular jitter)
+    road_tol_m: float = 0.005  # road_plane: height band always allowed above the plane (fit error, roughness)
+    foot_cell_m: float = 0.04  # road_plane: cell of the object-foot test (0 = off)
     ransac_iterations: int = 100  # ransac: open3d num_iterations
-    max_tilt_deg: float = 10.0  # ransac: steepest plane accepted as the road
+    max_tilt_deg: float = 10.0  # ransac, road_plane: steepest plane accepted as the road
     seed: int = 0  # ransac: seeds open3d's global RNG before each fit, so results are reproducible
 
     def __post_init__(self) -> None:
@@ -41,6 +65,12 @@ class GroundConfig:
         _checks.positive("GroundConfig.height_tol_m", self.height_tol_m)
         _checks.positive("GroundConfig.cell_m", self.cell_m)
         _checks.positive("GroundConfig.max_ground_offset_m", self.max_ground_offset_m, allow_zero=True)
+        _checks.positive("GroundConfig.range_tol_m", self.range_tol_m, allow_zero=True)
+        _checks.positive("GroundConfig.angle_tol_deg", self.angle_tol_deg, allow_zero=True)
+        if self.angle_tol_deg >= 10.0:
+            raise ValueError(f"GroundConfig.angle_tol_deg: expected 0..10, got {self.angle_tol_deg!r}")
+        _checks.positive("GroundConfig.road_tol_m", self.road_tol_m, allow_zero=True)
+        _checks.positive("GroundConfig.foot_cell_m", self.foot_cell_m, allow_zero=True)
         _checks.positive_int("GroundConfig.ransac_iterations", self.ransac_iterations)
         _checks.positive_int("GroundConfig.seed", self.seed, allow_zero=True)
         _checks.positive("GroundConfig.max_tilt_deg", self.max_tilt_deg, allow_zero=True)
@@ -49,31 +79,141 @@ class GroundConfig:
         _checks.finite("GroundConfig.ground_z_m", self.ground_z_m)
 
 
-def segment_ground(points: np.ndarray, cfg: GroundConfig) -> np.ndarray:
-    """points (N, 3) world frame [m] -> is_ground (N,) bool."""
+def segment_ground(points: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None = None) -> np.ndarray:
+    """points (N, 3) world frame [m] -> is_ground (N,) bool.
+
+    origin: (3,) sensor position [m] (Scan.origin), optional; road_plane uses it for its range-aware band.
+    """
     pts = _checks.float_array("points", points, (None, 3))
+    if origin is not None:
+        origin = _checks.float_array("origin", origin, (3,))
     if len(pts) == 0:
         return np.zeros(0, bool)
-    return GROUND_METHODS[cfg.method](pts, cfg)
+    return GROUND_METHODS[cfg.method](pts, cfg, origin)
 
 
-def _height(pts: np.ndarray, cfg: GroundConfig) -> np.ndarray:
+def ground_scores(is_ground: np.ndarray, source: np.ndarray) -> tuple[float, float]:
+    """Precision and recall of a ground mask against the truth labels.
+
+    is_ground: (N,) bool mask; source: (N,) int64 Scan.source (GROUND for a road return).
+    Returns (precision, recall): the share of the points labelled ground that hit the road, and the share of
+    the road returns labelled ground; nan when undefined (no point labelled ground, no road return).
+    """
+    mask = np.asarray(is_ground)
+    if mask.dtype != bool or mask.ndim != 1:
+        raise ValueError(f"is_ground: expected a 1-D bool array, got dtype {mask.dtype}, shape {mask.shape}")
+    truth = _checks.int_array("source", source, (len(mask),)) == GROUND
+    hits = np.count_nonzero(mask & truth)
+    n_labelled, n_road = np.count_nonzero(mask), np.count_nonzero(truth)
+    return (hits / n_labelled if n_labelled else float("nan"), hits / n_road if n_road else float("nan"))
+
+
+def _height(pts: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None) -> np.ndarray:
     return pts[:, 2] <= cfg.ground_z_m + cfg.height_tol_m
 
 
-def _grid(pts: np.ndarray, cfg: GroundConfig) -> np.ndarray:
+def _grid(pts: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None) -> np.ndarray:
     ix, iy, shape = bev_cells(pts, cfg.cell_m, "ground")
     cell = ix * shape[1] + iy
     z = pts[:, 2]
     lowest = np.full(shape[0] * shape[1], np.inf)
     np.minimum.at(lowest, cell, z)
     # 3x3 neighbourhood: a cell covered by the low part of an object borrows the road seen next to it.
-    local = ndimage.minimum_filter(lowest.reshape(shape), size=3, mode="nearest").ravel()[cell]
+    local = _min3x3(lowest.reshape(shape)).ravel()[cell]
     local = np.where(np.abs(local - cfg.ground_z_m) <= cfg.max_ground_offset_m, local, cfg.ground_z_m)
     return z <= local + cfg.height_tol_m
 
 
-def _ransac(pts: np.ndarray, cfg: GroundConfig) -> np.ndarray:
+def _road_plane(pts: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None) -> np.ndarray:
+    centre = origin if origin is not None else np.array([*pts[:, :2].mean(axis=0), cfg.ground_z_m])
+    # coordinates relative to the sensor, as contiguous columns (much faster than (N, 3) broadcasting)
+    x, y, z = pts[:, 0] - centre[0], pts[:, 1] - centre[1], pts[:, 2] - centre[2]
+    r = np.sqrt(x * x + y * y + z * z) if origin is not None else None
+    plane = _coarse_plane(pts, centre, z, cfg)
+    near = np.abs(z - plane[0] * x - plane[1] * y - plane[2]) <= _FINE_BAND_M
+    plane = _plane_fit(x[near], y[near], z[near], plane)  # the cells' lowest points sit low and off-centre
+    if not _acceptable(plane, cfg):
+        plane = np.array([0.0, 0.0, cfg.ground_z_m - centre[2]])
+    res = z - plane[0] * x - plane[1] * y - plane[2]  # height above the road plane [m]
+    tol = _tolerance(r, plane, cfg)
+    is_ground = res <= tol
+    if cfg.foot_cell_m > 0.0:
+        above = (res > tol + _FOOT_ABOVE_M[0]) & (res <= tol + _FOOT_ABOVE_M[1])
+        is_ground[_at_object_foot(x, y, is_ground & (res > _FOOT_KEEP * tol), above, cfg.foot_cell_m)] = False
+    return is_ground
+
+
+def _tolerance(r: np.ndarray | None, plane: np.ndarray, cfg: GroundConfig) -> np.ndarray | float:
+    """Height band above the road plane [m]: (N,) for points at range r (N,) from the sensor, where the sensor
+    is at x = y = z = 0 above the plane z = a x + b y + c; height_tol_m without ranges."""
+    if r is None:
+        return cfg.height_tol_m
+    tol = cfg.road_tol_m + (cfg.range_tol_m * max(-plane[2], 0.0)) / np.maximum(r, 1e-9)
+    if cfg.angle_tol_deg > 0.0:
+        tol += r * np.tan(np.deg2rad(cfg.angle_tol_deg))
+    return np.minimum(tol, cfg.height_tol_m, out=tol)
+
+
+def _coarse_plane(pts: np.ndarray, centre: np.ndarray, z: np.ndarray, cfg: GroundConfig) -> np.ndarray:
+    """(3,) plane [a, b, c], z = a x + b y + c relative to `centre` (3,), through the lowest point z (N,) of
+    each BEV cell of the points (N, 3), taken at the cell centre: least squares trimmed to _COARSE_BANDS_M
+    around the previous plane, starting from the road at ground_z_m."""
+    ix, iy, shape = bev_cells(pts, cfg.cell_m, "ground")
+    lowest = np.full(shape[0] * shape[1], np.inf)
+    np.minimum.at(lowest, ix * shape[1] + iy, z)
+    occupied = np.flatnonzero(np.isfinite(lowest))
+    inv = 1.0 / cfg.cell_m  # cell centres, numbered the way bev_cells does
+    cx = (np.floor(pts[:, 0].min() * inv) + 0.5 + occupied // shape[1]) * cfg.cell_m - centre[0]
+    cy = (np.floor(pts[:, 1].min() * inv) + 0.5 + occupied % shape[1]) * cfg.cell_m - centre[1]
+    low = lowest[occupied]
+    plane = np.array([0.0, 0.0, cfg.ground_z_m - centre[2]])
+    for band in _COARSE_BANDS_M:
+        inliers = np.abs(low - plane[0] * cx - plane[1] * cy - plane[2]) <= band
+        plane = _plane_fit(cx[inliers], cy[inliers], low[inliers], plane)
+    return plane
+
+
+def _plane_fit(x: np.ndarray, y: np.ndarray, z: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Least-squares plane [a, b, c], z = a x + b y + c, through the points x, y, z (M,) (normal equations);
+    `plane` when they do not fix one."""
+    n = len(x)
+    sx, sy, sxy = x.sum(), y.sum(), np.dot(x, y)
+    normal = np.array([[np.dot(x, x), sxy, sx], [sxy, np.dot(y, y), sy], [sx, sy, n]])
+    if n < 3 or np.linalg.cond(normal) > 1e12:
+        return plane
+    return np.linalg.solve(normal, np.array([np.dot(x, z), np.dot(y, z), z.sum()]))
+
+
+def _at_object_foot(x: np.ndarray, y: np.ndarray, candidate: np.ndarray, above: np.ndarray, cell: float) -> np.ndarray:
+    """Indices of the `candidate` points that share a BEV cell of size `cell` with an `above` point (x, y (N,)
+    [m], candidate and above (N,) bool)."""
+    test, above = np.flatnonzero(candidate), np.flatnonzero(above)
+    if len(test) == 0 or len(above) == 0:
+        return test[:0]
+    inv = 1.0 / cell
+    ax, ay = np.floor(x[above] * inv).astype(np.int64), np.floor(y[above] * inv).astype(np.int64)
+    tx, ty = np.floor(x[test] * inv).astype(np.int64), np.floor(y[test] * inv).astype(np.int64)
+    x0, y0 = min(ax.min(), tx.min()), min(ay.min(), ty.min())
+    width = max(ay.max(), ty.max()) - y0 + 1
+    keys = np.sort((ax - x0) * width + (ay - y0))
+    query = (tx - x0) * width + (ty - y0)
+    return test[keys[np.minimum(np.searchsorted(keys, query), len(keys) - 1)] == query]
+
+
+def _acceptable(plane: np.ndarray, cfg: GroundConfig) -> bool:
+    return bool(np.hypot(plane[0], plane[1]) <= np.tan(np.deg2rad(cfg.max_tilt_deg)))
+
+
+def _min3x3(grid: np.ndarray) -> np.ndarray:
+    """Minimum over each cell and its 8 neighbours (cells off the grid ignored), like
+    scipy.ndimage.minimum_filter(grid, size=3, mode="nearest")."""
+    padded = np.full((grid.shape[0] + 2, grid.shape[1] + 2), np.inf)
+    padded[1:-1, 1:-1] = grid
+    rows = np.minimum(np.minimum(padded[:-2], padded[1:-1]), padded[2:])
+    return np.minimum(np.minimum(rows[:, :-2], rows[:, 1:-1]), rows[:, 2:])
+
+
+def _ransac(pts: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None) -> np.ndarray:
     is_ground = np.zeros(len(pts), bool)
     if len(pts) < 3:
         return is_ground
@@ -90,7 +230,8 @@ def _ransac(pts: np.ndarray, cfg: GroundConfig) -> np.ndarray:
     return is_ground
 
 
-GROUND_METHODS: dict[str, Callable[[np.ndarray, GroundConfig], np.ndarray]] = {
+GROUND_METHODS: dict[str, Callable[[np.ndarray, GroundConfig, np.ndarray | None], np.ndarray]] = {
+    "road_plane": _road_plane,
     "grid": _grid,
     "ransac": _ransac,
     "height": _height,

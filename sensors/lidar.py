@@ -1,14 +1,20 @@
-"""Synthetic spinning LiDAR (Velodyne HDL-32E pattern) by ray casting boxes and a flat road with open3d.
+"""Synthetic spinning LiDAR (Velodyne-like beam patterns) by ray casting boxes and a flat road.
 
-The scene is cast in the *sensor* frame (origin below the sensor on the road, x along the sensor yaw):
-the ray tensor is then a per-config constant, and float32 ray casting keeps millimetre precision however
-far along the highway the car is. Hit points are returned in the world frame, in float64.
+The scene is cast in the *sensor* frame (origin below the sensor on the road, x along the nominal sensor
+yaw): the ray table is then a per-config constant, and float32 ray casting keeps millimetre precision
+however far along the highway the car is. Hit points are returned in the world frame, in float64.
+
+Speed: the road z = 0 is intersected analytically (every downward ray, one division); only the rays that
+can reach a box (its azimuth sector and elevation band, widened by the angular errors actually drawn) are
+cast with open3d, against the boxes alone; each ray keeps the nearer of the two hits. `scan(..., fast=False)`
+casts every ray at the full mesh (ground + boxes) instead: same points and labels up to float32 precision.
 """
 
 from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -17,6 +23,25 @@ from sensors._o3d import open3d
 
 GROUND: int = -2
 """Source label of points that hit the ground plane (vehicle ids are >= 0, static objects -1)."""
+
+LIDAR_PRESETS: dict[str, dict[str, float]] = {
+    # Velodyne HDL-32E: 32 beams, -30.67..+10.67 deg (1.33 deg apart), 0.16 deg at 10 Hz; 70 m kept (spec 100 m).
+    "hdl32e": {"n_beams": 32, "elevation_min_deg": -30.67, "elevation_max_deg": 10.67, "azimuth_step_deg": 0.16,
+               "max_range_m": 70.0, "ground_half_size_m": 100.0},
+    # Velodyne VLP-16 (Puck): 16 beams, -15..+15 deg (2 deg apart), 0.2 deg at 10 Hz, 100 m.
+    "vlp16": {"n_beams": 16, "elevation_min_deg": -15.0, "elevation_max_deg": 15.0, "azimuth_step_deg": 0.2,
+              "max_range_m": 100.0, "ground_half_size_m": 100.0},
+    # Velodyne HDL-64E: 64 beams, -24.9..+2.0 deg, 0.17 deg at 10 Hz (0.18 here: 2000 whole columns), 120 m.
+    # Evenly spaced here (0.427 deg); the real sensor has two laser blocks with finer spacing in the upper block.
+    "hdl64e": {"n_beams": 64, "elevation_min_deg": -24.9, "elevation_max_deg": 2.0, "azimuth_step_deg": 0.18,
+               "max_range_m": 120.0, "ground_half_size_m": 120.0},
+    # Velodyne VLS-128 (Alpha Prime): 128 beams, -25..+15 deg, 0.2 deg at 10 Hz, 200 m. Approximated by even
+    # spacing (0.315 deg); the real sensor concentrates its beams (0.11 deg) around the horizon.
+    "vls128": {"n_beams": 128, "elevation_min_deg": -25.0, "elevation_max_deg": 15.0, "azimuth_step_deg": 0.2,
+               "max_range_m": 200.0, "ground_half_size_m": 200.0},
+}
+"""Beam pattern presets, name -> values of the LidarConfig pattern fields. Elevations are evenly spaced. The road
+square reaches at least the max range, so the road does not end inside the sensor's reach."""
 
 # Unit-box corners [x, y, z] with x, y in {-1/2, +1/2} and z in {0, 1}: bottom 0-3, top 4-7.
 _CORNERS = np.array(
@@ -28,24 +53,49 @@ _TRIANGLES = np.array(
      [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]], np.uint32
 )
 _N_GROUND_TRIANGLES = 2
+_ANGLE_MARGIN = 1e-5  # [rad] widening of every candidate sector: covers float32 ray-casting round-off
 
 
 @dataclass(frozen=True)
 class LidarConfig:
-    """Beam pattern and error model; defaults are the HDL-32E (32 beams, -30.67..+10.67 deg, 1-70 m)."""
+    """Beam pattern and error model; defaults are the HDL-32E (32 beams, -30.67..+10.67 deg, 1-70 m).
 
-    n_beams: int = 32
-    elevation_min_deg: float = -30.67
-    elevation_max_deg: float = 10.67
-    azimuth_step_deg: float = 0.16  # 2250 azimuths -> 72,000 rays per turn
+    The pattern fields left at None take the values of `preset` (LIDAR_PRESETS); a value given explicitly
+    overrides the preset: `LidarConfig(preset="vlp16", max_range_m=80.0)`. After construction every field
+    holds its resolved value (so `dataclasses.replace(cfg, preset=...)` keeps the old pattern: build a new
+    config to change presets).
+
+    Error model, all drawn from the rng passed to `scan`, in this order: ego attitude (one pitch and one roll
+    per scan), angular jitter (azimuth and elevation per ray), dropout (per ray), range noise (per ray).
+    Attitude: the rays are cast from the tilted sensor, but the points are reported along the nominal (level)
+    rays, as a stack without IMU correction sees them: the road appears tilted by the attitude error.
+    Angular jitter likewise: each ray flies off its nominal direction, its range is reported along it.
+    """
+
+    PRESET_DEFAULTS: ClassVar[dict] = LIDAR_PRESETS["hdl32e"]  # what the None defaults below resolve to
+
+    preset: str = "hdl32e"  # beam pattern: hdl32e, vlp16, hdl64e (64 beams), vls128 (128 beams)
+    n_beams: int | None = None  # None = from the preset
+    elevation_min_deg: float | None = None  # lowest beam; None = from the preset
+    elevation_max_deg: float | None = None  # highest beam; None = from the preset
+    azimuth_step_deg: float | None = None  # None = from the preset (HDL-32E: 0.16 -> 2250 azimuths, 72,000 rays)
     min_range_m: float = 1.0
-    max_range_m: float = 70.0
+    max_range_m: float | None = None  # None = from the preset
     mount_height_m: float = 1.9  # sensor height above the road (m)
     range_noise_std_m: float = 0.02  # Gaussian range noise, along the ray
+    angle_jitter_deg: float = 0.0  # Gaussian jitter of each ray's azimuth and elevation (deg)
+    pitch_std_deg: float = 0.0  # Gaussian ego pitch per scan (deg, ISO 8855: + = nose down), not corrected
+    roll_std_deg: float = 0.0  # Gaussian ego roll per scan (deg, + = right side down), not corrected
     dropout: float = 0.02  # probability a ray returns nothing
-    ground_half_size_m: float = 100.0  # ground plane square around the sensor
+    ground_half_size_m: float | None = None  # road square around the sensor; None = from the preset (>= max range)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.preset, str) or self.preset not in LIDAR_PRESETS:
+            valid = ", ".join(sorted(LIDAR_PRESETS))
+            raise ValueError(f"LidarConfig.preset: unknown preset {self.preset!r}; valid: {valid}")
+        for name, value in LIDAR_PRESETS[self.preset].items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
         _checks.positive_int("LidarConfig.n_beams", self.n_beams)
         _checks.finite("LidarConfig.elevation_min_deg", self.elevation_min_deg)
         _checks.finite("LidarConfig.elevation_max_deg", self.elevation_max_deg)
@@ -61,6 +111,10 @@ class LidarConfig:
             raise ValueError(f"LidarConfig.min_range_m: must be < max_range_m, got {self.min_range_m!r}")
         _checks.positive("LidarConfig.mount_height_m", self.mount_height_m)
         _checks.positive("LidarConfig.range_noise_std_m", self.range_noise_std_m, allow_zero=True)
+        for name in ("angle_jitter_deg", "pitch_std_deg", "roll_std_deg"):
+            _checks.positive(f"LidarConfig.{name}", getattr(self, name), allow_zero=True)
+            if getattr(self, name) > 10.0:
+                raise ValueError(f"LidarConfig.{name}: expected 0..10 deg, got {getattr(self, name)!r}")
         _checks.finite("LidarConfig.dropout", self.dropout)
         if not (0.0 <= self.dropout < 1.0):
             raise ValueError(f"LidarConfig.dropout: expected 0 <= dropout < 1, got {self.dropout!r}")
@@ -87,19 +141,49 @@ class Scan:
 
     points: (N, 3) float64 hit points, world frame [m].
     source: (N,) int64 truth label per point: id of the box hit (vehicle >= 0, static object -1) or GROUND.
-    origin: (3,) float64 sensor position, world frame [m].
+    origin: (3,) float64 sensor position x, y and mount height, world frame [m].
+    ranges: (A, B) float64 range image [m]: the measured range of each ray, row = azimuth index (sensor frame,
+        0 along the nominal sensor yaw, counter-clockwise), column = beam (lowest elevation first); inf where
+        the ray returned nothing (miss, dropout, outside [min_range, max_range]). Default: shape (0, 0).
+    ray: (N,) int64 flat ray index a * B + b of each point (-1 = unknown, the default).
+    azimuths: (A,) float64 nominal firing azimuths [rad]; elevations: (B,) float64 beam elevations [rad].
+    pose: (3,) float64 nominal sensor x, y [m], yaw [rad], world frame: point = origin + R(yaw) u(a, b) * range,
+        u the unit vector at azimuth a and elevation b. Default: (origin x, origin y, 0).
     """
 
     points: np.ndarray
     source: np.ndarray
     origin: np.ndarray
+    ranges: np.ndarray | None = None
+    ray: np.ndarray | None = None
+    azimuths: np.ndarray | None = None
+    elevations: np.ndarray | None = None
+    pose: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         pts = _checks.float_array("Scan.points", self.points, (None, 3))
-        src = _checks.int_array("Scan.source", self.source, (len(pts),))
         object.__setattr__(self, "points", pts)
-        object.__setattr__(self, "source", src)
-        object.__setattr__(self, "origin", _checks.float_array("Scan.origin", self.origin, (3,)))
+        object.__setattr__(self, "source", _checks.int_array("Scan.source", self.source, (len(pts),)))
+        origin = _checks.float_array("Scan.origin", self.origin, (3,))
+        object.__setattr__(self, "origin", origin)
+        ranges = np.zeros((0, 0)) if self.ranges is None else np.asarray(self.ranges, dtype=np.float64)
+        if ranges.ndim != 2:
+            raise ValueError(f"Scan.ranges: expected shape (A, B), got {ranges.shape}")
+        if np.any(np.isnan(ranges)) or np.any(ranges < 0.0):
+            raise ValueError("Scan.ranges: expected ranges >= 0 or inf, got NaN or a negative value")
+        object.__setattr__(self, "ranges", ranges)
+        a, b = ranges.shape
+        ray = np.full(len(pts), -1, np.int64) if self.ray is None else self.ray
+        ray = _checks.int_array("Scan.ray", ray, (len(pts),))
+        if np.any(ray < -1) or (ranges.size and np.any(ray >= ranges.size)):
+            raise ValueError(f"Scan.ray: expected indices in [-1, {ranges.size}), got {ray.min()}..{ray.max()}")
+        object.__setattr__(self, "ray", ray)
+        for name, n in (("azimuths", a), ("elevations", b)):
+            value = getattr(self, name)
+            value = np.zeros(0) if value is None else value
+            object.__setattr__(self, name, _checks.float_array(f"Scan.{name}", value, (n if ranges.size else None,)))
+        pose = np.array([origin[0], origin[1], 0.0]) if self.pose is None else self.pose
+        object.__setattr__(self, "pose", _checks.float_array("Scan.pose", pose, (3,)))
 
 
 def scan(
@@ -108,19 +192,24 @@ def scan(
     boxes: np.ndarray,
     box_ids: np.ndarray,
     rng: np.random.Generator,
+    *,
+    fast: bool = True,
 ) -> Scan:
     """Cast one turn of rays at the boxes and the road plane z = 0.
 
     cfg: beam pattern and error model.
-    sensor_xy_yaw: (3,) sensor x, y [m] and yaw [rad], world frame; the sensor is at height
+    sensor_xy_yaw: (3,) nominal sensor x, y [m] and yaw [rad], world frame; the sensor is at height
         cfg.mount_height_m and its azimuth 0 points along yaw.
     boxes: (K, 7) [cx, cy, length, width, height, yaw, z_bottom] world frame [m, rad]; sizes > 0.
         Leave out the box of the car carrying the sensor (its roof would return points).
     box_ids: (K,) int64 id per box, vehicles >= 0, static roadside objects -1.
-    rng: draws one dropout uniform and one range-noise normal per ray (not per hit), so a change
-        in the scene does not reshuffle the noise of the other rays.
+    rng: draws, in this order and only for the errors switched on: the ego pitch and roll (2 normals), the
+        azimuth and elevation jitter (2 normals per ray), one dropout uniform and one range-noise normal per
+        ray (not per hit), so a change in the scene does not reshuffle the noise of the other rays.
+    fast: intersect the road analytically and cast only the rays that can reach a box (see the module
+        docstring); False casts every ray at the full mesh (the reference; same result up to float32).
     Returns the Scan: hits with measured range in [min_range_m, max_range_m], in ray order
-    (azimuth-major, then beam from lowest elevation).
+    (azimuth-major, then beam from lowest elevation), with the range image of the turn.
     """
     if not isinstance(cfg, LidarConfig):
         raise TypeError(f"cfg: expected LidarConfig, got {type(cfg).__name__}")
@@ -134,58 +223,224 @@ def scan(
     if np.any(box_ids < -1):
         raise ValueError("box_ids: must be >= -1 (vehicles >= 0, static objects -1)")
 
-    o3d = open3d()
-    dirs, rays = _rays(cfg)
-    vertices, triangles = _scene_mesh(cfg, pose, boxes)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))
-    ans = scene.cast_rays(rays)
+    o3d = open3d()  # also for a box-free scene: a missing open3d fails the same way whatever the traffic
+    pat = _pattern(cfg)
+    n_rays = len(pat.dirs)
+    attitude = _draw_attitude(cfg, rng)
+    jitter = np.deg2rad(cfg.angle_jitter_deg) * rng.standard_normal((2, n_rays)) if cfg.angle_jitter_deg > 0 else None
+    u_drop = rng.random(n_rays) if cfg.dropout > 0.0 else None
+    noise = cfg.range_noise_std_m * rng.standard_normal(n_rays) if cfg.range_noise_std_m > 0.0 else None
 
-    t_hit = ans["t_hit"].numpy()
-    keep = np.isfinite(t_hit)
-    if cfg.dropout > 0.0:
-        keep &= rng.random(len(t_hit)) >= cfg.dropout
-    r = t_hit.astype(np.float64)
-    if cfg.range_noise_std_m > 0.0:
-        r += cfg.range_noise_std_m * rng.standard_normal(len(t_hit))
+    dirs = pat.dirs if attitude is None and jitter is None else _true_directions(pat, attitude, jitter)
+    verts = _box_vertices(pose, boxes)
+    if fast:
+        w_az, w_el = _angular_error_bounds(cfg, attitude, jitter)
+        reach = cfg.max_range_m + (max(0.0, -float(noise.min())) if noise is not None else 0.0) + 1e-3
+        t, which = _cast_fast(o3d, cfg, pat, dirs, verts, w_az, w_el, reach)
+    else:
+        t, which = _cast_full(o3d, cfg, pat, dirs, verts)
+
+    keep = np.isfinite(t)
+    if u_drop is not None:
+        keep &= u_drop >= cfg.dropout
+    r = t + noise if noise is not None else t
     keep &= (r >= cfg.min_range_m) & (r <= cfg.max_range_m)
 
     idx = np.flatnonzero(keep)
-    p = np.take(dirs, idx, axis=0)  # unit directions of the kept rays, sensor frame
-    p *= np.take(r, idx)[:, None]  # -> points relative to the sensor
+    p = np.take(pat.dirs, idx, axis=0)  # nominal unit directions of the kept rays, sensor frame
+    r_kept = np.take(r, idx)
+    for k in range(3):  # -> points relative to the sensor, as the sensor reports them (by column: faster)
+        p[:, k] *= r_kept
     c, s = np.cos(pose[2]), np.sin(pose[2])
     points = p @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # rotate by yaw into the world frame
-    points += (pose[0], pose[1], cfg.mount_height_m)
+    for k, offset in enumerate((pose[0], pose[1], cfg.mount_height_m)):
+        points[:, k] += offset
 
-    source_of_triangle = np.concatenate(
-        [np.full(_N_GROUND_TRIANGLES, GROUND, np.int64), np.repeat(box_ids, len(_TRIANGLES))]
-    )
-    source = np.take(source_of_triangle, np.take(ans["primitive_ids"].numpy(), idx))
+    box_of_point = np.take(which, idx)
+    source = np.full(len(idx), GROUND, np.int64)
+    on_box = box_of_point >= 0
+    source[on_box] = box_ids[box_of_point[on_box]]
+    ranges = np.where(keep, r, np.inf).reshape(len(pat.azimuths), len(pat.elevations))
     origin = np.array([pose[0], pose[1], cfg.mount_height_m])
-    return Scan(points=points, source=source, origin=origin)
+    return Scan(points=points, source=source, origin=origin, ranges=ranges, ray=idx,
+                azimuths=pat.azimuths, elevations=pat.elevations, pose=pose)
+
+
+class _Pattern(NamedTuple):
+    """The nominal rays of a config, sensor frame; R = A * B rays in azimuth-major order (read-only arrays)."""
+
+    azimuths: np.ndarray  # (A,) [rad]
+    elevations: np.ndarray  # (B,) [rad], ascending
+    az: np.ndarray  # (R,) azimuth of each ray [rad]
+    el: np.ndarray  # (R,) elevation of each ray [rad]
+    dirs: np.ndarray  # (R, 3) float64 unit directions
+    rays32: np.ndarray  # (R, 6) float32 open3d rays: origin (0, 0, mount height), direction
+    t_ground: np.ndarray  # (R,) range to the road along each ray, inf when it misses the ground square [m]
 
 
 @functools.lru_cache(maxsize=8)
-def _rays(cfg: LidarConfig):
-    """Unit ray directions (R, 3) float64 in the sensor frame and the open3d (R, 6) float32 ray tensor."""
-    el = np.deg2rad(cfg.elevations_deg)
-    az = np.deg2rad(cfg.azimuths_deg)
-    A, E = np.meshgrid(az, el, indexing="ij")  # azimuth-major, like the firing sequence
-    dirs = np.stack([np.cos(E) * np.cos(A), np.cos(E) * np.sin(A), np.sin(E)], -1).reshape(-1, 3)
-    dirs.setflags(write=False)
+def _pattern(cfg: LidarConfig) -> _Pattern:
+    azimuths = np.deg2rad(cfg.azimuths_deg)
+    elevations = np.deg2rad(cfg.elevations_deg)
+    az, el = (g.ravel() for g in np.meshgrid(azimuths, elevations, indexing="ij"))  # like the firing sequence
+    dirs = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1)
+    pat = _Pattern(azimuths, elevations, az, el, dirs, _rays32(cfg, dirs), _ground_range(cfg, dirs))
+    for a in pat:
+        a.setflags(write=False)
+    return pat
+
+
+def _rays32(cfg: LidarConfig, dirs: np.ndarray) -> np.ndarray:
+    """(R, 6) float32 open3d rays from the sensor, (0, 0, mount height), along `dirs` (R, 3)."""
     rays = np.empty((len(dirs), 6), np.float32)
     rays[:, :3] = (0.0, 0.0, cfg.mount_height_m)
     rays[:, 3:] = dirs
-    return dirs, open3d().core.Tensor(rays)
+    return rays
 
 
-def _scene_mesh(cfg: LidarConfig, pose: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Ground square + all boxes as one mesh in the sensor frame: vertices (4 + 8K, 3) float32,
-    triangles (2 + 12K, 3) uint32, ground triangles first, then 12 per box in box order."""
-    h = cfg.ground_half_size_m
-    ground_v = np.array([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]])
-    ground_t = np.array([[0, 1, 2], [0, 2, 3]], np.uint32)
+def _ground_range(cfg: LidarConfig, dirs: np.ndarray) -> np.ndarray:
+    """(R,) distance along unit rays `dirs` (R, 3) from the sensor to the road z = 0 inside the ground square,
+    inf for rays that do not point down or land outside it [m]."""
+    t = np.full(len(dirs), np.inf)
+    down = np.flatnonzero(dirs[:, 2] < 0.0)
+    t_down = cfg.mount_height_m / -dirs[down, 2]
+    half = cfg.ground_half_size_m
+    on_square = (np.abs(t_down * dirs[down, 0]) <= half) & (np.abs(t_down * dirs[down, 1]) <= half)
+    t[down[on_square]] = t_down[on_square]
+    return t
 
+
+def _draw_attitude(cfg: LidarConfig, rng: np.random.Generator) -> np.ndarray | None:
+    """(3, 3) rotation from the tilted sensor frame to the level one, R_y(pitch) R_x(roll); None when level."""
+    if cfg.pitch_std_deg == 0.0 and cfg.roll_std_deg == 0.0:
+        return None
+    pitch, roll = np.deg2rad([cfg.pitch_std_deg, cfg.roll_std_deg]) * rng.standard_normal(2)
+    cp, sp, cr, sr = np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    r_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])  # + pitch: the forward beams point down
+    r_x = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])  # + roll: the right beams point down
+    return r_y @ r_x
+
+
+def _true_directions(pat: _Pattern, attitude: np.ndarray | None, jitter: np.ndarray | None) -> np.ndarray:
+    """(R, 3) unit directions the rays actually fly along, level sensor frame: jittered, then tilted."""
+    if jitter is None:
+        dirs = pat.dirs
+    else:
+        az, el = pat.az + jitter[0], pat.el + jitter[1]
+        dirs = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1)
+    return dirs if attitude is None else dirs @ attitude.T
+
+
+def _angular_error_bounds(cfg: LidarConfig, attitude: np.ndarray | None,
+                          jitter: np.ndarray | None) -> tuple[float, float]:
+    """Largest azimuth and elevation difference [rad] between any true ray and its nominal direction.
+
+    The jitter moves azimuth and elevation by at most its largest draw; a rotation by angle delta moves a
+    direction by at most delta on the sphere: elevation by <= delta, azimuth by <= asin(sin delta / cos phi)
+    at latitude |phi| < 90 deg - delta (the longitude half-width of a spherical cap), any azimuth otherwise.
+    """
+    j_az = float(np.abs(jitter[0]).max()) if jitter is not None else 0.0
+    j_el = float(np.abs(jitter[1]).max()) if jitter is not None else 0.0
+    if attitude is None:
+        return j_az, j_el
+    delta = float(np.arccos(np.clip((np.trace(attitude) - 1.0) / 2.0, -1.0, 1.0)))
+    phi = np.deg2rad(max(abs(cfg.elevation_min_deg), abs(cfg.elevation_max_deg))) + j_el
+    if delta >= np.pi / 2 - phi:
+        return 2 * np.pi, j_el + delta
+    return j_az + float(np.arcsin(np.sin(delta) / np.cos(phi))), j_el + delta
+
+
+def _cast_full(o3d, cfg: LidarConfig, pat: _Pattern, dirs: np.ndarray, verts: np.ndarray):
+    """Every ray at the full mesh. Returns t (R,) float64 range to the first hit (inf: none) and which (R,)
+    int64 box index hit (-1: the road or nothing)."""
+    rays = pat.rays32 if dirs is pat.dirs else _rays32(cfg, dirs)
+    vertices, triangles = _mesh(verts, cfg.ground_half_size_m)
+    ans = _raycaster(o3d, vertices, triangles).cast_rays(o3d.core.Tensor(rays))
+    t = ans["t_hit"].numpy().astype(np.float64)
+    prim = ans["primitive_ids"].numpy().astype(np.int64)
+    on_box = np.isfinite(t) & (prim >= _N_GROUND_TRIANGLES)
+    which = np.where(on_box, (prim - _N_GROUND_TRIANGLES) // len(_TRIANGLES), -1)
+    return t, which
+
+
+def _cast_fast(o3d, cfg: LidarConfig, pat: _Pattern, dirs: np.ndarray, verts: np.ndarray, w_az: float,
+               w_el: float, reach: float):
+    """Road hits analytically, boxes by casting the candidate rays only; same outputs as _cast_full."""
+    t = pat.t_ground.copy() if dirs is pat.dirs else _ground_range(cfg, dirs)
+    which = np.full(len(t), -1, np.int64)
+    cand, active = _candidates(cfg, pat, verts, w_az, w_el, reach)
+    if len(cand) == 0:
+        return t, which
+    rays = np.take(pat.rays32, cand, axis=0) if dirs is pat.dirs else _rays32(cfg, np.take(dirs, cand, axis=0))
+    vertices, triangles = _mesh(verts[active], None)
+    ans = _raycaster(o3d, vertices, triangles).cast_rays(o3d.core.Tensor(rays))
+    t_box = ans["t_hit"].numpy().astype(np.float64)
+    nearer = t_box < t[cand] * (1.0 - 1e-6)  # a tie (a box bottom lying on the road, seen from inside) is road
+    hit = cand[nearer]
+    t[hit] = t_box[nearer]
+    which[hit] = active[ans["primitive_ids"].numpy()[nearer].astype(np.int64) // len(_TRIANGLES)]
+    return t, which
+
+
+def _candidates(cfg: LidarConfig, pat: _Pattern, verts: np.ndarray, w_az: float, w_el: float, reach: float):
+    """Flat indices (C,) of the rays that can hit some box, and the indices (K',) of the boxes within reach.
+
+    A ray can hit box k only if its true azimuth lies in the sector the box footprint covers seen from the
+    sensor (all azimuths when the sensor is above or inside the footprint) and its true elevation e lets it
+    pass between the box bottom and top somewhere over the footprint's horizontal distances
+    [rho_min, rho_max]: its height h + rho tan(e) is monotone in rho, so
+    min over rho of (z_bottom - h) / rho <= tan(e) <= max over rho of (z_top - h) / rho.
+    The nominal pattern is tested against that sector and band widened by the scan's largest angular errors
+    (w_az, w_el) plus a float32 margin. A box whose nearest point is beyond `reach` (max range + the largest
+    negative range noise) can only return points that are dropped, and is left out.
+    """
+    n_az, n_el = len(pat.azimuths), len(pat.elevations)
+    if len(verts) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    h = cfg.mount_height_m
+    foot = verts[:, :4, :2]  # (K, 4, 2) footprint corners; the sensor is at xy = 0
+    e1, e2 = foot[:, 1] - foot[:, 0], foot[:, 3] - foot[:, 0]  # the two edge vectors from corner 0
+    s1 = np.clip(np.einsum("kd,kd->k", -foot[:, 0], e1) / np.einsum("kd,kd->k", e1, e1), 0.0, 1.0)
+    s2 = np.clip(np.einsum("kd,kd->k", -foot[:, 0], e2) / np.einsum("kd,kd->k", e2, e2), 0.0, 1.0)
+    rho_min = np.linalg.norm(foot[:, 0] + s1[:, None] * e1 + s2[:, None] * e2, axis=1)
+    rho_max = np.linalg.norm(foot, axis=2).max(axis=1)
+
+    z_bottom, z_top = verts[:, 0, 2] - h, verts[:, 4, 2] - h  # relative to the sensor
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tan_lo = np.where(z_bottom < 0.0, z_bottom / rho_min, z_bottom / rho_max)
+        tan_hi = np.where(z_top > 0.0, z_top / rho_min, z_top / rho_max)
+    margin = _ANGLE_MARGIN
+    b0 = np.searchsorted(pat.elevations, np.arctan(tan_lo) - w_el - margin, "left")
+    b1 = np.searchsorted(pat.elevations, np.arctan(tan_hi) + w_el + margin, "right")
+
+    centre = foot.mean(axis=1)
+    ref = np.arctan2(centre[:, 1], centre[:, 0])
+    off = (np.arctan2(foot[..., 1], foot[..., 0]) - ref[:, None] + np.pi) % (2 * np.pi) - np.pi
+    lo = ref + off.min(axis=1) - w_az - margin
+    span = off.max(axis=1) - off.min(axis=1) + 2 * (w_az + margin)
+    every = (rho_min < 1e-6) | (span >= 2 * np.pi)  # sensor inside (or on) the footprint, or a wide error
+    step = np.deg2rad(cfg.azimuth_step_deg)
+    lo = lo % (2 * np.pi)
+    hi = lo + span
+    i0 = np.ceil(lo / step).astype(np.int64)
+    i1 = np.minimum(np.floor(hi / step).astype(np.int64), n_az - 1)
+    wrap = np.floor((hi - 2 * np.pi) / step).astype(np.int64)  # >= 0: the sector passes azimuth 0
+
+    active = np.flatnonzero((b0 < b1) & (rho_min <= reach))
+    mask = np.zeros((n_az, n_el), bool)
+    for k in active:
+        if every[k]:
+            mask[:, b0[k]:b1[k]] = True
+            continue
+        mask[i0[k]:i1[k] + 1, b0[k]:b1[k]] = True
+        if wrap[k] >= 0:
+            mask[:wrap[k] + 1, b0[k]:b1[k]] = True
+    return np.flatnonzero(mask.ravel()), active
+
+
+def _box_vertices(pose: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(K, 8, 3) float64 box corners in the sensor frame (origin on the road below the sensor, x along yaw):
+    bottom 0-3, top 4-7, as _CORNERS."""
     c, s = np.cos(pose[2]), np.sin(pose[2])
     dx, dy = boxes[:, 0] - pose[0], boxes[:, 1] - pose[1]
     cx, cy = c * dx + s * dy, -s * dx + c * dy  # box centres in the sensor frame
@@ -197,8 +452,25 @@ def _scene_mesh(cfg: LidarConfig, pose: np.ndarray, boxes: np.ndarray) -> tuple[
     box_v[..., 0] = cx[:, None] + cb * lx - sb * ly
     box_v[..., 1] = cy[:, None] + sb * lx + cb * ly
     box_v[..., 2] = boxes[:, 6:7] + _CORNERS[None, :, 2] * boxes[:, 4:5]
-    box_t = _TRIANGLES[None] + (4 + 8 * np.arange(len(boxes), dtype=np.uint32))[:, None, None]
+    return box_v
 
-    vertices = np.concatenate([ground_v, box_v.reshape(-1, 3)]).astype(np.float32)
-    triangles = np.concatenate([ground_t, box_t.reshape(-1, 3)])
-    return vertices, triangles
+
+def _mesh(box_v: np.ndarray, ground_half_size: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes (K, 8, 3), after the ground square of that half size if given, as one mesh: vertices float32
+    (4 + 8K or 8K, 3), triangles uint32 (2 + 12K or 12K, 3), ground triangles first, then 12 per box."""
+    parts_v, parts_t, base = [], [], 0
+    if ground_half_size is not None:
+        h = ground_half_size
+        parts_v.append(np.array([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]]))
+        parts_t.append(np.array([[0, 1, 2], [0, 2, 3]], np.uint32))
+        base = 4
+    parts_v.append(box_v.reshape(-1, 3))
+    first_vertex = base + 8 * np.arange(len(box_v), dtype=np.uint32)
+    parts_t.append((_TRIANGLES[None] + first_vertex[:, None, None]).reshape(-1, 3))
+    return np.concatenate(parts_v).astype(np.float32), np.concatenate(parts_t)
+
+
+def _raycaster(o3d, vertices: np.ndarray, triangles: np.ndarray):
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))
+    return scene

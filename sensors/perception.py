@@ -1,21 +1,96 @@
-"""From a LiDAR scan to vehicle-like object detections: ground removal, clustering, box fit, selection.
+"""From a LiDAR scan to vehicle detections: ground removal, clustering, split/merge, selection, box fit.
 
-Each detection's measurement z is computed from the points only; `provenance` (which vehicle made it)
-comes from the scan's truth labels and is meant for scoring, never for the tracker.
+Stages of `perceive` (each switchable in PerceptionConfig; `PerceptionConfig.thesis()` is the plain
+pipeline of the thesis: ground, clusters, fixed size and height bounds, L-shape centre, and reproduces
+the pipeline before issue 8 exactly):
+
+1. Ground removal (sensors/ground.py), points above `max_height_m` dropped, BEV clustering
+   (sensors/clustering.py). `PerceptionResult.cluster_labels` keeps this raw partition.
+2. Split (`split_vehicles`): a cluster spanning at least `split_min_width_m` across its axis (the lane
+   heading from the road map, else its principal axis; a thinner one is a single surface: a guard rail
+   with its posts, a wall) is cut when it is too big for one vehicle (longer side > the length bound,
+   shorter side > max_width_m), at its widest gap of at least `min_split_gap_m` along or across the
+   axis, or when it has a gap wider than `split_gap_m` along the axis, there; only if both parts keep
+   `min_points` points and a side of at least `min_extent_m`. Up to `max_splits` cuts. Flag SPLIT.
+3. Merge (`merge_fragments`), in two passes, closest pairs first, each only when the union still fits
+   one vehicle (minimum-area rectangle within the length bound for its top and max_width_m):
+   a. before selection: objects whose points come within `merge_gap_m` of each other (a corner
+      fragment beside its car);
+   b. after the fits: an object whose points come within `merge_gap_m` of another's fitted vehicle box
+      (a rear face completed to a car and the ring grazing the roof near the car's far end, 4 m away),
+      then refitted. Flag MERGED.
+4. Selection (`vehicle_like`); the first failing test names the rejection (REJECT_REASONS, in order):
+   "too_long" / "too_wide" (with `shape_filter`): the points' principal extents exceed the bounds of
+       stage 5 (a guard-rail run, a wall), whatever the height.
+   "too_low": the top is below the required top. `min_height_mode="fixed"`: min_height_m. "beams": at
+       the object's nearest horizontal range d, the highest beam that still hits a car of `ref_height_m`
+       runs at h* = max_b {z_s + d tan(e_b) <= ref_height_m} (z_s the sensor height above the road, e_b
+       the scan's beam elevations; "fixed" when the scan has none), and the required top is
+       min(min_height_m, h* - height_margin_m): 0.8 m up to 43 m, 0.29 m at 65 m on an HDL-32E at
+       1.9 m. With `robust_height` half of the object's `body_bin_m` bins along its axis must reach
+       it too, not only one point (a post standing on a guard rail lifts the top, not the rail).
+   "too_high": top above max_object_height_m. "too_small": footprint diagonal below min_extent_m.
+   "edge_on" (with `shape_filter`): lower than min_height_m (so kept only by the range-aware bound) and
+       spanning less than edge_on_width_m across the line of sight, or a line thinner than that within
+       grazing_deg of it: a far guard rail seen edge-on. A far car shows its rear or front across the
+       line of sight unless a nearer object hides it.
+   "high_median": median point height above max_median_height_m (a tree crown).
+   "lifted" (with `shape_filter`): a crown over its trunk (the points under the object's mid-height span
+       less than lift_trunk_m, those above at least lift_crown_m; a vehicle's body reaches down along its
+       whole near face) or alone (lowest point above lift_floor_m).
+   "thin_long", "post", "panel" (with `shape_filter`): sensors/boxfit.shape_class of the points (guard
+       rails, poles, sign panels) or of the fitted box; their reported centre is the centre of the
+       points' box (a panel is never completed like a car's rear).
+   "too_small" / "too_long" / "too_wide" after the fit: the points' extents along / across the fitted
+       box below min_extent_m, beyond max_length_m (max_truck_length_m for an object whose top reaches
+       a size prior longer than that: boxfit's TRUCK) / max_width_m.
+   "off_road" (`roi` and a RoadMap): neither the fitted centre nor the points' centroid lies within the
+       lane half width + roi_margin_m of the nearest lane centre sample. Last, so its count is the
+       number of vehicle-like objects (bushes, ...) only the map removes. Flag OFF_ROAD (rejected only).
+5. Measurement per kept object by `fit` (FITS): "vehicle_box" (sensors/boxfit.fit_vehicle_box with the
+   lane heading at the centroid as prior when there is a map, the occluded azimuth edges from the range
+   image, and its covariance R; flag COMPLETED when it moved the centre beyond the points), or a plain
+   representative "lshape_center", "bbox_center", "centroid" (R = DEFAULT_STD_M^2 I, and the old
+   one-face completion when complete_one_face).
+
+Each detection's z is computed from the points only; `provenance` (which vehicle made it) comes from the
+scan's truth labels and is meant for scoring, never for the tracker.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from sensors import _checks
-from sensors.boxfit import lshape_rectangle, min_area_rectangle
+from sensors.boxfit import (
+    SHAPES,
+    BoxFitConfig,
+    fit_vehicle_box,
+    lshape_rectangle,
+    min_area_rectangle,
+    shape_class,
+)
 from sensors.clustering import ClusterConfig, cluster
 from sensors.ground import GroundConfig, segment_ground
 from sensors.lidar import Scan
+from sensors.roi import RoadMap
+
+MERGED: int = 1  # fragments were merged into the detection
+SPLIT: int = 2  # it was separated from a larger cluster
+COMPLETED: int = 4  # its centre was completed beyond the points by the size prior
+OFF_ROAD: int = 8  # (rejected objects only) outside the map's road + margin
+
+DEFAULT_STD_M = 0.5  # isotropic measurement std of the plain representatives (and Detections' default R) [m]
+
+SHAPE_REASONS = tuple(s for s in SHAPES if s != "vehicle")  # ("thin_long", "post", "panel")
+REJECT_REASONS = ("too_low", "too_high", "too_small", "edge_on", "high_median", "lifted", *SHAPE_REASONS,
+                  "too_long", "too_wide", "off_road")
+HEIGHT_MODES = ("beams", "fixed")
 
 
 @dataclass(frozen=True)
@@ -25,14 +100,23 @@ class Detections:
     z: (M, 2) float64 measurement (x, y), world frame [m].
     provenance: (M,) int64 vehicle id whose points are the plurality of the cluster, or -1 (clutter).
     n_points: (M,) int64 points in the cluster (0 for synthetic clutter).
-    extent: (M, 3) float64 length >= width of the cluster's footprint box (the representative's box fit),
-        and height of the cluster's top above the road [m] (zeros for synthetic clutter).
+    extent: (M, 3) float64 length >= width of the fitted box (the vehicle box's estimated size, or the
+        plain representative's box around the points) and height of the cluster's top above the road [m]
+        (zeros for synthetic clutter).
+    R: (M, 2, 2) float64 measurement covariance of z, world frame [m^2]. Default: DEFAULT_STD_M^2 I.
+    centroid: (M, 2) float64 mean (x, y) of the cluster's points [m]. Default: z.
+    heading: (M,) float64 long-axis direction of the fitted box [rad] (mod pi). Default: 0.
+    flags: (M,) int64 bit set of MERGED, SPLIT, COMPLETED. Default: 0.
     """
 
     z: np.ndarray
     provenance: np.ndarray
     n_points: np.ndarray
     extent: np.ndarray
+    R: np.ndarray | None = None
+    centroid: np.ndarray | None = None
+    heading: np.ndarray | None = None
+    flags: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         z = _checks.float_array("Detections.z", self.z, (None, 2))
@@ -41,6 +125,17 @@ class Detections:
         object.__setattr__(self, "provenance", _checks.int_array("Detections.provenance", self.provenance, (m,)))
         object.__setattr__(self, "n_points", _checks.int_array("Detections.n_points", self.n_points, (m,)))
         object.__setattr__(self, "extent", _checks.float_array("Detections.extent", self.extent, (m, 3)))
+        r = np.broadcast_to(DEFAULT_STD_M**2 * np.eye(2), (m, 2, 2)).copy() if self.R is None else self.R
+        r = _checks.float_array("Detections.R", r, (m, 2, 2))
+        if np.any(np.abs(r - r.transpose(0, 2, 1)) > 1e-9 * (1.0 + np.abs(r))) or np.any(r[:, [0, 1], [0, 1]] <= 0):
+            raise ValueError("Detections.R: expected symmetric matrices with positive diagonals")
+        object.__setattr__(self, "R", r)
+        c = z.copy() if self.centroid is None else self.centroid
+        object.__setattr__(self, "centroid", _checks.float_array("Detections.centroid", c, (m, 2)))
+        h = np.zeros(m) if self.heading is None else self.heading
+        object.__setattr__(self, "heading", _checks.float_array("Detections.heading", h, (m,)))
+        f = np.zeros(m, np.int64) if self.flags is None else self.flags
+        object.__setattr__(self, "flags", _checks.int_array("Detections.flags", f, (m,)))
 
     def __len__(self) -> int:
         return len(self.z)
@@ -51,12 +146,54 @@ class Detections:
 
     def concat(self, other: "Detections") -> "Detections":
         """self's detections, then other's."""
-        return Detections(
-            np.concatenate([self.z, other.z]),
-            np.concatenate([self.provenance, other.provenance]),
-            np.concatenate([self.n_points, other.n_points]),
-            np.concatenate([self.extent, other.extent]),
-        )
+        return Detections(*(np.concatenate([getattr(self, f), getattr(other, f)]) for f in _DETECTION_FIELDS))
+
+
+_DETECTION_FIELDS = ("z", "provenance", "n_points", "extent", "R", "centroid", "heading", "flags")
+
+
+@dataclass(frozen=True)
+class Rejected:
+    """K objects (clusters after split/merge) that did not become detections, for reporting.
+
+    centre: (K, 2) float64 fitted centre if the object got as far as the fit, else its points' centroid [m].
+    reason: (K,) str the first selection test it failed (REJECT_REASONS).
+    provenance: (K,) int64 plurality source label of its points (vehicle id, or -1 for static objects).
+    n_points: (K,) int64. flags: (K,) int64 MERGED / SPLIT / OFF_ROAD bits.
+    """
+
+    centre: np.ndarray
+    reason: np.ndarray
+    provenance: np.ndarray
+    n_points: np.ndarray
+    flags: np.ndarray
+
+    def __post_init__(self) -> None:
+        c = _checks.float_array("Rejected.centre", self.centre, (None, 2))
+        k = len(c)
+        reason = np.asarray(self.reason, dtype=str).reshape(-1)
+        if len(reason) != k:
+            raise ValueError(f"Rejected.reason: expected shape ({k},), got {reason.shape}")
+        unknown = sorted(set(reason.tolist()) - set(REJECT_REASONS))
+        if unknown:
+            raise ValueError(f"Rejected.reason: unknown {unknown[0]!r}; valid: {', '.join(REJECT_REASONS)}")
+        object.__setattr__(self, "centre", c)
+        object.__setattr__(self, "reason", reason)
+        object.__setattr__(self, "provenance", _checks.int_array("Rejected.provenance", self.provenance, (k,)))
+        object.__setattr__(self, "n_points", _checks.int_array("Rejected.n_points", self.n_points, (k,)))
+        object.__setattr__(self, "flags", _checks.int_array("Rejected.flags", self.flags, (k,)))
+
+    def __len__(self) -> int:
+        return len(self.centre)
+
+    @staticmethod
+    def empty() -> "Rejected":
+        return Rejected(np.zeros((0, 2)), np.zeros(0, str), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                        np.zeros(0, np.int64))
+
+    def counts(self) -> dict[str, int]:
+        """Number of rejected objects per reason, every reason listed (0 when none)."""
+        return {r: int(np.sum(self.reason == r)) for r in REJECT_REASONS}
 
 
 def _centroid(xy: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -70,120 +207,733 @@ REPRESENTATIVES: dict[str, Callable[[np.ndarray], tuple[np.ndarray, float, float
     "lshape_center": lshape_rectangle,  # centre of the L-shape (closeness criterion) box
     "centroid": _centroid,  # mean (x, y) of the cluster's points; extent from the minimum-area box
 }
+# every measurement a detection can carry: the vehicle box fit, or one of the plain REPRESENTATIVES
+FITS: dict[str, str] = {
+    "vehicle_box": "sensors.boxfit.fit_vehicle_box: oriented vehicle box, size prior, lane-heading prior",
+    **{name: "plain representative, R = DEFAULT_STD_M^2 I" for name in REPRESENTATIVES},
+}
 
 
 @dataclass(frozen=True)
 class PerceptionConfig:
-    """Pipeline settings; lengths in metres, heights above the road (GroundConfig.ground_z_m)."""
+    """Pipeline settings; lengths in metres, heights above the road (GroundConfig.ground_z_m).
+
+    Defaults are the full pipeline; `PerceptionConfig.thesis()` is the thesis's plain one.
+    """
 
     ground: GroundConfig = GroundConfig()
     cluster: ClusterConfig = ClusterConfig()
     max_height_m: float = 4.0  # points higher than this (bridges, high signs) are dropped before clustering
     vehicle_like: bool = True  # keep only clusters whose box fits a vehicle (bounds below)
     min_extent_m: float = 1.0  # longer footprint side at least (a far car may show one face only)
-    max_length_m: float = 8.0  # longer footprint side at most
+    max_length_m: float = 8.0  # longer footprint side at most (cars, vans)
     max_width_m: float = 3.5  # shorter footprint side at most
-    min_height_m: float = 0.8  # top of the cluster above the road, at least (thesis 8.2: 0.8-3.5 m; rejects guard rails)
-    max_object_height_m: float = 3.5  # ... and at most
-    max_median_height_m: float = 2.0  # median point height above the road, at most (tree crowns, high signs)
-    complete_one_face: bool = True  # a cluster showing one face only: move its centre half a car deeper
+    min_height_m: float = 0.8  # top above the road at least (thesis 8.2: 0.8-3.5 m); less far away with "beams"
+    max_object_height_m: float = 4.2  # ... and at most (trucks are 3.4-4 m)
+    max_median_height_m: float = 3.0  # median point height at most (a crown; a far truck's can reach 2.8 m)
+    complete_one_face: bool = True  # plain representatives showing one face: centre moved half a car deeper
     one_face_width_m: float = 0.6  # a fitted box narrower than this shows one face only
     size_prior_m: tuple[float, float] = (4.6, 1.8)  # typical car length, width for that completion [m]
-    representative: str = "lshape_center"  # see REPRESENTATIVES; L-shape fit: 0.12 m median error near cars
+    fit: str = "vehicle_box"  # measurement: vehicle_box, or a plain lshape_center, bbox_center, centroid
+    boxfit: BoxFitConfig = BoxFitConfig()  # vehicle box fit and shape classes (sensors/boxfit.py)
+    roi: bool = True  # reject objects off the road map's lanes (needs a RoadMap)
+    roi_margin_m: float = 1.0  # ROI: the lane half width plus this [m]
+    min_height_mode: str = "beams"  # beams: range-aware bound from the scan's beam geometry; fixed: min_height_m
+    ref_height_m: float = 1.4  # beams: top of the lowest car the bound must keep [m]
+    height_margin_m: float = 0.1  # beams: the bound lies this far under that car's highest beam [m]
+    robust_height: bool = True  # half the footprint must reach the required top, not one point (a post on a rail)
+    body_bin_m: float = 0.5  # robust_height: bins along the object's axis [m]
+    shape_filter: bool = True  # reject guard rails, posts, sign panels, far rails seen edge-on, trees by shape
+    lift_trunk_m: float = 1.0  # lifted: the points under the mid-height span less than this (a trunk) ...
+    lift_crown_m: float = 2.0  # lifted: ... and those above it at least this (a crown)
+    lift_floor_m: float = 2.0  # lifted: or its lowest point is higher than this (a crown alone)
+    edge_on_width_m: float = 1.0  # edge_on: a far low object spanning less than this across the line of sight
+    grazing_deg: float = 30.0  # edge_on: ... or a line thinner than that within this angle of the line of sight
+    max_truck_length_m: float = 20.0  # longer footprint side at most when the top reaches a truck size prior
+    split_vehicles: bool = True  # cut clusters holding several vehicles at their widest gap
+    split_gap_m: float = 1.2  # a cluster of vehicle size is cut only at a gap along its axis wider than this
+    min_split_gap_m: float = 0.3  # a cluster too big for one vehicle is cut at a gap at least this wide [m]
+    split_min_width_m: float = 1.0  # only clusters spanning this much across their axis are cut (not rails)
+    max_splits: int = 4  # cuts per cluster at most
+    merge_fragments: bool = True  # join fragments of one vehicle when the union still fits one
+    merge_gap_m: float = 1.0  # fragments this close (points, or points and fitted box) may be joined [m]
 
     def __post_init__(self) -> None:
         if not isinstance(self.ground, GroundConfig):
             raise TypeError(f"PerceptionConfig.ground: expected GroundConfig, got {type(self.ground).__name__}")
         if not isinstance(self.cluster, ClusterConfig):
             raise TypeError(f"PerceptionConfig.cluster: expected ClusterConfig, got {type(self.cluster).__name__}")
-        if not isinstance(self.vehicle_like, bool):
-            raise ValueError(f"PerceptionConfig.vehicle_like: expected a bool, got {self.vehicle_like!r}")
-        _checks.positive("PerceptionConfig.max_median_height_m", self.max_median_height_m)
-        _checks.positive("PerceptionConfig.one_face_width_m", self.one_face_width_m)
-        if not isinstance(self.complete_one_face, bool):
-            raise ValueError(f"PerceptionConfig.complete_one_face: expected a bool, got {self.complete_one_face!r}")
+        if not isinstance(self.boxfit, BoxFitConfig):
+            raise TypeError(f"PerceptionConfig.boxfit: expected BoxFitConfig, got {type(self.boxfit).__name__}")
+        for name in ("vehicle_like", "complete_one_face", "roi", "robust_height", "shape_filter",
+                     "split_vehicles", "merge_fragments"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"PerceptionConfig.{name}: expected a bool, got {getattr(self, name)!r}")
         if len(self.size_prior_m) != 2 or not all(np.isfinite(self.size_prior_m)) or min(self.size_prior_m) <= 0:
             raise ValueError(f"PerceptionConfig.size_prior_m: expected (length, width) > 0, got {self.size_prior_m!r}")
-        for name in ("max_height_m", "max_length_m", "max_width_m", "max_object_height_m"):
+        for name in ("max_height_m", "max_length_m", "max_width_m", "max_object_height_m", "max_median_height_m",
+                     "one_face_width_m", "ref_height_m", "body_bin_m", "edge_on_width_m", "grazing_deg",
+                     "lift_trunk_m", "lift_crown_m", "lift_floor_m", "max_truck_length_m", "split_gap_m",
+                     "split_min_width_m", "min_split_gap_m", "merge_gap_m"):
             _checks.positive(f"PerceptionConfig.{name}", getattr(self, name))
-        for name in ("min_extent_m", "min_height_m"):
+        for name in ("min_extent_m", "min_height_m", "roi_margin_m", "height_margin_m"):
             _checks.positive(f"PerceptionConfig.{name}", getattr(self, name), allow_zero=True)
-        _checks.choice("PerceptionConfig.representative", self.representative, REPRESENTATIVES)
+        _checks.positive_int("PerceptionConfig.max_splits", self.max_splits)
+        _checks.choice("PerceptionConfig.fit", self.fit, FITS)
+        if self.min_height_mode not in HEIGHT_MODES:
+            raise ValueError(f"PerceptionConfig.min_height_mode: expected one of {', '.join(HEIGHT_MODES)}, "
+                             f"got {self.min_height_mode!r}")
+        if self.max_truck_length_m < self.max_length_m:
+            raise ValueError(f"PerceptionConfig.max_truck_length_m: must be >= max_length_m, "
+                             f"got {self.max_truck_length_m!r}")
+        if self.split_gap_m < self.min_split_gap_m:
+            raise ValueError(f"PerceptionConfig.split_gap_m: must be >= min_split_gap_m, got {self.split_gap_m!r}")
+        if self.split_vehicles and self.merge_fragments and self.split_gap_m < self.merge_gap_m:
+            raise ValueError(f"PerceptionConfig.split_gap_m: must be >= merge_gap_m (else merging undoes the "
+                             f"split), got {self.split_gap_m!r}")
+
+    @staticmethod
+    def thesis() -> "PerceptionConfig":
+        """The thesis's plain pipeline: no map ROI, fixed 0.8 m height bound, 3.5 m top, 8 m length for every
+        object (max_truck_length_m = max_length_m), 2 m median height, no shape test, no split or merge,
+        L-shape centre with the one-face completion."""
+        return PerceptionConfig(
+            max_object_height_m=3.5, max_median_height_m=2.0, fit="lshape_center", roi=False,
+            min_height_mode="fixed", robust_height=False, shape_filter=False, max_truck_length_m=8.0,
+            split_vehicles=False, merge_fragments=False,
+        )
+
+    @property
+    def truck_min_top_m(self) -> float:
+        """Lowest top [m] from which a size prior longer than max_length_m applies (inf if none does)."""
+        return min((p.min_top_m for p in self.boxfit.priors if p.length_m > self.max_length_m), default=np.inf)
+
+    def max_length_for(self, top: np.ndarray) -> np.ndarray:
+        """(K,) longest footprint [m] allowed for objects with these tops (K,) [m]: a truck's if tall enough."""
+        return np.where(np.asarray(top) >= self.truck_min_top_m, self.max_truck_length_m, self.max_length_m)
 
 
 @dataclass(frozen=True)
 class PerceptionResult:
     """detections: the frame's Detections (M).
     is_ground: (N,) bool per scan point.
-    labels: (N,) int64 index into detections of the cluster holding each point; -1 for ground, noise,
-        points above max_height_m and clusters rejected as not vehicle-like.
+    labels: (N,) int64 index into detections of the object holding each point; -1 for ground, noise,
+        points above max_height_m and rejected objects.
+    rejected: the objects the selection removed, with the reason (Rejected).
+    cluster_labels: (N,) int64 raw cluster id of each point from the clusterer, before split, merge and
+        selection; -1 for ground, noise and points above max_height_m. Default: all -1.
     """
 
     detections: Detections
     is_ground: np.ndarray
     labels: np.ndarray
+    rejected: Rejected = Rejected.empty()
+    cluster_labels: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.cluster_labels is None:
+            object.__setattr__(self, "cluster_labels", np.full(len(self.labels), -1, np.int64))
 
 
-def perceive(scan: Scan, cfg: PerceptionConfig) -> PerceptionResult:
-    """Scan -> ground mask, clusters, one detection per vehicle-like cluster."""
+def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None) -> PerceptionResult:
+    """Scan -> ground mask, clusters, one detection per vehicle-like object (see the module docstring).
+
+    road: the lane map; with it the box fit gets the lane heading as prior, and with cfg.roi objects off
+    the road are rejected. Without it there is no ROI test.
+    """
     if not isinstance(scan, Scan):
         raise TypeError(f"scan: expected Scan, got {type(scan).__name__}")
     if not isinstance(cfg, PerceptionConfig):
         raise TypeError(f"cfg: expected PerceptionConfig, got {type(cfg).__name__}")
+    if road is not None and not isinstance(road, RoadMap):
+        raise TypeError(f"road: expected RoadMap or None, got {type(road).__name__}")
     pts = scan.points
     road_z = cfg.ground.ground_z_m
-    is_ground = segment_ground(pts, cfg.ground)
+    is_ground = segment_ground(pts, cfg.ground, scan.origin)
     candidates = np.flatnonzero(~is_ground & (pts[:, 2] - road_z <= cfg.max_height_m))
     sub = cluster(pts[candidates], cfg.cluster)
+    cluster_labels = np.full(len(pts), -1, np.int64)
+    cluster_labels[candidates] = sub
     labels = np.full(len(pts), -1, np.int64)
-    n_clusters = int(sub.max()) + 1 if len(sub) else 0
-    if n_clusters == 0:
-        return PerceptionResult(Detections.empty(), is_ground, labels)
+    if len(sub) == 0 or sub.max() < 0:
+        return PerceptionResult(Detections.empty(), is_ground, labels, Rejected.empty(), cluster_labels)
 
+    objects = _raw_objects(pts, candidates, sub)
+    flags = [0] * len(objects)
+    st = _stats(pts, objects, road_z, scan.origin[:2], road)
+    for step, on in ((_split, cfg.split_vehicles), (_merge, cfg.merge_fragments)):
+        if on:
+            objects, flags, changed = step(pts, objects, flags, cfg, st)
+            if changed:
+                st = _stats(pts, objects, road_z, scan.origin[:2], road)
+    return _select(scan, objects, np.asarray(flags, np.int64), cfg, road, st, is_ground, labels, cluster_labels)
+
+
+# --- objects --------------------------------------------------------------------------------------------
+
+def _raw_objects(pts: np.ndarray, candidates: np.ndarray, sub: np.ndarray) -> list[np.ndarray]:
+    """The clusters as arrays of point indices, each in lexicographic (x, y, z) order so fits see a
+    canonical order whatever the scan's point order."""
     members = candidates[sub >= 0]
     member_label = sub[sub >= 0]
-    # by cluster, then lexicographic within a cluster: fits see their points in a canonical order
-    order = np.lexsort((pts[members, 2], pts[members, 1], pts[members, 0], member_label))
-    members, member_label = members[order], member_label[order]
-    ends = np.cumsum(np.bincount(member_label, minlength=n_clusters))
-    starts = ends - np.diff(ends, prepend=0)
+    # by (label, x) in one float key (monotonic, so equal only for equal x or x closer than its rounding);
+    # any tie falls back to the full lexicographic sort
+    x = pts[members, 0]
+    key = member_label * (np.ptp(x) + 1.0) + (x - x.min())
+    order = np.argsort(key)
+    if np.any(np.diff(key[order]) == 0.0):
+        order = np.lexsort((pts[members, 2], pts[members, 1], x, member_label))
+    members = members[order]
+    ends = np.cumsum(np.bincount(member_label, minlength=int(member_label.max()) + 1))
+    return np.split(members, ends[:-1])
 
-    n_points = ends - starts
-    # Cheap vectorised tests first: the box fit runs only on clusters that can still pass.
-    mz = pts[members, 2]
-    top = np.maximum.reduceat(mz, starts) - road_z
-    diag = np.hypot(np.maximum.reduceat(pts[members, 0], starts) - np.minimum.reduceat(pts[members, 0], starts),
-                    np.maximum.reduceat(pts[members, 1], starts) - np.minimum.reduceat(pts[members, 1], starts))
-    keep = np.ones(n_clusters, bool)
-    if cfg.vehicle_like:  # the oriented box's longer side is at most the axis-aligned diagonal
-        keep = (top >= cfg.min_height_m) & (top <= cfg.max_object_height_m) & (diag >= cfg.min_extent_m)
 
-    z = np.zeros((n_clusters, 2))
-    extent = np.zeros((n_clusters, 3))
-    extent[:, 2] = top
-    provenance = np.full(n_clusters, -1, np.int64)
-    median_z = np.zeros(n_clusters)
-    represent = REPRESENTATIVES[cfg.representative]
-    for k in np.flatnonzero(keep):
-        idx = members[starts[k] : ends[k]]
-        z[k], length, width = represent(pts[idx, :2])
-        extent[k, :2] = (length, width)
-        provenance[k] = _plurality_vehicle(scan.source[idx])
-        median_z[k] = np.median(mz[starts[k] : ends[k]]) - road_z
-        if cfg.complete_one_face and width < cfg.one_face_width_m:
-            z[k] = _complete_one_face(z[k], pts[idx, :2], length, width, scan.origin[:2], cfg.size_prior_m)
+def _canonical(pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The point indices idx in lexicographic (x, y, z) order of their points."""
+    return idx[np.lexsort((pts[idx, 2], pts[idx, 1], pts[idx, 0]))]
 
-    if cfg.vehicle_like:
-        keep &= (
-            (extent[:, 0] >= cfg.min_extent_m)
-            & (extent[:, 0] <= cfg.max_length_m)
-            & (extent[:, 1] <= cfg.max_width_m)
-            & (median_z <= cfg.max_median_height_m)  # a crown above a thin trunk is not a vehicle
-        )
+
+@dataclass(frozen=True)
+class _Stats:
+    """Per-object summaries (K objects) of the packed point indices `members` with `starts`."""
+
+    members: np.ndarray  # (sum n,) point indices, object by object
+    starts: np.ndarray  # (K,)
+    n: np.ndarray  # (K,) points
+    top: np.ndarray  # (K,) highest point above the road [m]
+    lo: np.ndarray  # (K, 2) axis-aligned footprint corners [m]
+    hi: np.ndarray  # (K, 2)
+    centroid: np.ndarray  # (K, 2) [m]
+    axis: np.ndarray  # (K,) long-axis direction: lane heading at the centroid, else principal axis [rad]
+    along: np.ndarray  # (K,) footprint extent along `axis` [m]
+    across: np.ndarray  # (K,) ... and across it
+    d_min: np.ndarray  # (K,) nearest horizontal range from the sensor [m]
+    u: np.ndarray  # (sum n,) each member's coordinate along its object's axis, from the centroid [m]
+    xy: np.ndarray  # (sum n, 2) the members' bird's-eye points [m]
+    principal: np.ndarray  # (K,) principal axis of the points [rad]
+    thickness: np.ndarray  # (K,) footprint extent across the principal axis [m]
+    p_length: np.ndarray  # (K,) ... and along it
+
+
+def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy: np.ndarray,
+           road: RoadMap | None) -> _Stats:
+    n = np.array([len(o) for o in objects], np.int64)
+    members = np.concatenate(objects)
+    starts = np.cumsum(n) - n
+    xy = pts[members, :2]
+    top = np.maximum.reduceat(pts[members, 2], starts) - road_z
+    lo = np.minimum.reduceat(xy, starts, axis=0)
+    hi = np.maximum.reduceat(xy, starts, axis=0)
+    centroid = np.add.reduceat(xy, starts, axis=0) / n[:, None]
+    rel = xy - np.repeat(centroid, n, axis=0)
+    sxx = np.add.reduceat(rel[:, 0] ** 2, starts)
+    syy = np.add.reduceat(rel[:, 1] ** 2, starts)
+    sxy = np.add.reduceat(rel[:, 0] * rel[:, 1], starts)
+    principal = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    thickness = _extent(rel, -np.sin(principal), np.cos(principal), n, starts)
+    p_length = _extent(rel, np.cos(principal), np.sin(principal), n, starts)
+    axis = road.heading_at(centroid) if road is not None else principal
+    c, s = np.repeat(np.cos(axis), n), np.repeat(np.sin(axis), n)
+    u = rel[:, 0] * c + rel[:, 1] * s
+    along = np.maximum.reduceat(u, starts) - np.minimum.reduceat(u, starts)
+    across = _extent(rel, -np.sin(axis), np.cos(axis), n, starts)
+    d_min = np.minimum.reduceat(np.hypot(xy[:, 0] - sensor_xy[0], xy[:, 1] - sensor_xy[1]), starts)
+    return _Stats(members, starts, n, top, lo, hi, centroid, axis, along, across, d_min, u, xy, principal,
+                  thickness, p_length)
+
+
+def _extent(rel: np.ndarray, cx: np.ndarray, cy: np.ndarray, n: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """(K,) extent of each object's points rel (sum n, 2) along its unit direction (cx, cy) (K,) each."""
+    w = rel[:, 0] * np.repeat(cx, n) + rel[:, 1] * np.repeat(cy, n)
+    return np.maximum.reduceat(w, starts) - np.minimum.reduceat(w, starts)
+
+
+# --- split ----------------------------------------------------------------------------------------------
+
+def _split(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: PerceptionConfig,
+           st: _Stats) -> tuple[list[np.ndarray], list[int], bool]:
+    """Cut objects holding several vehicles (see the module docstring, stage 2); whether any was cut."""
+    too_big = _too_big(np.maximum(st.along, st.across), np.minimum(st.along, st.across), st.top, cfg)
+    # widest gap along the axis of every object: one sort of all members by (object, u)
+    owner = np.repeat(np.arange(len(objects)), st.n)
+    u_sorted = st.u[np.argsort(owner * (np.ptp(st.u) + 1.0) + (st.u - st.u.min()))]
+    step = np.diff(u_sorted, append=u_sorted[-1])
+    step[st.starts + st.n - 1] = 0.0  # no gap across two objects
+    gappy = np.maximum.reduceat(step, st.starts) > cfg.split_gap_m
+    # a single thin surface (a guard rail, a wall, a rail with its posts) is not cut into vehicle-sized pieces
+    candidate = (too_big | gappy) & (st.across >= cfg.split_min_width_m)
+    out: list[np.ndarray] = []
+    out_flags: list[int] = []
+    for k, obj in enumerate(objects):
+        if not candidate[k]:
+            out.append(obj)
+            out_flags.append(flags[k])
+            continue
+        queue = [(obj, st.axis[k], 0)]
+        pieces = []
+        while queue:
+            o, axis, depth = queue.pop()
+            cut = _cut(pts, o, axis, cfg) if depth < cfg.max_splits else None
+            if cut is None:
+                pieces.append(o)
+            else:
+                queue += [(cut[0], axis, depth + 1), (cut[1], axis, depth + 1)]
+        out += pieces
+        out_flags += [flags[k] | (SPLIT if len(pieces) > 1 else 0)] * len(pieces)
+    return out, out_flags, len(out) > len(objects)
+
+
+def _too_big(length, width, top, cfg: PerceptionConfig):
+    """Whether footprints of these sides (length >= width) [m] and tops [m] exceed one vehicle's bounds."""
+    return (length > cfg.max_length_for(top)) | (width > cfg.max_width_m)
+
+
+def _cut(pts: np.ndarray, obj: np.ndarray, axis: float, cfg: PerceptionConfig) -> tuple[np.ndarray, np.ndarray] | None:
+    """The two parts of `obj` at its best gap, or None when it should stay whole."""
+    xy = pts[obj, :2]
+    c, s = np.cos(axis), np.sin(axis)
+    uv = np.stack([xy @ np.array([c, s]), xy @ np.array([-s, c])], axis=1)  # along, across the axis
+    extent = np.ptp(uv, axis=0)
+    top = pts[obj, 2].max() - cfg.ground.ground_z_m
+    too_big = bool(_too_big(extent.max(), extent.min(), top, cfg))
+    min_gap = cfg.min_split_gap_m if too_big else cfg.split_gap_m
+    best = None
+    for dim in (0, 1) if too_big else (0,):  # a vehicle-sized object is cut only along the axis
+        order = np.argsort(uv[:, dim], kind="stable")
+        t = uv[order, dim]
+        o = uv[order, 1 - dim]
+        gaps = np.diff(t)
+        n = len(t)
+        # sides of each part: along this dim from t, across from running min/max of the other coordinate
+        left_other = np.maximum.accumulate(o)[:-1] - np.minimum.accumulate(o)[:-1]
+        right_other = (np.maximum.accumulate(o[::-1])[::-1] - np.minimum.accumulate(o[::-1])[::-1])[1:]
+        left_side = np.maximum(t[:-1] - t[0], left_other)
+        right_side = np.maximum(t[-1] - t[1:], right_other)
+        i = np.arange(n - 1)
+        ok = ((gaps >= min_gap) & (i + 1 >= cfg.cluster.min_points) & (n - i - 1 >= cfg.cluster.min_points)
+              & (left_side >= cfg.min_extent_m) & (right_side >= cfg.min_extent_m))
+        if ok.any():
+            j = int(np.flatnonzero(ok)[np.argmax(gaps[ok])])
+            if best is None or gaps[j] > best[0]:
+                best = (gaps[j], order[: j + 1], order[j + 1 :])
+    if best is None:
+        return None
+    return obj[np.sort(best[1])], obj[np.sort(best[2])]  # each part keeps obj's canonical order
+
+
+# --- merge ----------------------------------------------------------------------------------------------
+
+def _merge(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: PerceptionConfig,
+           st: _Stats) -> tuple[list[np.ndarray], list[int], bool]:
+    """Join fragments of one vehicle by the gap between their points (see the module docstring, stage
+    3a); whether any were joined."""
+    if len(objects) < 2:
+        return objects, flags, False
+    fits = ~_too_big(np.maximum(st.p_length, st.thickness), np.minimum(st.p_length, st.thickness), st.top, cfg)
+    idx = np.flatnonzero(fits)
+    if len(idx) < 2:
+        return objects, flags, False
+    lo, hi = st.lo[idx], st.hi[idx]
+    # axis-aligned box gap of every pair, a lower bound of the points' gap
+    gap = np.maximum(np.maximum(lo[None] - hi[:, None], lo[:, None] - hi[None]), 0.0)
+    box_gap = np.hypot(gap[..., 0], gap[..., 1])
+    ii, jj = np.nonzero(np.triu(box_gap <= cfg.merge_gap_m, k=1))
+    if len(ii) == 0:
+        return objects, flags, False
+    trees: dict[int, cKDTree] = {}
+    pairs = []
+    for a, b in zip(idx[ii], idx[jj]):
+        if len(objects[a]) < len(objects[b]):
+            a, b = b, a
+        if a not in trees:
+            trees[a] = cKDTree(pts[objects[a], :2])
+        d, _ = trees[a].query(pts[objects[b], :2], distance_upper_bound=cfg.merge_gap_m)
+        if np.min(d) <= cfg.merge_gap_m:
+            pairs.append((float(np.min(d)), min(a, b), max(a, b)))
+    parent = list(range(len(objects)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    group = {i: objects[i] for i in range(len(objects))}
+    hull: dict[int, np.ndarray] = {}
+    for _, a, b in sorted(pairs):
+        ra, rb = root(a), root(b)
+        if ra == rb:
+            continue
+        union_hull = _union_fits(pts, group, hull, ra, rb, cfg)
+        if union_hull is not None:
+            keep, drop = min(ra, rb), max(ra, rb)
+            parent[drop] = keep
+            group[keep] = np.concatenate([group[ra], group[rb]])
+            hull[keep] = union_hull
+    roots = np.array([root(i) for i in range(len(objects))])
+    size = np.bincount(roots, minlength=len(objects))
+    joined = np.zeros(len(objects), np.int64)
+    np.bitwise_or.at(joined, roots, np.asarray(flags, np.int64))
+    out, out_flags = [], []
+    for i in np.flatnonzero(roots == np.arange(len(objects))):
+        merged = size[i] > 1
+        out.append(_canonical(pts, group[i]) if merged else group[i])
+        out_flags.append(int(joined[i]) | (MERGED if merged else 0))
+    return out, out_flags, len(out) < len(objects)
+
+
+def _hull_points(xy: np.ndarray) -> np.ndarray:
+    """The convex-hull vertices of xy (n, 2) (all points when they are degenerate): the minimum-area
+    rectangle of a union only needs its parts' hulls."""
+    if len(xy) < 4:
+        return xy
+    try:
+        return xy[ConvexHull(xy - xy.mean(axis=0)).vertices]
+    except QhullError:
+        return xy
+
+
+def _union_fits(pts: np.ndarray, group: dict, hull: dict, a: int, b: int, cfg: PerceptionConfig) -> np.ndarray | None:
+    """The hull points of groups a and b together if their union fits one vehicle, else None; `hull`
+    caches each group's hull points."""
+    for g in (a, b):
+        if g not in hull:
+            hull[g] = _hull_points(pts[group[g], :2])
+    union = np.concatenate([hull[a], hull[b]])
+    _, length, width = min_area_rectangle(union)
+    top = max(pts[group[a], 2].max(), pts[group[b], 2].max()) - cfg.ground.ground_z_m
+    return union if bool(~_too_big(length, width, top, cfg)) else None
+
+
+# --- selection and fit ----------------------------------------------------------------------------------
+
+def _required_top(scan: Scan, d_min: np.ndarray, cfg: PerceptionConfig) -> np.ndarray:
+    """(K,) minimum top [m] of an object whose nearest point is d_min (K,) [m] from the sensor."""
+    fixed = np.full(len(d_min), cfg.min_height_m)
+    if cfg.min_height_mode == "fixed" or len(scan.elevations) == 0:
+        return fixed
+    z_s = scan.origin[2] - cfg.ground.ground_z_m
+    beam_h = z_s + d_min[:, None] * np.tan(scan.elevations)[None, :]  # (K, B) height of each beam at d_min
+    reach = np.where(beam_h <= cfg.ref_height_m, beam_h, -np.inf).max(axis=1)
+    return np.clip(np.minimum(fixed, reach - cfg.height_margin_m), 0.0, None)
+
+
+def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: PerceptionConfig,
+            road: RoadMap | None, st: _Stats, is_ground: np.ndarray, labels: np.ndarray,
+            cluster_labels: np.ndarray) -> PerceptionResult:
+    """Selection tests, fits, the box merge, ROI; the PerceptionResult. st: the objects' _stats."""
+    pts = scan.points
+    road_z = cfg.ground.ground_z_m
+    boxfit = _boxfit_for(scan, cfg)
+    reason, shape_centre = _screen(scan, st, cfg)
+    fits = _fit_all(scan, st, np.flatnonzero(reason == ""), road is not None, cfg, boxfit)
+    if cfg.merge_fragments and len(fits) > 1:
+        objects, flags, reason, fits, shape_centre, merged = _merge_boxes(
+            pts, objects, flags, reason, fits, shape_centre, st, cfg)
+        if merged:
+            st = _stats(pts, objects, road_z, scan.origin[:2], road)
+            fits.update(_fit_all(scan, st, np.asarray(merged, np.int64), road is not None, cfg, boxfit))
+
+    k_all = len(objects)
+    centre = st.centroid.copy()
+    for k, c in shape_centre.items():
+        centre[k] = c
+    z = np.zeros((k_all, 2))
+    extent = np.zeros((k_all, 3))
+    extent[:, 2] = st.top
+    R = np.broadcast_to(DEFAULT_STD_M**2 * np.eye(2), (k_all, 2, 2)).copy()
+    heading = st.axis.copy()
+    provenance = _plurality_vehicle(scan.source[st.members], st.n)
+    max_length = cfg.max_length_for(st.top)
+    for k, fit in fits.items():
+        z[k], heading[k], extent[k, :2], R[k] = fit.centre, fit.heading, (fit.length, fit.width), fit.R
+        centre[k] = fit.centre
+        flags[k] |= COMPLETED if fit.completed else 0
+        seen = (fit.seen_length, fit.seen_width)
+        if not cfg.vehicle_like:
+            continue
+        if cfg.shape_filter and fit.shape != "vehicle":  # by the fitted axis (shape_class uses the principal one)
+            reason[k] = fit.shape
+        elif max(seen) < cfg.min_extent_m:
+            reason[k] = "too_small"
+        elif max(seen) > max_length[k]:
+            reason[k] = "too_long"
+        elif min(seen) > cfg.max_width_m:
+            reason[k] = "too_wide"
+    if cfg.roi and road is not None:
+        off = (reason == "") & ~road.on_road(centre, cfg.roi_margin_m) & ~road.on_road(st.centroid, cfg.roi_margin_m)
+        reason[off] = "off_road"
+        flags[off] |= OFF_ROAD
+    keep = reason == ""
     new_index = np.where(keep, np.cumsum(keep) - 1, -1)
-    labels[members] = new_index[member_label]
-    detections = Detections(z[keep], provenance[keep], n_points[keep], extent[keep])
-    return PerceptionResult(detections, is_ground, labels)
+    labels[st.members] = np.repeat(new_index, st.n)
+    detections = Detections(z[keep], provenance[keep], st.n[keep], extent[keep], R[keep], st.centroid[keep],
+                            np.mod(heading[keep], np.pi), flags[keep] & ~OFF_ROAD)
+    rejected = Rejected(centre[~keep], reason[~keep].astype(str), provenance[~keep], st.n[~keep], flags[~keep])
+    return PerceptionResult(detections, is_ground, labels, rejected, cluster_labels)
+
+
+def _members(st: _Stats, k: int) -> np.ndarray:
+    return st.members[st.starts[k] : st.starts[k] + st.n[k]]
+
+
+def _boxfit_for(scan: Scan, cfg: PerceptionConfig) -> BoxFitConfig:
+    """cfg.boxfit with the scan's azimuth spacing (the completion's ray spacing), whatever the beam preset."""
+    if len(scan.azimuths) >= 2:
+        step = float(np.rad2deg(abs(scan.azimuths[1] - scan.azimuths[0])))
+        if step > 0 and abs(step - cfg.boxfit.azimuth_step_deg) > 1e-9:
+            return dataclasses.replace(cfg.boxfit, azimuth_step_deg=step)
+    return cfg.boxfit
+
+
+def _screen(scan: Scan, st: _Stats, cfg: PerceptionConfig) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """The selection tests before the fit: reason (K,) object array ("" = passed) and the box centre of
+    the objects rejected by shape (they are not completed)."""
+    k_all = len(st.n)
+    reason = np.full(k_all, "", dtype=object)
+    shape_centre: dict[int, np.ndarray] = {}
+    if not cfg.vehicle_like:
+        return reason, shape_centre
+    pts = scan.points
+    road_z = cfg.ground.ground_z_m
+    diag = np.hypot(*(st.hi - st.lo).T)
+    required = _required_top(scan, st.d_min, cfg)
+    low = st.top < required
+    if cfg.robust_height:
+        low |= ~_body_reaches(pts[st.members, 2] - road_z, st, required, cfg.body_bin_m)
+    if cfg.shape_filter:  # too big for a vehicle by the points' principal extents: a guard-rail run, a wall
+        length, width = np.maximum(st.p_length, st.thickness), np.minimum(st.p_length, st.thickness)
+        reason[length > cfg.max_length_for(st.top)] = "too_long"
+        reason[(reason == "") & (width > cfg.max_width_m)] = "too_wide"
+    reason[(reason == "") & low] = "too_low"
+    reason[(reason == "") & (st.top > cfg.max_object_height_m)] = "too_high"
+    reason[(reason == "") & (diag < cfg.min_extent_m)] = "too_small"
+    if cfg.shape_filter:  # low and narrow as seen from the sensor: a far rail or wall seen edge-on
+        sight = np.arctan2(st.centroid[:, 1] - scan.origin[1], st.centroid[:, 0] - scan.origin[0])
+        rel = pts[st.members, :2] - np.repeat(st.centroid, st.n, axis=0)
+        facing = _extent(rel, -np.sin(sight), np.cos(sight), st.n, st.starts)  # across the line of sight
+        along_sight = np.abs(np.sin(st.principal - sight)) < np.sin(np.deg2rad(cfg.grazing_deg))
+        thin = (facing < cfg.edge_on_width_m) | ((st.thickness < cfg.edge_on_width_m) & along_sight)
+        edge_on = thin & (st.top < cfg.min_height_m)
+        reason[(reason == "") & edge_on] = "edge_on"
+    z = pts[st.members, 2] - road_z
+    z_sorted = z[np.argsort(np.repeat(np.arange(k_all), st.n) * (np.ptp(z) + 1.0) + (z - z.min()))]  # by object, z
+    median = 0.5 * (z_sorted[st.starts + (st.n - 1) // 2] + z_sorted[st.starts + st.n // 2])
+    reason[(reason == "") & (median > cfg.max_median_height_m)] = "high_median"
+    if cfg.shape_filter:
+        reason[(reason == "") & _lifted(z, st, cfg)] = "lifted"
+        for k in np.flatnonzero((reason == "") & _maybe_not_vehicle(st, cfg.boxfit)):
+            idx = _members(st, k)
+            shape = shape_class(pts[idx, :2], pts[idx, 2] - road_z, float(st.top[k]), cfg.boxfit)
+            if shape != "vehicle":
+                reason[k] = shape
+                shape_centre[k] = min_area_rectangle(pts[idx, :2])[0]
+    return reason, shape_centre
+
+
+def _maybe_not_vehicle(st: _Stats, cfg: BoxFitConfig, tol: float = 1e-9) -> np.ndarray:
+    """(K,) bool: the objects shape_class may not call "vehicle" (the others need not be classified).
+
+    shape_class's footprint rules read the extents along and across the points' principal axis, which
+    _stats computes the same way (st.p_length, st.thickness) up to rounding: an object within `tol` [m]
+    of a footprint bound, or whose top admits the panel rule, is passed to shape_class itself."""
+    length, width = np.maximum(st.p_length, st.thickness), np.minimum(st.p_length, st.thickness)
+    thin = (width < cfg.thin_width_m + tol) & (length > cfg.thin_length_m - tol) & (st.top < cfg.thin_max_top_m)
+    post = (length < cfg.post_size_m + tol) & (st.top >= cfg.post_min_top_m)
+    panel = (st.top >= cfg.panel_min_top_m) & (st.top < cfg.panel_max_top_m)
+    return thin | post | panel
+
+
+def _lifted(z: np.ndarray, st: _Stats, cfg: PerceptionConfig) -> np.ndarray:
+    """(K,) bool: a tree crown, over its trunk or alone; z (sum n,) the members' heights above the road [m].
+
+    Over its trunk: the points below the object's mid-height (between its lowest and highest point) span
+    less than lift_trunk_m in x and y while those above span at least lift_crown_m. A vehicle's body
+    reaches down along its whole near face (a car seen from behind: the lower rear spans its width under
+    the roof rings). Alone: its lowest point is above lift_floor_m. No car reaches that high, and a car
+    in front of a vehicle hides it only below the car's roof (the sensor is higher)."""
+    k_all = len(st.n)
+    owner = np.repeat(np.arange(k_all), st.n)
+    bottom = np.minimum.reduceat(z, st.starts)
+    low = z <= (0.5 * (bottom + st.top))[owner]
+    xy = st.xy
+
+    def span(mask: np.ndarray) -> np.ndarray:
+        hi = np.maximum.reduceat(np.where(mask[:, None], xy, -np.inf), st.starts, axis=0)
+        lo = np.minimum.reduceat(np.where(mask[:, None], xy, np.inf), st.starts, axis=0)
+        return np.where(np.isfinite(hi - lo), hi - lo, 0.0).max(axis=1)
+
+    crown_on_trunk = (span(low) < cfg.lift_trunk_m) & (span(~low) >= cfg.lift_crown_m)
+    return crown_on_trunk | (bottom > cfg.lift_floor_m)
+
+
+def _body_reaches(z: np.ndarray, st: _Stats, required: np.ndarray, bin_m: float) -> np.ndarray:
+    """(K,) bool: in at least half of each object's bin_m bins along its axis, the highest point reaches
+    the required top (K,) [m]; z (sum n,) the members' heights above the road [m]. A post on a guard rail
+    lifts the rail's top, not its body."""
+    k_all = len(st.n)
+    owner = np.repeat(np.arange(k_all), st.n)
+    b = ((st.u - np.minimum.reduceat(st.u, st.starts)[owner]) / bin_m).astype(np.int64)
+    key = owner * (int(b.max()) + 1) + b
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    bin_top = np.maximum.reduceat(z[order], first)
+    bin_owner = owner[order][first]
+    reach = np.bincount(bin_owner, weights=bin_top >= required[bin_owner], minlength=k_all)
+    return reach >= 0.5 * np.bincount(bin_owner, minlength=k_all)
+
+
+def _merge_boxes(pts, objects, flags, reason, fits, shape_centre, st, cfg):
+    """Join a fitted object with another whose points come within merge_gap_m of its fitted (completed)
+    vehicle box, when the union still fits one vehicle: a rear face completed to a car and the roof ring
+    near the car's far end (4 m from the face, beyond the point-gap merge). Closest pairs first.
+
+    Returns the new objects, flags, reason, fits (merged objects left out: they are refitted),
+    shape_centre, and the indices of the merged objects in the new list."""
+    keys = np.array(sorted(k for k, f in fits.items() if f.shape == "vehicle"), np.int64)
+    if len(keys) < 2:
+        return objects, flags, reason, fits, shape_centre, []
+    c = np.array([fits[k].centre for k in keys])
+    h = np.array([fits[k].heading for k in keys])
+    half = np.array([(fits[k].length / 2, fits[k].width / 2) for k in keys])
+    reach = np.hypot(half[:, 0], half[:, 1]) + cfg.merge_gap_m
+    lo, hi = st.lo[keys], st.hi[keys]
+    near = np.hypot(*np.maximum(np.maximum(lo[None] - c[:, None], c[:, None] - hi[None]), 0.0).transpose(2, 0, 1))
+    ii, jj = np.nonzero((near <= reach[:, None]) & ~np.eye(len(keys), dtype=bool))
+    dist: dict[tuple[int, int], float] = {}
+    for a, b in zip(ii, jj):
+        xy = pts[_members(st, keys[b]), :2] - c[a]
+        ca, sa = np.cos(h[a]), np.sin(h[a])
+        du = np.maximum(np.abs(xy @ np.array([ca, sa])) - half[a, 0], 0.0)
+        dv = np.maximum(np.abs(xy @ np.array([-sa, ca])) - half[a, 1], 0.0)
+        d = float(np.min(np.hypot(du, dv)))
+        pair = (int(min(keys[a], keys[b])), int(max(keys[a], keys[b])))
+        if d <= cfg.merge_gap_m and d < dist.get(pair, np.inf):
+            dist[pair] = d
+    if not dist:
+        return objects, flags, reason, fits, shape_centre, []
+    parent = {int(k): int(k) for k in keys}
+    group = {int(k): objects[k] for k in keys}
+    hull: dict[int, np.ndarray] = {}
+    for (a, b), _ in sorted(dist.items(), key=lambda item: (item[1], item[0])):
+        ra, rb = parent[a], parent[b]
+        if ra == rb:
+            continue
+        union_hull = _union_fits(pts, group, hull, ra, rb, cfg)
+        if union_hull is not None:
+            keep, drop = min(ra, rb), max(ra, rb)
+            for k, r in parent.items():
+                if r == drop:
+                    parent[k] = keep
+            group[keep] = np.concatenate([group[ra], group[rb]])
+            hull[keep] = union_hull
+    out, out_flags, out_reason, out_fits, out_centre, merged = [], [], [], {}, {}, []
+    for k in range(len(objects)):
+        root = parent.get(k, k)
+        if root != k:
+            continue
+        size = sum(1 for r in parent.values() if r == k) if k in parent else 1
+        new = len(out)
+        if size > 1:
+            out.append(_canonical(pts, group[k]))
+            out_flags.append(int(np.bitwise_or.reduce([flags[j] for j, r in parent.items() if r == k])) | MERGED)
+            merged.append(new)
+        else:
+            out.append(objects[k])
+            out_flags.append(int(flags[k]))
+            if k in fits:
+                out_fits[new] = fits[k]
+        out_reason.append(reason[k])
+        if k in shape_centre:
+            out_centre[new] = shape_centre[k]
+    return (out, np.asarray(out_flags, np.int64), np.asarray(out_reason, dtype=object), out_fits, out_centre,
+            merged)
+
+
+@dataclass(frozen=True)
+class _Fit:
+    centre: np.ndarray
+    heading: float
+    length: float
+    width: float
+    seen_length: float
+    seen_width: float
+    completed: bool
+    R: np.ndarray
+    shape: str
+
+
+def _fit_all(scan: Scan, st: _Stats, keys: np.ndarray, hinted: bool, cfg: PerceptionConfig,
+             boxfit: BoxFitConfig) -> dict[int, _Fit]:
+    """The fits of objects `keys` (K,); with a map (hinted) the lane heading at the centroid is the prior."""
+    ends = _open_ends(scan, st, keys) if cfg.fit == "vehicle_box" else [None] * len(keys)
+    return {int(k): _fit(scan, _members(st, k), st.top[k], float(st.axis[k]) if hinted else None, e, cfg, boxfit)
+            for k, e in zip(keys, ends)}
+
+
+def _fit(scan: Scan, idx: np.ndarray, top: float, hint: float | None, open_ends: tuple[bool, bool] | None,
+         cfg: PerceptionConfig, boxfit: BoxFitConfig) -> _Fit:
+    """The measurement of one object by cfg.fit."""
+    xy = scan.points[idx, :2]
+    if cfg.fit == "vehicle_box":
+        f = fit_vehicle_box(xy, scan.origin[:2], top_m=float(top), heading_hint=hint, open_ends=open_ends,
+                            cfg=boxfit, z=scan.points[idx, 2] - cfg.ground.ground_z_m)
+        return _Fit(f.centre, f.heading, f.length, f.width, f.seen_length, f.seen_width, f.completed, f.R, f.shape)
+    centre, length, width = REPRESENTATIVES[cfg.fit](xy)
+    completed = False
+    if cfg.complete_one_face and width < cfg.one_face_width_m:
+        centre = _complete_one_face(centre, xy, length, width, scan.origin[:2], cfg.size_prior_m)
+        completed = True
+    return _Fit(centre, _principal_angle(xy), length, width, length, width, completed,
+                DEFAULT_STD_M**2 * np.eye(2), "vehicle")
+
+
+def _open_ends(scan: Scan, st: _Stats, keys: np.ndarray, margin_m: float = 0.5,
+               look: int = 2) -> list[tuple[bool, bool] | None]:
+    """Per object of `keys`: whether its (first, last) azimuth edge, counter-clockwise, is bounded by a
+    nearer return; None for all without a range image.
+
+    sensors/boxfit.open_ends_from_ranges for all objects at once (same rule, same arguments; the tests
+    check they agree): an object's columns start after the widest empty arc of its azimuth columns, and
+    an edge is open when in one of the `look` columns beyond it a beam the object uses at that edge
+    returns more than margin_m nearer than the object's nearest return in that edge column."""
+    if scan.ranges.size == 0 or len(keys) == 0:
+        return [None] * len(keys)
+    members = np.concatenate([_members(st, k) for k in keys])
+    ray = scan.ray[members]
+    if np.any(ray < 0):
+        return [None] * len(keys)
+    n_az, n_beams = scan.ranges.shape
+    owner = np.repeat(np.arange(len(keys)), st.n[keys])
+    az, beam = ray // n_beams, ray % n_beams
+    cols = np.unique(owner * n_az + az)  # sorted (object, column) pairs
+    c_owner, c_az = cols // n_az, cols % n_az
+    start = np.flatnonzero(np.r_[True, c_owner[1:] != c_owner[:-1]])
+    end = np.r_[start[1:], len(cols)] - 1
+    nxt = np.r_[c_az[1:], 0]
+    nxt[end] = c_az[start] + n_az  # the arc from an object's last column round to its first
+    gap = nxt - c_az
+    widest = np.lexsort((np.arange(len(cols)), -gap, c_owner))[start]  # first widest gap of each object
+    first = np.where(widest == end, c_az[start], c_az[np.minimum(widest + 1, len(cols) - 1)])
+    last = c_az[widest]
+    out = []
+    for edge, step in ((first, -1), (last, +1)):
+        at_edge = az == edge[owner]
+        o, b = owner[at_edge], beam[at_edge]
+        here = np.full(len(keys), np.inf)
+        np.minimum.at(here, o, scan.ranges[edge[o], b])
+        beyond = (edge[o][:, None] + step * np.arange(1, look + 1)[None, :]) % n_az
+        nearer = np.any(scan.ranges[beyond, b[:, None]] < (here[o] - margin_m)[:, None], axis=1)
+        out.append(np.bincount(o, weights=nearer, minlength=len(keys)) > 0)
+    return [(bool(a), bool(b)) for a, b in zip(*out)]
+
+
+def _principal_angle(xy: np.ndarray) -> float:
+    if len(xy) < 2:
+        return 0.0
+    axis = np.linalg.svd(xy - xy.mean(axis=0), full_matrices=False)[2][0]
+    return float(np.arctan2(axis[1], axis[0]))
 
 
 def _complete_one_face(centre: np.ndarray, xy: np.ndarray, length: float, width: float, sensor_xy: np.ndarray,
@@ -206,8 +956,14 @@ def _complete_one_face(centre: np.ndarray, xy: np.ndarray, length: float, width:
     return centre + normal * max(depth - width, 0.0) / 2
 
 
-def _plurality_vehicle(source: np.ndarray) -> int:
-    """Most frequent source label if it is a vehicle id (>= 0), else -1; ties go to the smallest label."""
-    values, counts = np.unique(source, return_counts=True)
-    best = int(values[np.argmax(counts)])
-    return best if best >= 0 else -1
+def _plurality_vehicle(source: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(K,) per object (its n (K,) consecutive entries of source): the most frequent source label if it is a
+    vehicle id (>= 0), else -1; ties go to the smallest label."""
+    owner = np.repeat(np.arange(len(n)), n)
+    low = int(source.min())
+    pairs, count = np.unique(owner * (int(source.max()) - low + 1) + (source - low), return_counts=True)
+    p_owner, label = np.divmod(pairs, int(source.max()) - low + 1)
+    label = label + low
+    best = np.lexsort((label, -count, p_owner))  # by object, most points first, then smallest label
+    first = best[np.r_[True, p_owner[best][1:] != p_owner[best][:-1]]]
+    return np.where(label[first] >= 0, label[first], -1).astype(np.int64)

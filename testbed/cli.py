@@ -83,6 +83,60 @@ def _parse_sets(items: list[str]) -> dict:
     return out
 
 
+def _cmd_perception(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from .characterise import ABLATION, ablation, characterise, measured_settings
+    from .perception_report import write_report, write_settings
+    from .scenario import apply_overrides, parse_scenario, read_toml
+
+    try:
+        overrides = _parse_sets(args.set or [])
+        if args.seed is not None:
+            overrides["seed"] = args.seed
+        if args.duration is not None:
+            overrides["duration_s"] = args.duration
+        data = apply_overrides(read_toml(args.scenario), overrides)
+        scn = parse_scenario(data)
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    settings_path = Path(args.write_settings) if args.write_settings else None
+    if settings_path is not None and not settings_path.parent.is_dir():
+        print(f"error: --write-settings: folder {settings_path.parent} does not exist", file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else Path("runs") / "perception" / scn.name
+    with tqdm(total=scn.n_frames, desc=f"{scn.name} perception", unit="frame", disable=args.quiet or None,
+              leave=False) as bar:
+        ch = characterise(scn, on_frame=lambda i, n: bar.update(1), merge_sweep=not args.no_merge_sweep)
+    abl = None
+    if not args.no_ablation:
+        with tqdm(total=len(ABLATION), desc=f"{scn.name} tracker runs", unit="run", disable=args.quiet or None,
+                  leave=False) as bar:
+            abl = ablation(data, on_run=lambda name: (bar.set_postfix_str(name), bar.update(1)))
+    settings = measured_settings(ch)
+    note = f"Scenario `{scn.name}`, seed {scn.seed}, {scn.duration_s:g} s, pipeline `{scn.sensor.pipeline}`, " \
+           f"LiDAR preset `{scn.sensor.lidar.preset}`."
+    md = write_report(ch, out, abl, settings, note=note)
+    s = ch.summary()
+    print(f"ground precision {100 * s['ground_precision']:.2f} %, recall {100 * s['ground_recall']:.2f} %; "
+          f"P_D in range {s['pd_in_range']:.3f} (visible {s['pd_visible']:.3f}, occluded {s['pd_occluded']:.3f}); "
+          f"split {s['split_rate']:.4f}, merge {s['merge_rate']:.4f}; clutter {s['clutter_per_frame']:.2f}/frame "
+          f"({s['clutter_per_m2_road']:.2e}/m^2 of road); centre RMSE box {s['centre_rmse_box_m']:.2f} m, "
+          f"centroid {s['centre_rmse_centroid_m']:.2f} m")
+    if abl:
+        print("false confirmed tracks: " + ", ".join(f"{k} {v['false_tracks']}" for k, v in abl.items()))
+    print(f"wrote {md} and its plots")
+    if settings_path is not None:
+        try:
+            write_settings(data, settings, settings_path, source=str(args.scenario))
+        except ConfigError as err:
+            print(f"error: --write-settings: {err}", file=sys.stderr)
+            return 2
+        print(f"wrote {settings_path} ({', '.join(f'{k} = {v}' for k, v in settings.items())})")
+    return 0
+
+
 def _cmd_view(args: argparse.Namespace) -> int:
     path = Path(args.run_dir)
     rrd = path if path.suffix == ".rrd" else path / "run.rrd"
@@ -149,6 +203,20 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-record", action="store_true", help="skip the rerun recording")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_run)
+    c = sub.add_parser("perception", help="characterise the perception on a scenario: P_D, centre error, merges, "
+                       "splits, clutter, ground (markdown + PNG report)")
+    c.add_argument("scenario", help="scenario file, or the name of a shipped one")
+    c.add_argument("--seed", type=int, help="seed overriding the scenario's")
+    c.add_argument("--duration", type=float, help="simulated seconds overriding the scenario's duration_s")
+    c.add_argument("--set", action="append", metavar="KEY=VALUE", help="override any scenario key (repeatable)")
+    c.add_argument("--out", help="report folder (default runs/perception/<scenario>)")
+    c.add_argument("--write-settings", metavar="FILE", help="write a copy of the scenario with the measured "
+                   "P_D, clutter density and sigma_w as its tracker settings")
+    c.add_argument("--no-ablation", action="store_true", help="skip the tracker runs that count the false tracks "
+                   "each static-object method removes")
+    c.add_argument("--no-merge-sweep", action="store_true", help="skip the synthetic two-car merge-vs-gap sweep")
+    c.add_argument("--quiet", action="store_true", help="no progress bars")
+    c.set_defaults(func=_cmd_perception)
     v = sub.add_parser("view", help="open the rerun viewer on a run's recording")
     v.add_argument("run_dir", help="run folder (or .rrd file)")
     v.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1 instead of a window")

@@ -34,7 +34,10 @@ def _comments(cls: type) -> dict[str, str]:
     return out
 
 
-def _default(f: dataclasses.Field) -> str:
+def _default(f: dataclasses.Field, cls: type | None = None) -> str:
+    presets = getattr(cls, "PRESET_DEFAULTS", None)  # e.g. LidarConfig: None = the preset's value
+    if f.default is None and presets and f.name in presets:
+        return f"preset (`{presets[f.name]!r}`)"
     if f.default is not dataclasses.MISSING:
         value = f.default
     elif f.default_factory is not dataclasses.MISSING:
@@ -70,7 +73,10 @@ def _walk(cls: type, prefix: str, rows: list[tuple[str, str, str, str]]) -> None
             rows.append((path, kind, _default(f), doc))
             _walk(inner[0], path + ("[].") if typing.get_origin(tp) is tuple else path + ".", rows)
         else:
-            rows.append((path, _type_name(tp), _default(f), doc))
+            args = [a for a in typing.get_args(tp) if a is not type(None)]
+            shown = args[0] if getattr(cls, "PRESET_DEFAULTS", None) and f.name in cls.PRESET_DEFAULTS and len(args) == 1 \
+                else tp
+            rows.append((path, _type_name(shown), _default(f, cls), doc))
 
 
 TRACKER_HEADER = """## Tracker parameters

@@ -9,15 +9,26 @@ Entity paths (all in the world frame, z up, metres):
 ``world/truth/ego``                the sensor car (Boxes3D)
 ``world/ego``                      the sensor car's pose (Transform3D; the camera follows it)
 ``world/lidar/ground``             ground points, decimated (Points3D, grey)
-``world/lidar/objects``            non-ground points, coloured by cluster (Points3D)
-``world/detections``               cluster centres: green from a vehicle, red clutter (Points3D)
+``world/lidar/objects``            non-ground points, coloured by detection (grey: noise or rejected); hover shows
+                                   each point's truth ``vehicle_id`` (-1 static object, -2 road) and ``detection``
+``world/lidar/truth``              the same points coloured by truth: vehicle, static object, road (class ids)
+``world/lidar/ground_errors``      points the ground segmentation got wrong (red: object called road; magenta:
+                                   road called object)
+``world/lidar/shadows``            regions hidden behind nearer objects, from the range image (LineStrips3D)
+``world/detections``               detections: green from a vehicle, red clutter (Points3D)
+``world/detections/boxes``         fitted vehicle boxes: magenta merged fragments, cyan split from a larger
+                                   cluster, yellow completed beyond the points (one face seen) (Boxes3D)
+``world/detections/rejected``      objects the selection removed, labelled with the test they failed (Points3D)
 ``world/tracks/confirmed``         confirmed track estimates, labelled T<id> (Points3D)
 ``world/tracks/tentative``         tentative track estimates (Points3D)
+``world/tracks/static``            confirmed tracks not seen to move (moving-object test), not reported (Points3D)
 ``world/tracks/velocity``          confirmed track velocity over 1 s (Arrows3D)
 ``world/tracks/covariance``        2-sigma position covariance ellipses (LineStrips3D)
 ``world/tracks/gates``             validation gates of the predicted tracks (LineStrips3D)
 ``world/tracks/trajectories``      estimated trajectories of confirmed tracks (LineStrips3D)
-``metrics/<name>``                 per-frame counts: tracks, detections, clutter, points (Scalars)
+``metrics/<name>``                 per-frame counts: tracks, detections, clutter, points; and the measured
+                                   perception statistics: ground precision / recall, P_D of the vehicles in
+                                   range, merged / split detections, rejected objects (Scalars)
 =================================  ==========================================================
 
 Timelines: ``frame`` (sequence) and ``sim_time`` (duration, seconds).
@@ -30,8 +41,15 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+import sensors
+
+GROUND_LABEL = sensors.GROUND
+
 APP_ID = "roadtrack"
-METRICS = ("tracks_confirmed", "tracks_tentative", "detections", "clutter_detections", "lidar_points")
+METRICS = ("tracks_confirmed", "tracks_tentative", "tracks_static", "detections", "clutter_detections",
+           "lidar_points", "ground_precision", "ground_recall", "pd_in_range", "merged_detections",
+           "split_detections", "rejected_objects")
+TRUTH_CLASSES = ((0, "road", (90, 90, 90)), (1, "vehicle", (40, 200, 90)), (2, "static object", (160, 110, 60)))
 TRAJECTORY_POINTS = 300
 SERIES_FLUSH_FRAMES = 200  # per-track diagnostic series are buffered and sent in columns every N frames
 FOOTER_MAX_FRAMES = 1200
@@ -66,13 +84,19 @@ def blueprint(ego_xy: np.ndarray | None = None) -> rrb.Blueprint:
                                 tracking_entity="/world/ego")
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(name="scene", origin="/world", eye_controls=eye),
+            rrb.Spatial3DView(name="scene", origin="/world", eye_controls=eye,
+                              overrides={"world/lidar/truth": rrb.EntityBehavior(visible=False)}),
             rrb.Vertical(
                 rrb.TimeSeriesView(name="tracks", origin="/metrics",
                                    contents=["/metrics/tracks_confirmed", "/metrics/tracks_tentative"]),
                 rrb.TimeSeriesView(name="detections", origin="/metrics",
                                    contents=["/metrics/detections", "/metrics/clutter_detections"]),
-                rrb.TimeSeriesView(name="lidar points", origin="/metrics", contents=["/metrics/lidar_points"]),
+                rrb.TimeSeriesView(name="perception (measured against truth)", origin="/metrics",
+                                   contents=["/metrics/ground_precision", "/metrics/ground_recall",
+                                             "/metrics/pd_in_range"]),
+                rrb.TimeSeriesView(name="merged / split / rejected", origin="/metrics",
+                                   contents=["/metrics/merged_detections", "/metrics/split_detections",
+                                             "/metrics/rejected_objects"]),
                 rrb.TimeSeriesView(name="track diagnostics (score, NIS, layers, mode probabilities)",
                                    origin="/world/tracks"),
             ),
@@ -96,14 +120,19 @@ class Recorder:
     """Writes one run to ``path`` (``.rrd``). Call :meth:`static` once, :meth:`frame` per frame, :meth:`close`."""
 
     def __init__(self, path: str | Path, recording_id: str, lidar_every: int = 1, ground_decimation: int = 4,
-                 write_footer: bool = True):
+                 write_footer: bool = True, occlusion: sensors.OcclusionConfig | None = None,
+                 max_range_m: float = 70.0):
         self.path = Path(path)
+        self.occlusion = occlusion  # draw the occluders' shadows with it (None: no shadows)
+        self.max_range_m = max_range_m
         self.lidar_every = lidar_every
         self.ground_decimation = ground_decimation
         self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
         self.rec.save(str(self.path), write_footer=write_footer)  # see FOOTER_MAX_FRAMES
         self.blueprint_sent = False
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self.rec.log("world/lidar/truth", rr.AnnotationContext(
+            [rr.AnnotationInfo(id=i, label=name, color=c) for i, name, c in TRUTH_CLASSES]), static=True)
         for name in METRICS:
             self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " ")), static=True)
         self.trajectories: dict[int, list[np.ndarray]] = {}
@@ -119,9 +148,14 @@ class Recorder:
             self.rec.log("world/roadside", rr.Boxes3D(**_boxes(roadside[:, :2], roadside[:, 2:5], roadside[:, 5],
                                                                roadside[:, 6]), colors=[120, 120, 120]), static=True)
 
-    def frame(self, truth, scan, perception, detections, tracks, kin, info, gate_alpha: float) -> None:
+    def frame(self, truth, scan, perception, detections, tracks, kin, info, gate_alpha: float,
+              status: np.ndarray | None = None) -> None:
         """Log one frame. ``tracks``: the trackers' Track tuple after the step; ``kin``: their position-velocity
-        estimates and covariances ((T, 2d), (T, 2d, 2d), ``Tracker.kinematics``); ``info``: the StepInfo."""
+        estimates and covariances ((T, 2d), (T, 2d, 2d), ``Tracker.kinematics``); ``info``: the StepInfo;
+        ``status`` (T,): "confirmed", "tentative" or "static" (default: from each track's confirmed flag)."""
+        if status is None:
+            status = np.array(["confirmed" if t.confirmed else "tentative" for t in tracks], dtype=object)
+        status = np.asarray(status, dtype=object).reshape(len(tracks))
         rec = self.rec
         rec.set_time("frame", sequence=int(truth.frame))
         rec.set_time("sim_time", duration=float(truth.time))
@@ -141,13 +175,9 @@ class Recorder:
                                                    show_labels=False))
 
         if self.lidar_every and truth.frame % self.lidar_every == 0 and scan is not None:
-            g = perception.is_ground
-            rec.log("world/lidar/ground", rr.Points3D(scan.points[g][:: self.ground_decimation],
-                                                      colors=[90, 90, 90], radii=0.03))
-            lab = perception.labels[~g]
-            colors = np.where((lab >= 0)[:, None], CLUSTER_PALETTE[lab % len(CLUSTER_PALETTE)],
-                              np.array([200, 200, 200], np.uint8))
-            rec.log("world/lidar/objects", rr.Points3D(scan.points[~g], colors=colors, radii=0.05))
+            self._lidar(scan, perception)
+        if scan is not None:
+            self._perception_stats(truth, scan, perception, detections)
 
         z = detections.z
         is_vehicle = detections.provenance >= 0
@@ -155,27 +185,93 @@ class Recorder:
             np.column_stack([z, np.full(len(z), 0.3)]), radii=0.35,
             colors=np.where(is_vehicle[:, None], np.array([40, 220, 40], np.uint8), np.array([230, 40, 40], np.uint8)),
             labels=[f"v{p}" if p >= 0 else "clutter" for p in detections.provenance], show_labels=False))
+        self._boxes_and_rejects(detections, perception)
 
-        conf = [t for t in tracks if t.confirmed]
-        tent = [t for t in tracks if not t.confirmed]
-        self._tracks(tracks, kin, info, gate_alpha)
+        conf = [t for t, s in zip(tracks, status) if s == "confirmed"]
+        tent = [t for t, s in zip(tracks, status) if s == "tentative"]
+        self._tracks(tracks, kin, info, gate_alpha, status)
         self._diagnostics(truth, conf, info)
 
-        counts = dict(tracks_confirmed=len(conf), tracks_tentative=len(tent), detections=len(z),
+        counts = dict(tracks_confirmed=len(conf), tracks_tentative=len(tent),
+                      tracks_static=int(np.count_nonzero(status == "static")), detections=len(z),
                       clutter_detections=int(np.count_nonzero(~is_vehicle)),
                       lidar_points=0 if scan is None else len(scan.points))
         for name, value in counts.items():
             rec.log(f"metrics/{name}", rr.Scalars(float(value)))
 
-    def _tracks(self, tracks, kin, info, gate_alpha: float) -> None:
+    def _lidar(self, scan, perception) -> None:
+        """Ground points, object points with their detection and truth labels, ground errors, shadows."""
+        rec = self.rec
+        g = perception.is_ground
+        pts, src, lab = scan.points[~g], scan.source[~g], perception.labels[~g]
+        rec.log("world/lidar/ground", rr.Points3D(scan.points[g][:: self.ground_decimation],
+                                                  colors=[90, 90, 90], radii=0.03))
+        colors = np.where((lab >= 0)[:, None], CLUSTER_PALETTE[lab % len(CLUSTER_PALETTE)],
+                          np.array([200, 200, 200], np.uint8))
+        rec.log("world/lidar/objects", rr.Points3D(pts, colors=colors, radii=0.05),
+                rr.AnyValues(vehicle_id=src, detection=lab))
+        truth_class = np.where(src >= 0, 1, np.where(src == -1, 2, 0))
+        rec.log("world/lidar/truth", rr.Points3D(pts, class_ids=truth_class, radii=0.05))
+        gt = scan.source == GROUND_LABEL
+        wrong_obj, wrong_road = g & ~gt, ~g & gt  # object called road; road called object
+        err = np.concatenate([np.flatnonzero(wrong_obj), np.flatnonzero(wrong_road)])
+        err_colors = np.concatenate([np.tile([230, 30, 30], (int(wrong_obj.sum()), 1)),
+                                     np.tile([230, 0, 230], (int(wrong_road.sum()), 1))]).astype(np.uint8)
+        rec.log("world/lidar/ground_errors", rr.Points3D(scan.points[err], colors=err_colors.reshape(-1, 3), radii=0.08))
+        if self.occlusion is not None and len(scan.ranges):
+            polys = sensors.shadows(scan, self.occlusion, is_ground=perception.is_ground)
+            rec.log("world/lidar/shadows", rr.LineStrips3D(
+                [np.column_stack([np.vstack([p, p[:1]]), np.full(len(p) + 1, 0.05)]) for p in polys],
+                colors=[70, 70, 160], radii=0.04))
+
+    def _boxes_and_rejects(self, detections, perception) -> None:
+        """Fitted boxes coloured by their merge / split / completion flags; rejected objects with the reason."""
+        rec = self.rec
+        f = detections.flags
+        color = np.where(detections.provenance[:, None] >= 0, np.array([40, 220, 40]), np.array([230, 40, 40]))
+        color = np.where((f & sensors.COMPLETED)[:, None] > 0, np.array([240, 210, 40]), color)
+        color = np.where((f & sensors.SPLIT)[:, None] > 0, np.array([0, 210, 230]), color)
+        color = np.where((f & sensors.MERGED)[:, None] > 0, np.array([230, 0, 230]), color)
+        tags = [" ".join(t for bit, t in ((sensors.MERGED, "merged"), (sensors.SPLIT, "split"),
+                                          (sensors.COMPLETED, "completed")) if v & bit) or "box" for v in f]
+        size = detections.extent.copy()
+        size[:, 2] = np.maximum(size[:, 2], 0.1)
+        rec.log("world/detections/boxes", rr.Boxes3D(**_boxes(detections.z, size, detections.heading),
+                                                     colors=color.astype(np.uint8), labels=tags, show_labels=False,
+                                                     radii=0.03))
+        rj = perception.rejected if perception is not None else None
+        if rj is not None:
+            rec.log("world/detections/rejected", rr.Points3D(
+                np.column_stack([rj.centre, np.full(len(rj), 0.5)]), radii=0.2, colors=[150, 110, 70],
+                labels=[str(r) for r in rj.reason], show_labels=False))
+
+    def _perception_stats(self, truth, scan, perception, detections) -> None:
+        """Per-frame perception statistics measured against the scan's truth labels."""
+        gt = scan.source == GROUND_LABEL
+        g = perception.is_ground
+        tp = int(np.count_nonzero(g & gt))
+        rel = truth.xy[1:] - scan.origin[:2]
+        in_range = truth.ids[1:][np.hypot(rel[:, 0], rel[:, 1]) <= self.max_range_m]
+        stats = dict(  # NaN (a gap in the plot) where undefined
+            ground_precision=tp / int(g.sum()) if g.any() else np.nan,
+            ground_recall=tp / int(gt.sum()) if gt.any() else np.nan,
+            pd_in_range=float(np.isin(in_range, detections.provenance).mean()) if len(in_range) else np.nan)
+        stats["merged_detections"] = float(np.count_nonzero(detections.flags & sensors.MERGED))
+        stats["split_detections"] = float(np.count_nonzero(detections.flags & sensors.SPLIT))
+        stats["rejected_objects"] = float(len(perception.rejected))
+        for name, value in stats.items():
+            self.rec.log(f"metrics/{name}", rr.Scalars(float(value)))
+
+    def _tracks(self, tracks, kin, info, gate_alpha: float, status: np.ndarray) -> None:
         """Track estimates, velocities, covariance ellipses, gates, boundary layers and trajectories."""
         rec = self.rec
         xs, covs = kin
         d = xs.shape[1] // 2
         pos, vel, ppos = xs[:, :2], xs[:, d:d + 2], covs[:, :2, :2]
         ids = np.array([t.id for t in tracks], dtype=np.int64)
-        conf = np.array([t.confirmed for t in tracks], dtype=bool)
-        for name, sel, radius in (("confirmed", conf, 0.5), ("tentative", ~conf, 0.25)):
+        conf = status == "confirmed"
+        for name, sel, radius in (("confirmed", conf, 0.5), ("tentative", status == "tentative", 0.25),
+                                  ("static", status == "static", 0.35)):
             rec.log(f"world/tracks/{name}", rr.Points3D(
                 np.column_stack([pos[sel], np.full(int(sel.sum()), 1.0)]), radii=radius,
                 labels=[f"T{i}" for i in ids[sel]], class_ids=ids[sel], show_labels=name == "confirmed"))

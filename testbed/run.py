@@ -18,10 +18,11 @@ import sensors
 
 from .config import to_dict
 from .mot_metrics import mot_metrics, visible_truth
+from .moving import MovingTest
 from .roadside import boxes_near
 from .scenario import Scenario
 from .scoring import Scores, score_run
-from .simulation import lane_polylines, roadside_objects
+from .simulation import lane_centres, lane_polylines, roadside_objects
 from .tables import diagnostics_log, detections_log, tracks_log, truth_log
 
 STAGES = ("simulation", "raycast", "perception", "tracking", "recording")
@@ -63,6 +64,8 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
 
     sim = make_simulation(scn)
     static = roadside_objects(sim.network, scn.roadside, rngs["roadside"])
+    road = road_map(sim.network)
+    moving = MovingTest(scn.moving_test)
 
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
@@ -77,17 +80,20 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     try:
         for truth in sim.frames():
             watch.lap("simulation")
-            scan, perc, dets = _sense(truth, static, scn, rngs, watch)
-            result = tracker.step(tracks, dets.z, scn.dt if truth.frame > 0 else 0.0, next_id)
+            scan, perc, dets = _sense(truth, static, scn, rngs, watch, road)
+            pd = occlusion_pd(scan, scn, tracker.association.pd, road) if scn.sensor.occlusion_pd else None
+            result = tracker.step(tracks, dets.z, scn.dt if truth.frame > 0 else 0.0, next_id, pd=pd)
             tracks, next_id = result.tracks, result.next_id
-            watch.lap("tracking")
             reported = tuple(t for t in tracks if not t.candidate)  # candidates await a second measurement
             kin = tracker.kinematics(reported)
-            _log_tables(truth, visibility(truth, scan, scn.sensor.lidar.max_range_m), dets, reported, kin,
+            status = track_status(reported, kin, moving, truth.time)
+            watch.lap("tracking")
+            _log_tables(truth, visibility(truth, scan, scn.sensor.lidar.max_range_m), dets, reported, kin, status,
                         tables["truth"], tables["detections"], tables["tracks"])
             _log_diagnostics(truth, result.info, tables["diagnostics"])
             if recorder is not None:
-                recorder.frame(truth, scan, perc, dets, reported, kin, result.info, tracker.association.gate_alpha)
+                recorder.frame(truth, scan, perc, dets, reported, kin, result.info, tracker.association.gate_alpha,
+                               status)
             watch.lap("recording")
             n += 1
             if on_frame is not None:
@@ -126,11 +132,49 @@ class _Stopwatch:
         self.tic = now
 
 
-def _sense(truth, static: np.ndarray, scn: Scenario, rngs: dict, watch: _Stopwatch):
+def road_map(network) -> sensors.RoadMap:
+    """The perception's road map (lane centre lines and half widths) of a highway-env road network."""
+    return sensors.RoadMap(*lane_centres(network))
+
+
+def occlusion_pd(scan: sensors.Scan, scn: Scenario, pd: float, road: sensors.RoadMap):
+    """The tracker's per-track P_D input: a function of the predicted positions (T, 2) -> (T,).
+
+    Within the sensor's range: the associator's nominal ``pd`` where the range image shows a car-sized box at
+    the position (heading along the road) in view, near 0 (at least ``sensor.occlusion_pd_floor``) in the
+    shadow of a nearer object or where no beam reaches a car (sensors/occlusion.py): a hidden car's track
+    coasts without losing score. Beyond the range: the nominal ``pd``, so a track leaving the sensor's reach
+    loses score and is deleted as without this input (a P_D of 0 there would keep it forever)."""
+    lidar = scn.sensor.lidar
+    cfg = sensors.OcclusionConfig.from_lidar(lidar, pd_nominal=pd, min_points=scn.sensor.perception.cluster.min_points)
+    floor = min(scn.sensor.occlusion_pd_floor, pd)
+
+    def pd_of(z_hat: np.ndarray) -> np.ndarray:
+        xy = z_hat[:, :2]
+        occ = sensors.detection_probability(scan, xy, cfg, heading=road.heading_at(xy) if len(xy) else None)
+        beyond = np.hypot(xy[:, 0] - scan.origin[0], xy[:, 1] - scan.origin[1]) > lidar.max_range_m
+        return np.where(beyond, pd, np.maximum(occ, floor))
+
+    return pd_of
+
+
+STATUSES = ("confirmed", "tentative", "static")
+
+
+def track_status(tracks: tuple, kin: tuple[np.ndarray, np.ndarray], moving: MovingTest, time: float) -> np.ndarray:
+    """(T,) object array: "confirmed" (reported), "tentative", or "static" (confirmed by the tracker but
+    not yet seen to move, testbed/moving.py: tracked, not reported, not scored)."""
+    ids = np.array([t.id for t in tracks], dtype=np.int64)
+    moved = moving.update(ids, kin[0][:, :2], time)
+    conf = np.array([t.confirmed for t in tracks], dtype=bool)
+    return np.where(conf, np.where(moved, "confirmed", "static"), "tentative").astype(object)
+
+
+def _sense(truth, static: np.ndarray, scn: Scenario, rngs: dict, watch: _Stopwatch, road: sensors.RoadMap | None):
     """One frame's LiDAR scan, perception and detections (plus the scenario's added clutter)."""
     scan = _scan(truth, static, scn.sensor.lidar, rngs["lidar"])
     watch.lap("raycast")
-    perc = sensors.perceive(scan, scn.sensor.perception)
+    perc = sensors.perceive(scan, scn.sensor.perception, road)
     dets = perc.detections
     clutter = scn.sensor.clutter
     if clutter.density_per_m2 > 0:
@@ -157,7 +201,8 @@ def _recorder(scn: Scenario, path: Path, tracker_name: str, sim, static: np.ndar
 
     rec = Recorder(path, recording_id=f"{scn.name}-seed{scn.seed}-{tracker_name}",
                    lidar_every=scn.record.lidar_every, ground_decimation=scn.record.ground_decimation,
-                   write_footer=scn.n_frames <= FOOTER_MAX_FRAMES)
+                   write_footer=scn.n_frames <= FOOTER_MAX_FRAMES,
+                   occlusion=sensors.OcclusionConfig.from_lidar(scn.sensor.lidar), max_range_m=scn.sensor.lidar.max_range_m)
     rec.static(lane_polylines(sim.network), static)
     return rec
 
@@ -213,7 +258,7 @@ def _log_diagnostics(truth, info, diag_t) -> None:
                   track_id=info.ids[rows], name=np.array(names, dtype=object)[cols], value=values[rows, cols])
 
 
-def _log_tables(truth, vis, dets, tracks, kin, truth_t, det_t, trk_t) -> None:
+def _log_tables(truth, vis, dets, tracks, kin, status, truth_t, det_t, trk_t) -> None:
     k = len(truth.ids)
     truth_t.append(frame=np.full(k, truth.frame), time=np.full(k, truth.time), vehicle_id=truth.ids,
                    name=np.array(truth.names, dtype=object), is_ego=truth.ids == truth.ids[0],
@@ -230,7 +275,7 @@ def _log_tables(truth, vis, dets, tracks, kin, truth_t, det_t, trk_t) -> None:
     d = xs.shape[1] // 2
     trk_t.append(frame=np.full(t, truth.frame), time=np.full(t, truth.time),
                  track_id=np.array([tr.id for tr in tracks], dtype=np.int64),
-                 status=np.array(["confirmed" if tr.confirmed else "tentative" for tr in tracks], dtype=object),
+                 status=np.asarray(status, dtype=object).reshape(t),
                  x=xs[:, 0], y=xs[:, 1], vx=xs[:, d], vy=xs[:, d + 1],
                  score=np.array([tr.score for tr in tracks], dtype=np.float64), cov=covs.reshape(t, covs[0].size if t else 4 * d * d))
 

@@ -17,11 +17,13 @@ from sensors import LidarConfig, PerceptionConfig
 
 from .config import ConfigError, field, from_dict, non_negative, positive, to_dict
 from .envsource import EnvSpec, check_env_scenario
+from .moving import MovingTestSpec
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 
 BEHAVIOURS = ("idm", "hold_speed", "follow")
 ROAD_KINDS = ("straight", "curved", "u_turn", "motorway")
+PIPELINES = ("full", "thesis")
 
 
 @dataclass(frozen=True)
@@ -202,8 +204,24 @@ class ClutterSpec:
 
 @dataclass(frozen=True)
 class SensorSpec:
-    lidar: LidarConfig = field(LidarConfig(), doc="HDL-32E geometry, noise, dropout")
-    perception: PerceptionConfig = field(PerceptionConfig(), doc="ground segmentation and clustering")
+    """The LiDAR and its perception stack. ``pipeline = "thesis"`` presets every perception key the file
+    does not set to the thesis's plain pipeline (no map ROI, fixed 0.8 m height bound, no fragment
+    merging or vehicle splitting, L-shape centres), and switches off occlusion-aware P_D and the
+    moving-object test unless the file sets them."""
+
+    pipeline: str = field("full", doc="full: the production-like stack (map ROI, range-aware height bound, "
+                          "merged fragments, vehicle box centres, occlusion-aware P_D, moving-object test); "
+                          "thesis: the thesis's plain pipeline", choices=PIPELINES)
+    lidar: LidarConfig = field(LidarConfig(), doc="beam pattern (preset hdl32e, vlp16, hdl64e, vls128), "
+                               "mounting, noise, dropout, attitude noise")
+    perception: PerceptionConfig = field(PerceptionConfig(), doc="ground segmentation, clustering, selection, "
+                                         "box fit")
+    occlusion_pd: bool = field(True, doc="give the tracker a per-track P_D from each scan's range image: near 0 "
+                               "in the shadow of a nearer object or beyond the beams' reach (sensors/occlusion.py)")
+    occlusion_pd_floor: float = field(0.0, doc="least P_D the occlusion-aware input gives a track within range "
+                                      "(0: a hidden track coasts without losing score; 0.2: it is dropped after "
+                                      "about 6 s hidden with the default score management)",
+                                      check=(lambda v: 0 <= v <= 1, "in [0, 1]"))
     clutter: ClutterSpec = field(ClutterSpec(), doc="added Poisson clutter")
 
 
@@ -266,6 +284,8 @@ class Scenario:
     traffic: TrafficSpec = field(TrafficSpec(), doc="random background traffic (default: none)")
     env: EnvSpec | None = field(None, doc="a registered highway-env environment as the traffic source, instead of road, ego, vehicles, convoy and traffic (testbed/envsource.py)")
     sensor: SensorSpec = field(SensorSpec(), doc="sensor")
+    moving_test: MovingTestSpec = field(MovingTestSpec(), doc="moving-object test at track level: static "
+                                        "objects are tracked but not reported (testbed/moving.py)")
     tracker: TrackerSpec = field(TrackerSpec(), doc="tracker")
     scoring: ScoringSpec = field(ScoringSpec(), doc="scoring")
     record: RecordSpec = field(RecordSpec(), doc="recording")
@@ -356,7 +376,30 @@ def _validate_traffic(spec: TrafficSpec, road: RoadSpec, lanes: int) -> None:
 
 def parse_scenario(data: dict) -> Scenario:
     """Build and validate a :class:`Scenario` from a TOML dict."""
-    return _validate(from_dict(Scenario, data))
+    return _validate(from_dict(Scenario, apply_pipeline_preset(data)))
+
+
+def apply_pipeline_preset(data: dict) -> dict:
+    """``data`` with the keys of ``sensor.pipeline``'s preset filled in where the file does not set them.
+
+    ``thesis``: the perception keys of ``PerceptionConfig.thesis()`` that differ from the full pipeline's
+    defaults, ``sensor.occlusion_pd = false`` and ``moving_test.enabled = false``."""
+    sensor = data.get("sensor")
+    if not isinstance(sensor, dict) or sensor.get("pipeline") != "thesis":
+        return data
+    out = copy.deepcopy(data)
+    sensor = out["sensor"]
+    full, thesis = to_dict(PerceptionConfig()), to_dict(PerceptionConfig.thesis())
+    perception = sensor.setdefault("perception", {})
+    if isinstance(perception, dict):
+        for key, value in thesis.items():
+            if value != full[key]:
+                perception.setdefault(key, value)
+    sensor.setdefault("occlusion_pd", False)
+    moving = out.setdefault("moving_test", {})
+    if isinstance(moving, dict):
+        moving.setdefault("enabled", False)
+    return out
 
 
 def read_toml(path: str | Path) -> dict:

@@ -30,7 +30,7 @@ def test_keys_reference_lists_nested_keys_with_defaults():
     for key in ("`vehicles[].lane_changes[].at_s`", "`sensor.lidar.max_range_m`", "`convoy.gap_m`",
                 "`sensor.perception.ground.method`", "`tracker.filter`", "`tracker.associator.gate_alpha`", "`tracker.management.coast_scans`", "`scoring.match_distance_m`"):
         assert key in md, key
-    assert "| `sensor.lidar.max_range_m` | float | `70.0` |" in md
+    assert "| `sensor.lidar.max_range_m` | float | preset (`70.0`) |" in md  # the HDL-32E preset's value
 
 
 def test_parse_sets_reads_toml_values():

@@ -1,0 +1,66 @@
+"""Road map for the region of interest: lane centre-line samples, their heading and half width.
+
+A production stack with an HD map keeps only clusters on the carriageway (plus a margin for fit errors
+and vehicles straddling a lane edge) and uses the lane direction as a heading prior for the box fit.
+The map here is the sampled lane centre lines of the scenario's road (samples at most ~1 m apart, so
+the nearest sample is within 0.5 m along the lane of the query point's foot).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from sensors import _checks
+
+
+@dataclass(frozen=True, eq=False)
+class RoadMap:
+    """P lane centre-line samples (all lanes of all carriageways together).
+
+    centre: (P, 2) float64 sample positions, world frame [m], at most ~1 m apart along each lane.
+    heading: (P,) float64 lane direction at each sample [rad] (only its value mod pi is used by the fit).
+    half_width: (P,) float64 half the lane width at each sample [m], > 0.
+    """
+
+    centre: np.ndarray
+    heading: np.ndarray
+    half_width: np.ndarray
+    _tree: cKDTree = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        centre = _checks.float_array("RoadMap.centre", self.centre, (None, 2))
+        if len(centre) == 0:
+            raise ValueError("RoadMap.centre: expected at least one sample, got 0")
+        heading = _checks.float_array("RoadMap.heading", self.heading, (len(centre),))
+        half_width = _checks.float_array("RoadMap.half_width", self.half_width, (len(centre),))
+        if np.any(half_width <= 0.0):
+            raise ValueError(f"RoadMap.half_width: expected > 0 everywhere, got min {half_width.min()!r}")
+        object.__setattr__(self, "centre", centre)
+        object.__setattr__(self, "heading", heading)
+        object.__setattr__(self, "half_width", half_width)
+        object.__setattr__(self, "_tree", cKDTree(centre))
+
+    def nearest(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance (M,) [m] to the nearest centre sample and its index (M,) int64, for xy (M, 2) [m]."""
+        q = _checks.float_array("xy", xy, (None, 2))
+        if len(q) == 0:
+            return np.zeros(0), np.zeros(0, np.int64)
+        dist, k = self._tree.query(q)
+        return np.asarray(dist, np.float64), np.asarray(k, np.int64)
+
+    def on_road(self, xy: np.ndarray, margin_m: float) -> np.ndarray:
+        """(M,) bool: xy (M, 2) [m] lies within the nearest sample's half width + margin_m [m] of it.
+
+        Between samples s apart the distance to the nearest one is up to sqrt(d^2 + (s/2)^2) for a
+        lateral offset d: the lane edge moves in by at most 0.07 m (half width 1.75 m, s = 1 m)."""
+        _checks.positive("margin_m", margin_m, allow_zero=True)
+        dist, k = self.nearest(xy)
+        return dist <= self.half_width[k] + margin_m
+
+    def heading_at(self, xy: np.ndarray) -> np.ndarray:
+        """(M,) lane heading [rad] of the nearest centre sample to each of xy (M, 2) [m]."""
+        _, k = self.nearest(xy)
+        return self.heading[k]

@@ -1,0 +1,64 @@
+"""Moving-object test (testbed/moving.py) and the sensor pipeline preset (testbed/scenario.py)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from testbed.config import ConfigError
+from testbed.moving import MovingTest, MovingTestSpec
+from testbed.scenario import load_scenario
+
+
+def test_a_static_track_is_never_reported_and_a_moving_one_is_after_its_window():
+    test = MovingTest(MovingTestSpec(min_speed_mps=4.0, window_s=0.5))
+    rng = np.random.default_rng(0)
+    reported = []
+    for k in range(30):
+        t = 0.1 * k
+        bush = np.array([50.0, -8.0]) + rng.normal(0.0, 0.3, 2)  # a static object's estimate: jitter only
+        car = np.array([25.0 * t, 0.0]) + rng.normal(0.0, 0.1, 2)
+        reported.append(test.update(np.array([1, 2]), np.stack([bush, car]), t))
+    reported = np.array(reported)
+    assert not reported[:, 0].any()
+    assert not reported[:5, 1].any() and reported[5:, 1].all()  # 0.5 s of history to prove it moves
+
+
+def test_an_initial_velocity_transient_does_not_count_only_displacement_does():
+    test = MovingTest(MovingTestSpec(min_speed_mps=4.0, window_s=0.8))
+    # a bush's track whose position jumps once by 1.5 m (a new face seen) and stays: 1.5 m / 0.8 s < 4 m/s
+    xs = [0.0, 0.0, 1.5, 1.5, 1.5, 1.5, 1.5, 1.5, 1.5, 1.5, 1.5, 1.5]
+    out = [test.update(np.array([3]), np.array([[x, 0.0]]), 0.1 * k)[0] for k, x in enumerate(xs)]
+    assert not any(out)
+
+
+def test_a_car_that_stops_stays_reported_and_a_new_id_starts_afresh():
+    test = MovingTest(MovingTestSpec(min_speed_mps=4.0, window_s=0.2))
+    for k in range(3):
+        test.update(np.array([7]), np.array([[1.0 * k, 0.0]]), 0.1 * k)
+    assert test.update(np.array([7]), np.array([[2.0, 0.0]]), 0.3)[0]  # stopped in a jam: still a car
+    test.update(np.array([8]), np.array([[0.0, 0.0]]), 0.4)  # 7 deleted, 8 born
+    assert not test.update(np.array([7]), np.array([[10.0, 0.0]]), 0.5)[0]  # a re-used id must prove itself again
+
+
+def test_disabled_reports_everything():
+    test = MovingTest(MovingTestSpec(enabled=False))
+    assert test.update(np.array([1, 2]), np.zeros((2, 2)), 0.0).all()
+    assert test.update(np.zeros(0, np.int64), np.zeros((0, 2)), 0.1).shape == (0,)
+
+
+def test_thesis_preset_switches_the_stack_to_the_plain_pipeline_but_keeps_explicit_keys():
+    full = load_scenario("cut_in_out")
+    thesis = load_scenario("cut_in_out", {"sensor.pipeline": "thesis"})
+    assert full.sensor.perception.roi and full.sensor.occlusion_pd and full.moving_test.enabled
+    assert not thesis.sensor.perception.roi and not thesis.sensor.occlusion_pd and not thesis.moving_test.enabled
+    assert thesis.sensor.perception.min_height_mode == "fixed"
+    mixed = load_scenario("cut_in_out", {"sensor.pipeline": "thesis", "sensor.perception.roi": True,
+                                         "moving_test.enabled": True})
+    assert mixed.sensor.perception.roi and mixed.moving_test.enabled and not mixed.sensor.occlusion_pd
+
+
+def test_bad_pipeline_and_moving_keys_are_one_line_errors():
+    with pytest.raises(ConfigError, match=r"^sensor.pipeline: 'paper' is not allowed; allowed: full, thesis$"):
+        load_scenario("cut_in_out", {"sensor.pipeline": "paper"})
+    with pytest.raises(ConfigError, match=r"^moving_test.window_s: 0.0 is not allowed; must be > 0$"):
+        load_scenario("cut_in_out", {"moving_test.window_s": 0})
