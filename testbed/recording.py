@@ -131,7 +131,7 @@ class Recorder:
         self.rec.save(str(self.path), write_footer=write_footer)  # see FOOTER_MAX_FRAMES
         self.blueprint_sent = False
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        self.rec.log("world/lidar/truth", rr.AnnotationContext(
+        self.rec.log("world/lidar", rr.AnnotationContext(
             [rr.AnnotationInfo(id=i, label=name, color=c) for i, name, c in TRUTH_CLASSES]), static=True)
         for name in METRICS:
             self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " ")), static=True)

@@ -59,7 +59,9 @@ def test_recording_holds_every_entity_every_frame(recorded):
     n = recorded.n_frames
     per_frame = ["world/truth/vehicles", "world/truth/ego", "world/lidar/ground", "world/lidar/objects",
                  "world/detections", "world/tracks/confirmed", "world/tracks/tentative", "world/tracks/velocity",
-                 "world/tracks/covariance", "world/tracks/gates", "world/tracks/trajectories"]
+                 "world/tracks/covariance", "world/tracks/gates", "world/tracks/trajectories", "world/tracks/static",
+                 "world/lidar/truth", "world/lidar/ground_errors", "world/lidar/shadows", "world/detections/boxes",
+                 "world/detections/rejected"]
     for path in per_frame:
         assert rows.get("/" + path) == n, (path, rows.get("/" + path))
     for name in METRICS:
@@ -212,3 +214,34 @@ def test_every_named_tracker_runs_a_scenario_and_reports_its_diagnostics(name, t
     if name.startswith("imm-"):
         assert {"mu_0", "mu_1"} <= names
         assert any(p.startswith("/world/tracks/") and p.endswith("/mu_1") for p in rows)
+
+
+def test_recorded_point_labels_agree_with_truth_and_detections(recorded):
+    """Per-point labels in the recording: each object point carries its truth vehicle id and its detection index
+    (hover in the viewer); world/lidar/truth's class ids say vehicle exactly where the vehicle id is >= 0."""
+    out = recorded.out_dir
+    det = pd.read_parquet(out / "detections.parquet")
+    frame = 40
+    cols: dict[str, list] = {}
+    for chunk in RrdReader(str(out / "run.rrd")).stream():
+        if chunk.entity_path not in ("/world/lidar/objects", "/world/lidar/truth"):
+            continue
+        rb = chunk.to_record_batch()
+        if "frame" not in rb.schema.names:
+            continue
+        for row, f in enumerate(rb.column("frame").to_pylist()):
+            if f != frame:
+                continue
+            for name in ("vehicle_id", "detection", "Points3D:class_ids"):
+                if name in rb.schema.names:
+                    cols[name] = rb.column(name)[row].as_py()
+    vid, lab, cls = (np.array(cols[k]) for k in ("vehicle_id", "detection", "Points3D:class_ids"))
+    assert len(vid) == len(lab) == len(cls) > 100
+    assert set(np.unique(vid)) <= {-2, -1, 1, 2, 3}
+    np.testing.assert_array_equal(cls == 1, vid >= 0)
+    n_det = int((det.frame == frame).sum())
+    assert lab.max() == n_det - 1 and set(np.unique(lab[lab >= 0])) == set(range(n_det))
+    prov = det[det.frame == frame].provenance.to_numpy()
+    for j in range(n_det):  # a detection's provenance is the plurality vehicle of its points
+        ids, counts = np.unique(vid[lab == j], return_counts=True)
+        assert ids[np.argmax(counts)] == prov[j] or (prov[j] == -1 and ids[np.argmax(counts)] < 0)
