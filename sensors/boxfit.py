@@ -52,6 +52,7 @@ fit_vehicle_box: the centre of the whole vehicle of which a LiDAR sees one or tw
      completion offset (centre - seen centre) and adds |offset|^2 sigma_theta^2 across it. On ray-cast
      cars and trucks at 5-65 m the mean normalised squared centre error e' R^-1 e is 1.4 (cars) and 2.0
      (trucks), for a chi-square(2) mean of 2 (tests/test_sensors_boxfit.py).
+  The steps run as one compiled function (sensors/_boxfit_jit.py, numba): ~10 us instead of ~200 us a fit.
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from sensors import _checks
+from sensors import _boxfit_jit, _checks
 
 _MIN, _MAX = np.minimum.reduce, np.maximum.reduce  # without ndarray.min's wrapper (hot loops)
 
@@ -324,98 +325,33 @@ def fit_vehicle_box(xy: np.ndarray, sensor_xy: np.ndarray, *, top_m: float,
     if z is not None:
         z = _checks.float_array("z", z, (len(xy),))
     prior = cfg.prior(top_m)
-    origin = np.add.reduce(xy, axis=0) / len(xy)
-    local = xy - origin
-    rel = sensor - origin
-    theta = _orientation(local, heading_hint, cfg)
-    if theta is None:  # fewer than 3 points: the hint, else along the line of sight
-        heading = float(heading_hint) if heading_hint is not None else math.atan2(-rel[1], -rel[0])
-        uv = local @ _rotation(heading)
-        lo, hi = _MIN(uv, axis=0), _MAX(uv, axis=0)
-    else:
-        uv = local @ _rotation(theta)
-        lo, hi = _MIN(uv, axis=0), _MAX(uv, axis=0)
-        on, axis = _dominant_face(uv, lo, hi, cfg.face_tol_m)
-        delta = _face_direction(local[on], theta + (math.pi / 2 if axis == 0 else 0.0), cfg)
-        if delta != 0.0:  # the closeness heading, refined by a line fit to the face holding most points
-            theta += delta
-            uv = local @ _rotation(theta)
-            lo, hi = _MIN(uv, axis=0), _MAX(uv, axis=0)
-        heading = _long_axis(theta, uv[on, 1 - axis], axis, heading_hint, ext_a=float(hi[0] - lo[0]),
-                             ext_b=float(hi[1] - lo[1]), prior=prior)
-        if heading != theta:  # the long axis is theta + 90 deg: (u, v) -> (v, -u)
-            uv = uv[:, ::-1] * (1.0, -1.0)
-            lo, hi = np.array([lo[1], -hi[0]]), np.array([hi[1], -lo[0]])
-    c, s = math.cos(heading), math.sin(heading)
-    us, vs = c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1]
-    u, v = uv[:, 0], uv[:, 1]
-    ext = [float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])]
-    shape = _shape(u, v, ext, z, top_m, cfg, footprint=not (open_ends[0] or open_ends[1]))
-
-    end, side, faces = _faces(u, v, us, vs, ext, cfg)
-    cut = _open_azimuth_edges(u, v, us, vs, ext, end, side, open_ends, cfg) if any(open_ends) else ()
-    if end in cut:  # an occluder's edge, not the object's
-        end = None
-    if side in cut:
-        side = None
-    gaps = _gaps(us, vs, ext, end, side, cfg)
-    for i in cut:
-        gaps[i] = math.inf
-    size = (prior.length_m, prior.width_m, prior.length_std_m, prior.width_std_m) if shape == "vehicle" else (
-        0.0, 0.0, 0.0, 0.0)  # not completed: the box of the points, only the sampling gaps as uncertainty
-    u0, u1, sd_u, sp_u = _complete(ext[0], ext[1], gaps[0], gaps[1], size[0], size[2])
-    v0, v1, sd_v, sp_v = _complete(ext[2], ext[3], gaps[2], gaps[3], size[1], size[3])
-    mu, mv = 0.5 * (ext[0] + ext[1]), 0.5 * (ext[2] + ext[3])
-    du, dv = 0.5 * (u0 + u1) - mu, 0.5 * (v0 + v1) - mv  # completion offset, box frame
-    seen_centre = origin + (c * mu - s * mv, s * mu + c * mv)
-    centre = seen_centre + (c * du - s * dv, s * du + c * dv)
-    length, width, hdg = u1 - u0, v1 - v0, heading
-    if width > length:  # keep length >= width (only for odd, wide clusters)
-        length, width, hdg = width, length, heading + math.pi / 2
-    R = _covariance(heading, du, dv, (sd_u, sp_u), (sd_v, sp_v), len(xy), heading_hint is not None, cfg)
-    return BoxFit(centre=centre, heading=_wrap_to(hdg, heading_hint), length=float(length), width=float(width),
-                  seen_length=ext[1] - ext[0], seen_width=ext[3] - ext[2], faces=faces,
-                  completed=bool(math.hypot(du, dv) > 0.05), R=R, shape=shape, size_class=prior.name,
-                  seen_centre=seen_centre)
+    return _fit_compiled(xy, sensor, float(top_m), prior, heading_hint, open_ends, z, cfg)
 
 
-def _rotation(theta: float) -> np.ndarray:
-    """(2, 2) matrix whose columns are the unit vectors along theta and across it (+90 deg)."""
-    c, s = math.cos(theta), math.sin(theta)
-    return np.array([[c, -s], [s, c]])
-
-
-def _orientation(local: np.ndarray, hint: float | None, cfg: BoxFitConfig) -> float | None:
-    """Rectangle orientation [rad] (mod pi/2) of the points local (n, 2) by the closeness criterion, or None
-    for fewer than 3 distinct points (see the module doc step 1)."""
-    n = len(local)
-    if n < 3:
-        return None
-    sample = local if n <= cfg.max_points else local[:: -(-n // cfg.max_points)]
-    fine = math.radians(cfg.step_deg)
+def _fit_compiled(xy: np.ndarray, sensor: np.ndarray, top_m: float, prior: SizePrior, hint: float | None,
+                  open_ends: tuple[bool, bool], z: np.ndarray | None, cfg: BoxFitConfig) -> BoxFit:
+    """fit_vehicle_box's steps by the compiled kernel (sensors/_boxfit_jit.py) on validated inputs."""
     window, n_inner, refine, free = _grids(cfg.step_deg, cfg.coarse_step_deg, cfg.hint_window_deg)
-    if hint is not None:  # the window around the hint finely, the rest coarsely (to see a turned vehicle)
-        grid = hint + window
-        score = _closeness(sample, grid, cfg.d0_m)
-        k = int(np.argmax(score[:n_inner]))
-        if len(grid) > n_inner:
-            k_out = n_inner + int(np.argmax(score[n_inner:]))
-            if score[k_out] >= cfg.hint_override * score[k]:  # clearly turned: refine around the coarse winner
-                grid = grid[k_out] + refine
-                score = _closeness(sample, grid, cfg.d0_m)
-                k = int(np.argmax(score))
-    else:
-        grid = free[int(np.argmax(_closeness(sample, free, cfg.d0_m)))] + refine
-        score = _closeness(sample, grid, cfg.d0_m)
-        k = int(np.argmax(score))
-    if not score[k] > 0.0 or not np.isfinite(score[k]):
-        return None
-    theta = float(grid[k])
-    if 0 < k < len(grid) - 1 and abs(grid[k + 1] - grid[k - 1] - 2 * fine) < 1e-9:  # parabola through the peak
-        a, b, c = float(score[k - 1]), float(score[k]), float(score[k + 1])
-        if a - 2 * b + c < 0:
-            theta += fine * min(max(0.5 * (a - c) / (a - 2 * b + c), -0.5), 0.5)
-    return theta
+    r = _boxfit_jit.fit(np.ascontiguousarray(xy), sensor, top_m,
+                        np.array([prior.length_m, prior.width_m, prior.length_std_m, prior.width_std_m]),
+                        hint is not None, 0.0 if hint is None else float(hint), bool(open_ends[0]),
+                        bool(open_ends[1]), _NO_Z if z is None else z, z is not None, window, n_inner, refine,
+                        free, _params(cfg))
+    cx, cy, heading, length, width, seen_l, seen_w, faces, completed, rxx, rxy, ryy, shape, scx, scy = r
+    return BoxFit(centre=np.array([cx, cy]), heading=heading, length=length, width=width, seen_length=seen_l,
+                  seen_width=seen_w, faces=int(faces), completed=bool(completed),
+                  R=np.array([[rxx, rxy], [rxy, ryy]]), shape=_boxfit_jit.SHAPE_CODES[shape],
+                  size_class=prior.name, seen_centre=np.array([scx, scy]))
+
+
+_NO_Z = np.zeros(0)
+
+
+@functools.lru_cache(maxsize=16)
+def _params(cfg: BoxFitConfig) -> np.ndarray:
+    p = _boxfit_jit.params(cfg)
+    p.setflags(write=False)
+    return p
 
 
 @functools.lru_cache(maxsize=8)
@@ -429,171 +365,6 @@ def _grids(step_deg: float, coarse_deg: float, window_deg: float) -> tuple[np.nd
     for g in grids:
         g.setflags(write=False)
     return grids[0], len(inner), grids[1], grids[2]
-
-
-def _dominant_face(uv: np.ndarray, lo: np.ndarray, hi: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
-    """(n,) mask of the points within tol of the edge of the box [lo, hi] (2,) that holds most points, and
-    the axis (0, 1) whose extreme that edge is (so the face runs along the other axis)."""
-    near_lo, near_hi = uv - lo <= tol, hi - uv <= tol
-    n_lo, n_hi = near_lo.sum(axis=0), near_hi.sum(axis=0)
-    k = 0 if n_lo[0] >= n_lo[1] else 1
-    if max(n_hi[0], n_hi[1]) > n_lo[k]:
-        return near_hi[:, 0 if n_hi[0] >= n_hi[1] else 1], 0 if n_hi[0] >= n_hi[1] else 1
-    return near_lo[:, k], k
-
-
-def _face_direction(pts: np.ndarray, nominal: float, cfg: BoxFitConfig) -> float:
-    """Correction [rad] of the direction `nominal` of a face from a total-least-squares line through its
-    points pts (m, 2); 0 when the face is too short or the fit disagrees by more than 2 coarse steps."""
-    if len(pts) < 3:
-        return 0.0
-    m = pts - np.add.reduce(pts, axis=0) / len(pts)
-    cxx, cyy, cxy = float(m[:, 0] @ m[:, 0]), float(m[:, 1] @ m[:, 1]), float(m[:, 0] @ m[:, 1])
-    spread = (cxx + cyy) / len(pts)
-    if spread < (cfg.min_face_m / 2) ** 2 / 3:  # shorter than min_face_m (a uniform spread's variance)
-        return 0.0
-    direction = 0.5 * math.atan2(2.0 * cxy, cxx - cyy)
-    delta = math.remainder(direction - nominal, math.pi)
-    return delta if abs(delta) <= 2 * math.radians(cfg.coarse_step_deg) else 0.0
-
-
-def _long_axis(theta: float, face: np.ndarray, axis: int, hint: float | None, *, ext_a: float, ext_b: float,
-               prior: SizePrior) -> float:
-    """theta or theta + pi/2, whichever is the vehicle's long axis (module doc step 1). face (m,) the
-    coordinates along it of the points on the dominant face, which lies at an extreme of `axis` (0: along
-    theta, 1: across); ext_a, ext_b the points' extents along and across theta [m]."""
-    if hint is not None:
-        along_a = abs(math.cos(theta - hint)) >= abs(math.sin(theta - hint))
-        along, across = (ext_a, ext_b) if along_a else (ext_b, ext_a)
-        turned = across > prior.width_m + 1.0 and across > along  # a vehicle across the road
-        return theta if along_a != turned else theta + math.pi / 2
-    face_along_a = axis == 1  # a face at an extreme across theta runs along theta
-    is_side = len(face) > 0 and float(face.max() - face.min()) > prior.width_m + 3 * prior.width_std_m + 0.1
-    return theta if face_along_a == is_side else theta + math.pi / 2
-
-
-def _faces(u: np.ndarray, v: np.ndarray, us: float, vs: float, ext: list, cfg: BoxFitConfig):
-    """Indices into ext = [u0, u1, v0, v1] of the seen end (0, 1) and side (2, 3), or None, and how many
-    of them show as a face.
-
-    u, v (n,) the points and us, vs the sensor in the box frame. The end toward the sensor along u is seen
-    when the sensor lies beyond it (the nearest surface is that edge); it counts as a face when the points
-    within face_tol_m of it span at least min_face_m across. Likewise the side."""
-    u0, u1, v0, v1 = ext
-    end = 0 if us < u0 else 1 if us > u1 else None
-    side = 2 if vs < v0 else 3 if vs > v1 else None
-    faces = 0
-    if end is not None:
-        on = v[np.abs(u - ext[end]) <= cfg.face_tol_m]
-        faces += bool(_MAX(on) - _MIN(on) >= cfg.min_face_m)
-    if side is not None:
-        on = u[np.abs(v - ext[side]) <= cfg.face_tol_m]
-        faces += bool(_MAX(on) - _MIN(on) >= cfg.min_face_m)
-    return end, side, faces
-
-
-def _gaps(us: float, vs: float, ext: list, end: int | None, side: int | None, cfg: BoxFitConfig) -> list:
-    """Gaps [m] of the extents ext = [u0, u1, v0, v1] (module doc step 3); end, side from _faces."""
-    daz = math.radians(cfg.azimuth_step_deg) * cfg.gap_factor
-    tilt = math.tan(math.radians(cfg.gap_heading_tol_deg))
-    gaps = [math.inf] * 4
-    for i in range(2):
-        if i == end:
-            gaps[i] = 0.0
-        elif side is not None:  # reached along the side: the ray spacing there
-            h = abs(vs - ext[side])
-            gaps[i] = _spacing((ext[i] - us) ** 2 + h * h, h, daz, tilt, cfg.max_range_m)
-        if 2 + i == side:
-            gaps[2 + i] = 0.0
-        elif end is not None:  # reached along the end face
-            h = abs(us - ext[end])
-            gaps[2 + i] = _spacing((ext[2 + i] - vs) ** 2 + h * h, h, daz, tilt, cfg.max_range_m)
-    return gaps
-
-
-def _spacing(d2: float, h: float, daz: float, tilt: float, max_range: float) -> float:
-    """Ray spacing [m] along a line h [m] from the sensor, at squared range d2 [m^2] (module doc step 3);
-    inf at grazing incidence or where the next ray would pass the sensor's maximum range."""
-    d = math.sqrt(d2)
-    h -= d * tilt
-    if h <= 0.0:
-        return math.inf
-    g = d2 * daz / h
-    return g if d + g < max_range else math.inf
-
-
-def _open_azimuth_edges(u: np.ndarray, v: np.ndarray, us: float, vs: float, ext: list, end: int | None,
-                        side: int | None, open_ends: tuple[bool, bool], cfg: BoxFitConfig) -> set:
-    """Indices into ext = [u0, u1, v0, v1] of the extents cut by an occluded azimuth edge.
-
-    The occluded edge's outermost point p lies on a face that continues behind the occluder: along a side
-    (p on the seen side's line) the u extent is open, along an end the v extent; the end of that extent
-    the hidden part runs to is the one along the azimuth tangent at p, away from the cluster. At a corner,
-    or off both lines, the face is the direction in which the points within open_nbr_deg of p's azimuth
-    spread most; if they spread less than face_tol_m, both extents are open."""
-    az = np.arctan2(v - vs, u - us)  # azimuth in the box frame: same order as in the world (a rotation)
-    az = np.mod(az - az[0] + math.pi, 2 * math.pi)  # unwrapped around the first point (a cluster spans < pi)
-    tol = cfg.face_tol_m
-    cut = set()
-    for sign, is_open, p in ((-1.0, open_ends[0], int(np.argmin(az))), (1.0, open_ends[1], int(np.argmax(az)))):
-        if not is_open:
-            continue
-        up, vp = float(u[p]), float(v[p])
-        on_side = side is not None and abs(vp - ext[side]) <= tol
-        on_end = end is not None and abs(up - ext[end]) <= tol
-        along_u = along_v = True
-        if on_side != on_end:
-            along_u, along_v = on_side, on_end
-        else:
-            nbr = np.abs(az - az[p]) <= math.radians(cfg.open_nbr_deg)
-            spread_u, spread_v = np.ptp(u[nbr]), np.ptp(v[nbr])
-            if max(spread_u, spread_v) > tol:
-                along_u, along_v = spread_u >= spread_v, spread_v > spread_u
-        # the hidden part continues from p away from the cluster in azimuth: along the tangent there
-        t_u, t_v = -sign * (vp - vs), sign * (up - us)  # (counter-)clockwise tangent at p
-        if along_u:
-            cut.add(1 if t_u > 0 else 0)
-        if along_v:
-            cut.add(3 if t_v > 0 else 2)
-    return cut
-
-
-def _complete(lo: float, hi: float, g_lo: float, g_hi: float, size: float, size_std: float):
-    """Completed extents of one axis: (lo', hi', sigma_D, split) [m], see the module doc steps 3 and 5."""
-    seen = hi - lo
-    room = g_lo + g_hi
-    full = min(max(seen, size), seen + room)
-    extra = full - seen
-    e_lo = min(max(extra / 2, extra - g_hi), g_lo)
-    bounded = full < size or seen >= size  # the points (not the prior) fix the size
-    sd = min(size_std, room / math.sqrt(12.0)) if bounded else size_std
-    split = min(g_lo, g_hi, extra)
-    return lo - e_lo, hi + (extra - e_lo), sd, split
-
-
-def _covariance(heading: float, du: float, dv: float, u_terms: tuple, v_terms: tuple, n: int, hinted: bool,
-                cfg: BoxFitConfig) -> np.ndarray:
-    """(2, 2) world covariance of the centre (module doc step 5); du, dv the completion offset [m] and
-    u_terms, v_terms the (size std, split) of each box axis from _complete."""
-    base = cfg.floor_std_m**2 + cfg.range_noise_m**2
-    var_u = base + u_terms[0] ** 2 / 4 + u_terms[1] ** 2 / 12
-    var_v = base + v_terms[0] ** 2 / 4 + v_terms[1] ** 2 / 12
-    sig = math.radians(cfg.heading_std_deg if hinted else cfg.free_heading_std_deg)
-    sig2 = sig * sig * max(1.0, cfg.few_points / max(n, 1))
-    # box frame: diag(var_u, var_v) plus the heading error rotating the offset (du, dv): sig2 * (-dv, du)^2
-    a, b, d = var_u + sig2 * dv * dv, -sig2 * du * dv, var_v + sig2 * du * du
-    c, s = math.cos(heading), math.sin(heading)
-    # Q [[a, b], [b, d]] Q^T with Q = [[c, -s], [s, c]]
-    xx = c * c * a - 2 * c * s * b + s * s * d
-    yy = s * s * a + 2 * c * s * b + c * c * d
-    xy = c * s * (a - d) + (c * c - s * s) * b
-    return np.array([[xx, xy], [xy, yy]])
-
-
-def _wrap_to(heading: float, hint: float | None) -> float:
-    """heading mod pi, within pi/2 of the hint ([-pi/2, pi/2) without one)."""
-    ref = 0.0 if hint is None else float(hint)
-    return ref + math.fmod(math.fmod(heading - ref + math.pi / 2, math.pi) + math.pi, math.pi) - math.pi / 2
 
 
 def open_ends_from_ranges(ranges: np.ndarray, ray: np.ndarray, *, margin_m: float = 0.5,

@@ -6,8 +6,11 @@ however far along the highway the car is. Hit points are returned in the world f
 
 Speed: the road z = 0 is intersected analytically (every downward ray, one division); only the rays that
 can reach a box (its azimuth sector and elevation band, widened by the angular errors actually drawn) are
-cast with open3d, against the boxes alone; each ray keeps the nearer of the two hits. `scan(..., fast=False)`
-casts every ray at the full mesh (ground + boxes) instead: same points and labels up to float32 precision.
+tested against it, by a compiled float64 ray / oriented-box slab test (sensors/_raycast.py); each ray keeps
+the nearer of the two hits. `scan(..., fast=False)` casts every ray at the full open3d mesh (ground +
+boxes, float32) instead, the reference: the same points up to float32 precision (~1e-5 m at 70 m) and the
+same labels, except for the odd ray grazing a box edge within that precision (tests/test_sensors_lidar.py
+bounds how many).
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from sensors import _checks
+from sensors import _checks, _raycast
 from sensors._o3d import open3d
 
 GROUND: int = -2
@@ -240,27 +243,12 @@ def scan(
     else:
         t, which = _cast_full(o3d, cfg, pat, dirs, verts)
 
-    keep = np.isfinite(t)
-    if u_drop is not None:
-        keep &= u_drop >= cfg.dropout
-    r = t + noise if noise is not None else t
-    keep &= (r >= cfg.min_range_m) & (r <= cfg.max_range_m)
-
-    idx = np.flatnonzero(keep)
-    p = np.take(pat.dirs, idx, axis=0)  # nominal unit directions of the kept rays, sensor frame
-    r_kept = np.take(r, idx)
-    for k in range(3):  # -> points relative to the sensor, as the sensor reports them (by column: faster)
-        p[:, k] *= r_kept
     c, s = np.cos(pose[2]), np.sin(pose[2])
-    points = p @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # rotate by yaw into the world frame
-    for k, offset in enumerate((pose[0], pose[1], cfg.mount_height_m)):
-        points[:, k] += offset
-
-    box_of_point = np.take(which, idx)
-    source = np.full(len(idx), GROUND, np.int64)
-    on_box = box_of_point >= 0
-    source[on_box] = box_ids[box_of_point[on_box]]
-    ranges = np.where(keep, r, np.inf).reshape(len(pat.azimuths), len(pat.elevations))
+    empty = np.zeros(0)
+    ranges, idx, points, source = _raycast.assemble(
+        t, which, empty if u_drop is None else u_drop, cfg.dropout, empty if noise is None else noise,
+        cfg.min_range_m, cfg.max_range_m, pat.dirs, c, s, pose[0], pose[1], cfg.mount_height_m, box_ids, GROUND)
+    ranges = ranges.reshape(len(pat.azimuths), len(pat.elevations))
     origin = np.array([pose[0], pose[1], cfg.mount_height_m])
     return Scan(points=points, source=source, origin=origin, ranges=ranges, ray=idx,
                 azimuths=pat.azimuths, elevations=pat.elevations, pose=pose)
@@ -365,25 +353,33 @@ def _cast_full(o3d, cfg: LidarConfig, pat: _Pattern, dirs: np.ndarray, verts: np
 
 def _cast_fast(o3d, cfg: LidarConfig, pat: _Pattern, dirs: np.ndarray, verts: np.ndarray, w_az: float,
                w_el: float, reach: float):
-    """Road hits analytically, boxes by casting the candidate rays only; same outputs as _cast_full."""
+    """Road hits analytically, boxes by a compiled slab test of their candidate rays only (sensors/_raycast.py);
+    the outputs of _cast_full up to float32 round-off (its mesh holds the same boxes in float32)."""
     t = pat.t_ground.copy() if dirs is pat.dirs else _ground_range(cfg, dirs)
     which = np.full(len(t), -1, np.int64)
-    cand, active = _candidates(cfg, pat, verts, w_az, w_el, reach)
-    if len(cand) == 0:
+    sectors = _candidates(cfg, pat, verts, w_az, w_el, reach)
+    if len(sectors[0]) == 0:
         return t, which
-    rays = np.take(pat.rays32, cand, axis=0) if dirs is pat.dirs else _rays32(cfg, np.take(dirs, cand, axis=0))
-    vertices, triangles = _mesh(verts[active], None)
-    ans = _raycaster(o3d, vertices, triangles).cast_rays(o3d.core.Tensor(rays))
-    t_box = ans["t_hit"].numpy().astype(np.float64)
-    nearer = t_box < t[cand] * (1.0 - 1e-6)  # a tie (a box bottom lying on the road, seen from inside) is road
-    hit = cand[nearer]
-    t[hit] = t_box[nearer]
-    which[hit] = active[ans["primitive_ids"].numpy()[nearer].astype(np.int64) // len(_TRIANGLES)]
+    _raycast.cast_boxes(np.ascontiguousarray(dirs), float(cfg.mount_height_m), t, which, _slab_boxes(verts),
+                        *sectors, len(pat.azimuths), len(pat.elevations))
     return t, which
 
 
+def _slab_boxes(verts: np.ndarray) -> np.ndarray:
+    """(K, 8) [cx, cy, ux, uy, half length, half width, z bottom, z top] of the boxes with corners verts
+    (K, 8, 3) (_box_vertices), sensor frame: the footprint centre, the unit vector from corner 0 to 1."""
+    e1, e2 = verts[:, 1, :2] - verts[:, 0, :2], verts[:, 3, :2] - verts[:, 0, :2]
+    length, width = np.hypot(e1[:, 0], e1[:, 1]), np.hypot(e2[:, 0], e2[:, 1])
+    centre = 0.5 * (verts[:, 0, :2] + verts[:, 2, :2])
+    return np.column_stack([centre, e1 / length[:, None], 0.5 * length, 0.5 * width, verts[:, 0, 2], verts[:, 4, 2]])
+
+
 def _candidates(cfg: LidarConfig, pat: _Pattern, verts: np.ndarray, w_az: float, w_el: float, reach: float):
-    """Flat indices (C,) of the rays that can hit some box, and the indices (K',) of the boxes within reach.
+    """The candidate rays of each box: (active, b0, b1, i0, i1, wrap, every), see _raycast.cast_boxes.
+
+    active (K',) int64 the boxes within reach whose elevation band holds a beam; per box (K,) the beam
+    range [b0, b1), the azimuth index range [i0, i1], and [0, wrap] when wrap >= 0 (the sector passes
+    azimuth 0), or every azimuth when `every`.
 
     A ray can hit box k only if its true azimuth lies in the sector the box footprint covers seen from the
     sensor (all azimuths when the sensor is above or inside the footprint) and its true elevation e lets it
@@ -394,9 +390,10 @@ def _candidates(cfg: LidarConfig, pat: _Pattern, verts: np.ndarray, w_az: float,
     (w_az, w_el) plus a float32 margin. A box whose nearest point is beyond `reach` (max range + the largest
     negative range noise) can only return points that are dropped, and is left out.
     """
-    n_az, n_el = len(pat.azimuths), len(pat.elevations)
+    n_az = len(pat.azimuths)
     if len(verts) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        none = np.zeros(0, np.int64)
+        return none, none, none, none, none, none, np.zeros(0, bool)
     h = cfg.mount_height_m
     foot = verts[:, :4, :2]  # (K, 4, 2) footprint corners; the sensor is at xy = 0
     e1, e2 = foot[:, 1] - foot[:, 0], foot[:, 3] - foot[:, 0]  # the two edge vectors from corner 0
@@ -427,15 +424,7 @@ def _candidates(cfg: LidarConfig, pat: _Pattern, verts: np.ndarray, w_az: float,
     wrap = np.floor((hi - 2 * np.pi) / step).astype(np.int64)  # >= 0: the sector passes azimuth 0
 
     active = np.flatnonzero((b0 < b1) & (rho_min <= reach))
-    mask = np.zeros((n_az, n_el), bool)
-    for k in active:
-        if every[k]:
-            mask[:, b0[k]:b1[k]] = True
-            continue
-        mask[i0[k]:i1[k] + 1, b0[k]:b1[k]] = True
-        if wrap[k] >= 0:
-            mask[:wrap[k] + 1, b0[k]:b1[k]] = True
-    return np.flatnonzero(mask.ravel()), active
+    return active, b0.astype(np.int64), b1.astype(np.int64), i0, i1, wrap, every
 
 
 def _box_vertices(pose: np.ndarray, boxes: np.ndarray) -> np.ndarray:

@@ -296,9 +296,10 @@ class PerceptionConfig:
     def thesis() -> "PerceptionConfig":
         """The thesis's plain pipeline: no map ROI, fixed 0.8 m height bound, 3.5 m top, 8 m length for every
         object (max_truck_length_m = max_length_m), 2 m median height, no shape test, no split or merge,
-        L-shape centre with the one-face completion."""
+        L-shape centre with the one-face completion, and the grid ground segmentation (the pipeline before the
+        production-like stack: it reproduces that pipeline's detections exactly)."""
         return PerceptionConfig(
-            max_object_height_m=3.5, max_median_height_m=2.0, fit="lshape_center", roi=False,
+            ground=GroundConfig(method="grid"), max_object_height_m=3.5, max_median_height_m=2.0, fit="lshape_center", roi=False,
             min_height_mode="fixed", robust_height=False, shape_filter=False, max_truck_length_m=8.0,
             split_vehicles=False, merge_fragments=False,
         )
