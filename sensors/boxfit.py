@@ -328,6 +328,15 @@ def fit_vehicle_box(xy: np.ndarray, sensor_xy: np.ndarray, *, top_m: float,
     return _fit_compiled(xy, sensor, float(top_m), prior, heading_hint, open_ends, z, cfg)
 
 
+def _fit_vehicle_box(xy: np.ndarray, sensor_xy: np.ndarray, *, top_m: float, heading_hint: float | None = None,
+                     open_ends: tuple[bool, bool] | None = None, cfg: BoxFitConfig = BoxFitConfig(),
+                     z: np.ndarray | None = None) -> BoxFit:
+    """fit_vehicle_box without its argument checks, for callers that already hold float64 arrays of the
+    documented shapes, a finite top_m and hint and a BoxFitConfig (sensors/perception.py): the same result."""
+    return _fit_compiled(xy, sensor_xy, float(top_m), cfg.prior(top_m), heading_hint,
+                         (False, False) if open_ends is None else open_ends, z, cfg)
+
+
 def _fit_compiled(xy: np.ndarray, sensor: np.ndarray, top_m: float, prior: SizePrior, hint: float | None,
                   open_ends: tuple[bool, bool], z: np.ndarray | None, cfg: BoxFitConfig) -> BoxFit:
     """fit_vehicle_box's steps by the compiled kernel (sensors/_boxfit_jit.py) on validated inputs."""

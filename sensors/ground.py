@@ -32,8 +32,8 @@ from typing import Callable
 
 import numpy as np
 
-from sensors import _checks
-from sensors._grid import bev_cells
+from sensors import _checks, _perception_jit
+from sensors._grid import MAX_CELLS, bev_cells
 from sensors._o3d import open3d
 from sensors.lidar import GROUND
 
@@ -128,43 +128,32 @@ def _road_plane(pts: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None) -
     centre = origin if origin is not None else np.array([*pts[:, :2].mean(axis=0), cfg.ground_z_m])
     # coordinates relative to the sensor, as contiguous columns (much faster than (N, 3) broadcasting)
     x, y, z = pts[:, 0] - centre[0], pts[:, 1] - centre[1], pts[:, 2] - centre[2]
-    r = np.sqrt(x * x + y * y + z * z) if origin is not None else None
     plane = _coarse_plane(pts, centre, z, cfg)
     near = np.abs(z - plane[0] * x - plane[1] * y - plane[2]) <= _FINE_BAND_M
     plane = _plane_fit(x[near], y[near], z[near], plane)  # the cells' lowest points sit low and off-centre
     if not _acceptable(plane, cfg):
         plane = np.array([0.0, 0.0, cfg.ground_z_m - centre[2]])
-    res = z - plane[0] * x - plane[1] * y - plane[2]  # height above the road plane [m]
-    tol = _tolerance(r, plane, cfg)
-    is_ground = res <= tol
-    if cfg.foot_cell_m > 0.0:
-        above = (res > tol + _FOOT_ABOVE_M[0]) & (res <= tol + _FOOT_ABOVE_M[1])
-        is_ground[_at_object_foot(x, y, is_ground & (res > _FOOT_KEEP * tol), above, cfg.foot_cell_m)] = False
-    return is_ground
-
-
-def _tolerance(r: np.ndarray | None, plane: np.ndarray, cfg: GroundConfig) -> np.ndarray | float:
-    """Height band above the road plane [m]: (N,) for points at range r (N,) from the sensor, where the sensor
-    is at x = y = z = 0 above the plane z = a x + b y + c; height_tol_m without ranges."""
-    if r is None:
-        return cfg.height_tol_m
-    tol = cfg.road_tol_m + (cfg.range_tol_m * max(-plane[2], 0.0)) / np.maximum(r, 1e-9)
-    if cfg.angle_tol_deg > 0.0:
-        tol += r * np.tan(np.deg2rad(cfg.angle_tol_deg))
-    return np.minimum(tol, cfg.height_tol_m, out=tol)
+    # compiled: a point is road when its height above the plane is at most the band tol (the range-aware band of
+    # the module docstring when the origin is known, else height_tol_m), unless it is at an object's foot
+    return _perception_jit.road_band(
+        x, y, z, float(plane[0]), float(plane[1]), float(plane[2]), origin is not None, cfg.road_tol_m,
+        cfg.range_tol_m * max(-plane[2], 0.0), float(np.tan(np.deg2rad(cfg.angle_tol_deg))), cfg.height_tol_m,
+        cfg.foot_cell_m, _FOOT_ABOVE_M[0], _FOOT_ABOVE_M[1], _FOOT_KEEP)
 
 
 def _coarse_plane(pts: np.ndarray, centre: np.ndarray, z: np.ndarray, cfg: GroundConfig) -> np.ndarray:
     """(3,) plane [a, b, c], z = a x + b y + c relative to `centre` (3,), through the lowest point z (N,) of
     each BEV cell of the points (N, 3), taken at the cell centre: least squares trimmed to _COARSE_BANDS_M
     around the previous plane, starting from the road at ground_z_m."""
-    ix, iy, shape = bev_cells(pts, cfg.cell_m, "ground")
-    lowest = np.full(shape[0] * shape[1], np.inf)
-    np.minimum.at(lowest, ix * shape[1] + iy, z)
+    inv = 1.0 / cfg.cell_m  # cells numbered the way bev_cells does
+    fx0, fy0 = np.floor(pts[:, 0].min() * inv), np.floor(pts[:, 1].min() * inv)
+    shape = (int(np.floor(pts[:, 0].max() * inv) - fx0) + 1, int(np.floor(pts[:, 1].max() * inv) - fy0) + 1)
+    if shape[0] * shape[1] > MAX_CELLS:
+        bev_cells(pts, cfg.cell_m, "ground")  # raises its ValueError
+    lowest = _perception_jit.cell_lowest(pts, z, inv, fx0, fy0, shape[1], shape[0] * shape[1])
     occupied = np.flatnonzero(np.isfinite(lowest))
-    inv = 1.0 / cfg.cell_m  # cell centres, numbered the way bev_cells does
-    cx = (np.floor(pts[:, 0].min() * inv) + 0.5 + occupied // shape[1]) * cfg.cell_m - centre[0]
-    cy = (np.floor(pts[:, 1].min() * inv) + 0.5 + occupied % shape[1]) * cfg.cell_m - centre[1]
+    cx = (fx0 + 0.5 + occupied // shape[1]) * cfg.cell_m - centre[0]  # cell centres
+    cy = (fy0 + 0.5 + occupied % shape[1]) * cfg.cell_m - centre[1]
     low = lowest[occupied]
     plane = np.array([0.0, 0.0, cfg.ground_z_m - centre[2]])
     for band in _COARSE_BANDS_M:
@@ -182,22 +171,6 @@ def _plane_fit(x: np.ndarray, y: np.ndarray, z: np.ndarray, plane: np.ndarray) -
     if n < 3 or np.linalg.cond(normal) > 1e12:
         return plane
     return np.linalg.solve(normal, np.array([np.dot(x, z), np.dot(y, z), z.sum()]))
-
-
-def _at_object_foot(x: np.ndarray, y: np.ndarray, candidate: np.ndarray, above: np.ndarray, cell: float) -> np.ndarray:
-    """Indices of the `candidate` points that share a BEV cell of size `cell` with an `above` point (x, y (N,)
-    [m], candidate and above (N,) bool)."""
-    test, above = np.flatnonzero(candidate), np.flatnonzero(above)
-    if len(test) == 0 or len(above) == 0:
-        return test[:0]
-    inv = 1.0 / cell
-    ax, ay = np.floor(x[above] * inv).astype(np.int64), np.floor(y[above] * inv).astype(np.int64)
-    tx, ty = np.floor(x[test] * inv).astype(np.int64), np.floor(y[test] * inv).astype(np.int64)
-    x0, y0 = min(ax.min(), tx.min()), min(ay.min(), ty.min())
-    width = max(ay.max(), ty.max()) - y0 + 1
-    keys = np.sort((ax - x0) * width + (ay - y0))
-    query = (tx - x0) * width + (ty - y0)
-    return test[keys[np.minimum(np.searchsorted(keys, query), len(keys) - 1)] == query]
 
 
 def _acceptable(plane: np.ndarray, cfg: GroundConfig) -> bool:

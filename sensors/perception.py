@@ -66,11 +66,11 @@ from typing import Callable
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from sensors import _checks
+from sensors import _checks, _perception_jit
 from sensors.boxfit import (
     SHAPES,
     BoxFitConfig,
-    fit_vehicle_box,
+    _fit_vehicle_box,
     lshape_rectangle,
     min_area_rectangle,
     shape_class,
@@ -382,8 +382,13 @@ def _raw_objects(pts: np.ndarray, candidates: np.ndarray, sub: np.ndarray) -> li
     x = pts[members, 0]
     key = member_label * (np.ptp(x) + 1.0) + (x - x.min())
     order = np.argsort(key)
-    if np.any(np.diff(key[order]) == 0.0):
-        order = np.lexsort((pts[members, 2], pts[members, 1], x, member_label))
+    tie = np.diff(key[order]) == 0.0
+    if np.any(tie):  # runs of equal keys (repeated x): the full lexicographic order within each run
+        in_run = np.r_[tie, False] | np.r_[False, tie]
+        pos = np.flatnonzero(in_run)
+        run = np.cumsum(np.r_[True, ~tie])[pos]  # run number of each position in a run
+        sel = order[pos]  # then by position, as lexsort breaks its ties
+        order[pos] = sel[np.lexsort((sel, pts[members[sel], 2], pts[members[sel], 1], x[sel], member_label[sel], run))]
     members = members[order]
     ends = np.cumsum(np.bincount(member_label, minlength=int(member_label.max()) + 1))
     return np.split(members, ends[:-1])
@@ -411,6 +416,7 @@ class _Stats:
     d_min: np.ndarray  # (K,) nearest horizontal range from the sensor [m]
     u: np.ndarray  # (sum n,) each member's coordinate along its object's axis, from the centroid [m]
     xy: np.ndarray  # (sum n, 2) the members' bird's-eye points [m]
+    rel: np.ndarray  # (sum n, 2) ... relative to their object's centroid [m]
     principal: np.ndarray  # (K,) principal axis of the points [rad]
     thickness: np.ndarray  # (K,) footprint extent across the principal axis [m]
     p_length: np.ndarray  # (K,) ... and along it
@@ -418,35 +424,27 @@ class _Stats:
 
 def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy: np.ndarray,
            road: RoadMap | None) -> _Stats:
-    n = np.array([len(o) for o in objects], np.int64)
+    n = np.fromiter(map(len, objects), np.int64, len(objects))
     members = np.concatenate(objects)
     starts = np.cumsum(n) - n
-    xy = pts[members, :2]
-    top = np.maximum.reduceat(pts[members, 2], starts) - road_z
-    lo = np.minimum.reduceat(xy, starts, axis=0)
-    hi = np.maximum.reduceat(xy, starts, axis=0)
-    centroid = np.add.reduceat(xy, starts, axis=0) / n[:, None]
-    rel = xy - np.repeat(centroid, n, axis=0)
-    sxx = np.add.reduceat(rel[:, 0] ** 2, starts)
-    syy = np.add.reduceat(rel[:, 1] ** 2, starts)
-    sxy = np.add.reduceat(rel[:, 0] * rel[:, 1], starts)
+    top, lo, hi, centroid, sxx, syy, sxy, d_min, xy, rel = _perception_jit.object_sums(
+        pts, members, starts, n, float(road_z), float(sensor_xy[0]), float(sensor_xy[1]))
     principal = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-    thickness = _extent(rel, -np.sin(principal), np.cos(principal), n, starts)
-    p_length = _extent(rel, np.cos(principal), np.sin(principal), n, starts)
+    cos_p, sin_p = np.cos(principal), np.sin(principal)
+    thickness = _extent(rel, -sin_p, cos_p, n, starts)
+    p_length = _extent(rel, cos_p, sin_p, n, starts)
     axis = road.heading_at(centroid) if road is not None else principal
-    c, s = np.repeat(np.cos(axis), n), np.repeat(np.sin(axis), n)
-    u = rel[:, 0] * c + rel[:, 1] * s
-    along = np.maximum.reduceat(u, starts) - np.minimum.reduceat(u, starts)
-    across = _extent(rel, -np.sin(axis), np.cos(axis), n, starts)
-    d_min = np.minimum.reduceat(np.hypot(xy[:, 0] - sensor_xy[0], xy[:, 1] - sensor_xy[1]), starts)
-    return _Stats(members, starts, n, top, lo, hi, centroid, axis, along, across, d_min, u, xy, principal,
+    cos_a, sin_a = (np.cos(axis), np.sin(axis)) if road is not None else (cos_p, sin_p)
+    u, along = _perception_jit.along(rel, cos_a, sin_a, starts, n)
+    across = _extent(rel, -sin_a, cos_a, n, starts)
+    return _Stats(members, starts, n, top, lo, hi, centroid, axis, along, across, d_min, u, xy, rel, principal,
                   thickness, p_length)
 
 
 def _extent(rel: np.ndarray, cx: np.ndarray, cy: np.ndarray, n: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """(K,) extent of each object's points rel (sum n, 2) along its unit direction (cx, cy) (K,) each."""
-    w = rel[:, 0] * np.repeat(cx, n) + rel[:, 1] * np.repeat(cy, n)
-    return np.maximum.reduceat(w, starts) - np.minimum.reduceat(w, starts)
+    return _perception_jit.extent(rel, np.ascontiguousarray(cx, np.float64), np.ascontiguousarray(cy, np.float64),
+                                  starts, n)
 
 
 # --- split ----------------------------------------------------------------------------------------------
@@ -700,8 +698,9 @@ def _screen(scan: Scan, st: _Stats, cfg: PerceptionConfig) -> tuple[np.ndarray, 
     diag = np.hypot(*(st.hi - st.lo).T)
     required = _required_top(scan, st.d_min, cfg)
     low = st.top < required
+    z = pts[st.members, 2] - road_z
     if cfg.robust_height:
-        low |= ~_body_reaches(pts[st.members, 2] - road_z, st, required, cfg.body_bin_m)
+        low |= ~_body_reaches(z, st, required, cfg.body_bin_m)
     if cfg.shape_filter:  # too big for a vehicle by the points' principal extents: a guard-rail run, a wall
         length, width = np.maximum(st.p_length, st.thickness), np.minimum(st.p_length, st.thickness)
         reason[length > cfg.max_length_for(st.top)] = "too_long"
@@ -711,15 +710,12 @@ def _screen(scan: Scan, st: _Stats, cfg: PerceptionConfig) -> tuple[np.ndarray, 
     reason[(reason == "") & (diag < cfg.min_extent_m)] = "too_small"
     if cfg.shape_filter:  # low and narrow as seen from the sensor: a far rail or wall seen edge-on
         sight = np.arctan2(st.centroid[:, 1] - scan.origin[1], st.centroid[:, 0] - scan.origin[0])
-        rel = pts[st.members, :2] - np.repeat(st.centroid, st.n, axis=0)
-        facing = _extent(rel, -np.sin(sight), np.cos(sight), st.n, st.starts)  # across the line of sight
+        facing = _extent(st.rel, -np.sin(sight), np.cos(sight), st.n, st.starts)  # across the line of sight
         along_sight = np.abs(np.sin(st.principal - sight)) < np.sin(np.deg2rad(cfg.grazing_deg))
         thin = (facing < cfg.edge_on_width_m) | ((st.thickness < cfg.edge_on_width_m) & along_sight)
         edge_on = thin & (st.top < cfg.min_height_m)
         reason[(reason == "") & edge_on] = "edge_on"
-    z = pts[st.members, 2] - road_z
-    z_sorted = z[np.argsort(np.repeat(np.arange(k_all), st.n) * (np.ptp(z) + 1.0) + (z - z.min()))]  # by object, z
-    median = 0.5 * (z_sorted[st.starts + (st.n - 1) // 2] + z_sorted[st.starts + st.n // 2])
+    median = _perception_jit.medians(z, st.starts, st.n)
     reason[(reason == "") & (median > cfg.max_median_height_m)] = "high_median"
     if cfg.shape_filter:
         reason[(reason == "") & _lifted(z, st, cfg)] = "lifted"
@@ -753,18 +749,8 @@ def _lifted(z: np.ndarray, st: _Stats, cfg: PerceptionConfig) -> np.ndarray:
     reaches down along its whole near face (a car seen from behind: the lower rear spans its width under
     the roof rings). Alone: its lowest point is above lift_floor_m. No car reaches that high, and a car
     in front of a vehicle hides it only below the car's roof (the sensor is higher)."""
-    k_all = len(st.n)
-    owner = np.repeat(np.arange(k_all), st.n)
-    bottom = np.minimum.reduceat(z, st.starts)
-    low = z <= (0.5 * (bottom + st.top))[owner]
-    xy = st.xy
-
-    def span(mask: np.ndarray) -> np.ndarray:
-        hi = np.maximum.reduceat(np.where(mask[:, None], xy, -np.inf), st.starts, axis=0)
-        lo = np.minimum.reduceat(np.where(mask[:, None], xy, np.inf), st.starts, axis=0)
-        return np.where(np.isfinite(hi - lo), hi - lo, 0.0).max(axis=1)
-
-    crown_on_trunk = (span(low) < cfg.lift_trunk_m) & (span(~low) >= cfg.lift_crown_m)
+    bottom, low_span, high_span = _perception_jit.lift_spans(z, st.xy, st.top, st.starts, st.n)
+    crown_on_trunk = (low_span < cfg.lift_trunk_m) & (high_span >= cfg.lift_crown_m)
     return crown_on_trunk | (bottom > cfg.lift_floor_m)
 
 
@@ -772,17 +758,8 @@ def _body_reaches(z: np.ndarray, st: _Stats, required: np.ndarray, bin_m: float)
     """(K,) bool: in at least half of each object's bin_m bins along its axis, the highest point reaches
     the required top (K,) [m]; z (sum n,) the members' heights above the road [m]. A post on a guard rail
     lifts the rail's top, not its body."""
-    k_all = len(st.n)
-    owner = np.repeat(np.arange(k_all), st.n)
-    b = ((st.u - np.minimum.reduceat(st.u, st.starts)[owner]) / bin_m).astype(np.int64)
-    key = owner * (int(b.max()) + 1) + b
-    order = np.argsort(key, kind="stable")
-    key = key[order]
-    first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    bin_top = np.maximum.reduceat(z[order], first)
-    bin_owner = owner[order][first]
-    reach = np.bincount(bin_owner, weights=bin_top >= required[bin_owner], minlength=k_all)
-    return reach >= 0.5 * np.bincount(bin_owner, minlength=k_all)
+    return _perception_jit.body_reaches(z, st.u, np.ascontiguousarray(required, np.float64), float(bin_m),
+                                        st.starts, st.n)
 
 
 def _merge_boxes(pts, objects, flags, reason, fits, shape_centre, st, cfg):
@@ -878,8 +855,8 @@ def _fit(scan: Scan, idx: np.ndarray, top: float, hint: float | None, open_ends:
     """The measurement of one object by cfg.fit."""
     xy = scan.points[idx, :2]
     if cfg.fit == "vehicle_box":
-        f = fit_vehicle_box(xy, scan.origin[:2], top_m=float(top), heading_hint=hint, open_ends=open_ends,
-                            cfg=boxfit, z=scan.points[idx, 2] - cfg.ground.ground_z_m)
+        f = _fit_vehicle_box(xy, scan.origin[:2], top_m=float(top), heading_hint=hint, open_ends=open_ends,
+                             cfg=boxfit, z=scan.points[idx, 2] - cfg.ground.ground_z_m)  # checked inputs
         return _Fit(f.centre, f.heading, f.length, f.width, f.seen_length, f.seen_width, f.completed, f.R, f.shape)
     centre, length, width = REPRESENTATIVES[cfg.fit](xy)
     completed = False
