@@ -38,7 +38,7 @@ from .scenario import Scenario
 RANGE_BINS = np.arange(0.0, 75.0, 5.0)  # [m]
 VIEW_BINS = np.arange(0.0, 91.0, 15.0)  # [deg]
 VISIBLE_BINS = np.array([0.0, 0.05, 0.2, 0.4, 0.6, 0.8, 1.0001])
-GAPS_M = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 7.0, 10.0, 15.0, 20.0)
+GAPS_M = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0)
 MIN_SHARE = 0.1  # a detection holds a second vehicle when >= 10 % of its points (and >= 5) are that vehicle's
 
 
@@ -268,31 +268,30 @@ def _road_area_within(road: sensors.RoadMap, centre: np.ndarray, radius: float, 
 
 
 def merge_curve(scn: Scenario, gaps: tuple[float, ...] = GAPS_M, seed: int = 0) -> dict[float, float]:
-    """Merge rate against the bumper-to-bumper gap of two cars (4.6 x 1.8 x 1.5 m) one behind the other in
-    the lane left of the sensor car, seen with the scenario's LiDAR and perception from 10 positions
-    (the front car 8-45 m ahead) and 3 noise draws each: the share of views in which one detection holds
-    the points of both cars."""
+    """Merge rate against the bumper-to-bumper gap of two cars (4.6 x 1.8 x 1.5 m) one behind the other, in
+    the lane next to the sensor car's (3.5 m across) and two lanes over (7.5 m), seen with the scenario's LiDAR
+    and perception from 10 positions each (the front car 8-60 m ahead) and 2 noise draws: the share of the
+    views in which both cars show at least the clustering's minimum of points and one detection holds the
+    points of both (>= 10 % and >= 5 points each)."""
     lidar, cfg = scn.sensor.lidar, scn.sensor.perception
     rng = np.random.default_rng(seed)
     L, W, H = 4.6, 1.8, 1.5
-    lane_y = 3.5
     road = sensors.RoadMap(np.column_stack([np.arange(-100.0, 201.0), np.full(301, 0.0)]), np.zeros(301),
-                           np.full(301, 8.0))
+                           np.full(301, 10.0))
     out = {}
     for gap in gaps:
         merged = views = 0
-        for front in np.linspace(8.0, 45.0, 10):
-            rear = front - L - gap
-            boxes = np.array([[front, lane_y, L, W, H, 0.0, 0.0], [rear, lane_y, L, W, H, 0.0, 0.0]])
-            for _ in range(3):
-                s = sensors.scan(lidar, np.zeros(3), boxes, np.array([1, 2]), rng)
-                p = sensors.perceive(s, cfg, road)
-                both = _detection_owners(s.source, p.labels, len(p.detections))
-                seen = [np.count_nonzero(s.source == i) >= cfg.cluster.min_points for i in (1, 2)]
-                if not all(seen):
-                    continue
-                views += 1
-                merged += int(np.any(both >= 2))
+        for lane_y in (3.5, 7.5):
+            for front in np.linspace(8.0, 60.0, 10):
+                rear = front - L - gap
+                boxes = np.array([[front, lane_y, L, W, H, 0.0, 0.0], [rear, lane_y, L, W, H, 0.0, 0.0]])
+                for _ in range(2):
+                    s = sensors.scan(lidar, np.zeros(3), boxes, np.array([1, 2]), rng)
+                    p = sensors.perceive(s, cfg, road)
+                    if not all(np.count_nonzero(s.source == i) >= cfg.cluster.min_points for i in (1, 2)):
+                        continue
+                    views += 1
+                    merged += int(np.any(_detection_owners(s.source, p.labels, len(p.detections)) >= 2))
         out[float(gap)] = merged / views if views else float("nan")
     return out
 
