@@ -91,12 +91,9 @@ def _cmd_perception(args: argparse.Namespace) -> int:
     from .scenario import apply_overrides, parse_scenario, read_toml
 
     try:
-        overrides = _parse_sets(args.set or [])
-        if args.seed is not None:
-            overrides["seed"] = args.seed
-        if args.duration is not None:
-            overrides["duration_s"] = args.duration
-        data = apply_overrides(read_toml(args.scenario), overrides)
+        base = apply_overrides(read_toml(args.scenario), _parse_sets(args.set or []))  # what --write-settings keeps
+        run = {"seed": args.seed, "duration_s": args.duration}
+        data = apply_overrides(base, {k: v for k, v in run.items() if v is not None})
         scn = parse_scenario(data)
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -129,7 +126,7 @@ def _cmd_perception(args: argparse.Namespace) -> int:
     print(f"wrote {md} and its plots")
     if settings_path is not None:
         try:
-            write_settings(data, settings, settings_path, source=str(args.scenario))
+            write_settings(base, settings, settings_path, source=str(args.scenario))
         except ConfigError as err:
             print(f"error: --write-settings: {err}", file=sys.stderr)
             return 2
@@ -210,8 +207,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--duration", type=float, help="simulated seconds overriding the scenario's duration_s")
     c.add_argument("--set", action="append", metavar="KEY=VALUE", help="override any scenario key (repeatable)")
     c.add_argument("--out", help="report folder (default runs/perception/<scenario>)")
-    c.add_argument("--write-settings", metavar="FILE", help="write a copy of the scenario with the measured "
-                   "P_D, clutter density and sigma_w as its tracker settings")
+    c.add_argument("--write-settings", metavar="FILE", help="write a copy of the scenario (with its --set keys, "
+                   "not --seed or --duration) with the measured P_D, clutter density and sigma_w as its tracker "
+                   "settings")
     c.add_argument("--no-ablation", action="store_true", help="skip the tracker runs that count the false tracks "
                    "each static-object method removes")
     c.add_argument("--no-merge-sweep", action="store_true", help="skip the synthetic two-car merge-vs-gap sweep")

@@ -88,6 +88,17 @@ def _plots(ch: Characterisation, out: Path) -> list[str]:
     return names
 
 
+def _pd_table(ch: Characterisation) -> list[dict]:
+    """P_D by 10 m range bin: all vehicles in range, visible >= 50 %, occluded."""
+    bins = np.arange(0.0, ch.max_range_m + 10.0, 10.0)
+    vis = ch.vehicles["visible"] >= 0.5
+    pd_all, n = ch.pd_by("range", bins)
+    pd_vis, _ = ch.pd_by("range", bins, vis)
+    pd_occ, _ = ch.pd_by("range", bins, ~vis)
+    return [dict(range=f"{bins[b]:.0f}-{min(bins[b + 1], ch.max_range_m):.0f}", n=int(n[b]), all=float(pd_all[b]),
+                 visible=float(pd_vis[b]), occluded=float(pd_occ[b])) for b in range(len(bins) - 1) if n[b]]
+
+
 def _fmt(v, spec: str) -> str:
     if isinstance(v, float) and not math.isfinite(v):
         return "-"
@@ -126,6 +137,10 @@ def write_report(ch: Characterisation, out: Path, ablation: dict[str, dict] | No
         lines += ["Clusters rejected by each selection test (all frames): " +
                   ", ".join(f"{k} {v}" for k, v in sorted(ch.rejected.items(), key=lambda kv: -kv[1])) + ".", ""]
     lines += ["![P_D](pd.png)", ""]
+    pd_rows = _pd_table(ch)
+    lines += ["| range [m] | vehicle-frames | P_D all | P_D visible >= 50 % | P_D occluded |", "|---|---|---|---|---|"]
+    lines += [f"| {r['range']} | {r['n']} | {_fmt(r['all'], '.3f')} | {_fmt(r['visible'], '.3f')} | "
+              f"{_fmt(r['occluded'], '.3f')} |" for r in pd_rows] + [""]
     if "centre_error.png" in plots:
         lines += ["![centre error](centre_error.png)", ""]
         rows = ["| range [m] | n | box bias | box spread | centroid bias | centroid spread |", "|---|---|---|---|---|---|"]
@@ -167,6 +182,7 @@ def write_report(ch: Characterisation, out: Path, ablation: dict[str, dict] | No
     (out / "summary.json").write_text(json.dumps(dict(summary=s, merge_curve={str(k): v for k, v in
                                                                              ch.merge_curve.items()},
                                                       rejected=ch.rejected, ablation=ablation or {},
+                                                      pd_by_range=pd_rows,
                                                       settings=settings or {}), indent=2, default=float) + "\n")
     return md
 

@@ -95,7 +95,8 @@ def test_perception_cli_writes_report_plots_and_loadable_settings(tmp_path, caps
     scn = load_scenario(settings)
     assert scn.tracker.associator["pd"] == doc["settings"]["tracker.associator.pd"]
     assert scn.tracker.filter["sigma_w"] == doc["settings"]["tracker.filter.sigma_w"]
-    assert scn.vehicles == load_scenario("cut_in_out").vehicles  # the rest of the scenario is kept
+    assert scn.vehicles == load_scenario("cut_in_out").vehicles  # the rest of the scenario is kept ...
+    assert scn.duration_s == load_scenario("cut_in_out").duration_s  # ... without the report's --duration
 
 
 def test_perception_cli_bad_input_is_one_line(tmp_path, capsys):
