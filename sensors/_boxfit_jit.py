@@ -259,18 +259,11 @@ def _open_edges(u, v, us, vs, ext, end, side, open0, open1, p):
 
 
 @njit(cache=True)
-def fit(xy, sensor, top, prior, has_hint, hint, open0, open1, z, has_z, window, n_inner, refine, free, p):
-    """boxfit.fit_vehicle_box on validated inputs: xy (n >= 1, 2), sensor (2,), prior (4,) the size prior's
-    (length, width, length std, width std); z (n,) when has_z. Returns the FIELDS tuple."""
-    n = xy.shape[0]
-    ox, oy = 0.0, 0.0
-    for i in range(n):
-        ox += xy[i, 0]
-        oy += xy[i, 1]
-    ox /= n
-    oy /= n
-    lx, ly = xy[:, 0] - ox, xy[:, 1] - oy
-    rx, ry = sensor[0] - ox, sensor[1] - oy
+def _long_axis_frame(lx, ly, rx, ry, prior, has_hint, hint, window, n_inner, refine, free, p):
+    """Heading of the box's long axis and the points in its frame: (heading, u (n,), v (n,), u0, u1, v0, v1),
+    u along the heading, v across, (u0, u1, v0, v1) the points' extent (boxfit._orientation,
+    _dominant_face, _face_direction, _long_axis)."""
+    n = lx.shape[0]
     tol = p[P_FACE_TOL]
     theta = _orientation(lx, ly, has_hint, hint, window, n_inner, refine, free, p)
     if np.isnan(theta):  # fewer than 3 points: the hint, else along the line of sight
@@ -320,6 +313,49 @@ def fit(xy, sensor, top, prior, has_hint, hint, open0, open1, z, has_z, window, 
         if heading != theta:  # the long axis is theta + 90 deg: (u, v) -> (v, -u)
             u, v = v, -u
             u0, u1, v0, v1 = v0, v1, -u1, -u0
+    return heading, u, v, u0, u1, v0, v1
+
+
+@njit(cache=True)
+def _edge_gaps(us, vs, ext, end, side, cut, p):
+    """(4,) how far each edge (u0, u1, v0, v1) of the points' box may lie from the real one: 0 facing the
+    sensor, the ray spacing along a seen face, inf where nothing bounds it or an occluder cuts it."""
+    daz = math.radians(p[P_AZ_STEP]) * p[P_GAP_FACTOR]
+    tilt = math.tan(math.radians(p[P_GAP_TOL]))
+    gaps = np.full(4, np.inf)
+    for i in range(2):
+        if i == end:
+            gaps[i] = 0.0
+        elif side >= 0:
+            h = abs(vs - ext[side])
+            gaps[i] = _spacing((ext[i] - us) ** 2 + h * h, h, daz, tilt, p[P_MAX_RANGE])
+        if 2 + i == side:
+            gaps[2 + i] = 0.0
+        elif end >= 0:
+            h = abs(us - ext[end])
+            gaps[2 + i] = _spacing((ext[2 + i] - vs) ** 2 + h * h, h, daz, tilt, p[P_MAX_RANGE])
+    for i in range(4):
+        if cut[i]:
+            gaps[i] = np.inf
+    return gaps
+
+
+@njit(cache=True)
+def fit(xy, sensor, top, prior, has_hint, hint, open0, open1, z, has_z, window, n_inner, refine, free, p):
+    """boxfit.fit_vehicle_box on validated inputs: xy (n >= 1, 2), sensor (2,), prior (4,) the size prior's
+    (length, width, length std, width std); z (n,) when has_z. Returns the FIELDS tuple."""
+    n = xy.shape[0]
+    ox, oy = 0.0, 0.0
+    for i in range(n):
+        ox += xy[i, 0]
+        oy += xy[i, 1]
+    ox /= n
+    oy /= n
+    lx, ly = xy[:, 0] - ox, xy[:, 1] - oy
+    rx, ry = sensor[0] - ox, sensor[1] - oy
+    tol = p[P_FACE_TOL]
+    heading, u, v, u0, u1, v0, v1 = _long_axis_frame(lx, ly, rx, ry, prior, has_hint, hint, window, n_inner, refine,
+                                                     free, p)
     c, s = math.cos(heading), math.sin(heading)
     us, vs = c * rx + s * ry, -s * rx + c * ry
     ext = np.array([u0, u1, v0, v1])
@@ -341,24 +377,7 @@ def fit(xy, sensor, top, prior, has_hint, hint, open0, open1, z, has_z, window, 
         end = -1
     if side >= 0 and cut[side]:
         side = -1
-    # gaps (boxfit._gaps)
-    daz = math.radians(p[P_AZ_STEP]) * p[P_GAP_FACTOR]
-    tilt = math.tan(math.radians(p[P_GAP_TOL]))
-    gaps = np.full(4, np.inf)
-    for i in range(2):
-        if i == end:
-            gaps[i] = 0.0
-        elif side >= 0:
-            h = abs(vs - ext[side])
-            gaps[i] = _spacing((ext[i] - us) ** 2 + h * h, h, daz, tilt, p[P_MAX_RANGE])
-        if 2 + i == side:
-            gaps[2 + i] = 0.0
-        elif end >= 0:
-            h = abs(us - ext[end])
-            gaps[2 + i] = _spacing((ext[2 + i] - vs) ** 2 + h * h, h, daz, tilt, p[P_MAX_RANGE])
-    for i in range(4):
-        if cut[i]:
-            gaps[i] = np.inf
+    gaps = _edge_gaps(us, vs, ext, end, side, cut, p)  # boxfit._gaps
     if shape == 0:
         size_l, size_w, std_l, std_w = prior[0], prior[1], prior[2], prior[3]
     else:  # not completed: the box of the points, only the sampling gaps as uncertainty

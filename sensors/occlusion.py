@@ -175,7 +175,6 @@ def visibility(
         return Visibility(*np.zeros((4, 0)))
 
     n_az = ranges.shape[0]
-    az0, step = azimuths[0], _azimuth_step(azimuths)
     x0, y0, yaw = scan.pose
     h = float(scan.origin[2])
 
@@ -186,62 +185,13 @@ def visibility(
     beta = np.zeros(len(xy)) if heading is None else heading - los  # box axis relative to the line of sight
     cb, sb = np.cos(beta), np.sin(beta)
 
-    # Angular window: the footprint corners' bearings relative to the line of sight.
-    hl, hw = length / 2, width / 2
-    kx, ky = np.array([hl, hl, -hl, -hl]), np.array([hw, -hw, hw, -hw])
-    cx = d[:, None] + cb[:, None] * kx - sb[:, None] * ky
-    cy = sb[:, None] * kx + cb[:, None] * ky
-    rel = np.arctan2(cy, cx)  # (K, 4); > pi/2 in magnitude only when the sensor is (nearly) inside the box
-    lo, hi = np.maximum(rel.min(axis=1), -np.pi / 2), np.minimum(rel.max(axis=1), np.pi / 2)
-    centre_col = (los - yaw - az0) / step
-    first = np.ceil(centre_col + lo / step)
-    last = np.floor(centre_col + hi / step)
-    narrow = last < first  # window narrower than one column: take the nearest column
-    first[narrow] = last[narrow] = np.round(centre_col[narrow])
-    n_window = (last - first + 1).astype(np.int64)  # (K,) columns in the window
-    n_cols = min(int(n_window.max()), cfg.max_columns)
-    m = np.minimum(n_window, n_cols)  # columns sampled per target
-    j = np.arange(n_cols)
-    valid_col = j[None, :] < m[:, None]  # (K, C)
-    offset = np.floor((j[None, :] + 0.5) * (n_window / m)[:, None]).astype(np.int64)
-    col = first.astype(np.int64)[:, None] + np.where(valid_col, offset, 0)  # unwrapped column index
-    weight = n_window / m  # columns each sample stands for
+    col, weight, t_in, t_out, crosses = _footprint_columns(d, los, cb, sb, length / 2, width / 2, azimuths, yaw,
+                                                          cfg.max_columns)  # 2-D: the footprint's columns
 
-    # 2-D slab intersection of each column's ray with the footprint (box frame: centre at the origin).
-    phi = az0 + col * step + yaw - los[:, None]  # ray bearing relative to the line of sight (K, C)
-    ux, uy = np.cos(phi), np.sin(phi)
-    ox, oy = -d * cb, d * sb  # sensor position in the box frame: R(-beta) @ (-d, 0)
-    rx = cb[:, None] * ux + sb[:, None] * uy  # ray direction in the box frame
-    ry = -sb[:, None] * ux + cb[:, None] * uy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_in, t_out = _slab(ox[:, None], rx, hl)
-        ty_in, ty_out = _slab(oy[:, None], ry, hw)
-    t_in, t_out = np.maximum(t_in, ty_in), np.minimum(t_out, ty_out)
-    crosses = valid_col & (t_out >= t_in) & (t_in > 0.0)  # t_in <= 0: the sensor is inside the footprint
-
-    # 3-D: the ray is within [0, height] for horizontal distances [tz_in, tz_out] (per beam); keep the
-    # beams that can reach some target at all (upward beams above a low target never do).
-    tan_e = np.tan(elevations)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tz_in, tz_out = _slab(np.full_like(tan_e, h - height / 2), tan_e, height / 2)
-    t_reach = np.where(crosses, t_out, -np.inf).max(initial=-np.inf)
-    t_near = np.where(crosses, t_in, np.inf).min(initial=np.inf)
-    slack = t_reach * np.tan(np.deg2rad(cfg.attitude_tol_deg)) if np.isfinite(t_reach) else 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):  # the band a tilted beam may hit the box in
-        band_in, band_out = _slab(np.full_like(tan_e, h - height / 2), tan_e, height / 2 + slack)
-    useful = np.flatnonzero((band_in <= band_out) & (band_in <= t_reach) & (band_out >= t_near))
-    if len(useful) == 0:
+    window = _beam_window(elevations, h, height, cfg, t_in, t_out, crosses)  # 3-D: the beams that can hit
+    if window is None:
         return Visibility(*np.zeros((4, len(xy))))
-    beams = slice(useful[0], useful[-1] + 1)  # contiguous: the conditions are monotone in elevation
-    tan_b, cos_e = tan_e[beams], np.cos(elevations[beams])
-    # the ray is at least min_hit_height_m above the road for horizontal distances [tl_in, tl_out]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_lo = (cfg.min_hit_height_m - h) / tan_b
-    level = np.inf if h >= cfg.min_hit_height_m else -np.inf  # a level beam is always or never high enough
-    tl_in = np.where(tan_b > 0, t_lo, np.where(tan_b < 0, -np.inf, -level))
-    tl_out = np.where(tan_b < 0, t_lo, np.where(tan_b > 0, np.inf, level))
-    lo_t = np.maximum(tl_in, cfg.min_range_m * cos_e)  # bounds on the entry point t_hit (b,)
-    hi_t = np.minimum(np.minimum(tz_out[beams], tl_out), cfg.max_range_m * cos_e)
+    beams, tz_in, cos_e, lo_t, hi_t = window
 
     # (K, C, b): t_hit = horizontal distance where the ray enters the box; expected when it enters before
     # leaving the footprint, within the height and range limits; clear unless a nearer return blocks it.
@@ -329,6 +279,83 @@ def shadows(scan: Scan, cfg: OcclusionConfig = OcclusionConfig(), *, is_ground: 
         u, v = r * np.cos(a), r * np.sin(a)
         polygons.append(np.stack([scan.pose[0] + c * u - s * v, scan.pose[1] + s * u + c * v], -1))
     return polygons
+
+
+def _beam_window(elevations: np.ndarray, h: float, height: float, cfg: OcclusionConfig, t_in, t_out, crosses):
+    """The contiguous beams that can hit some target of ``height`` [m] (sensor at ``h`` [m]), or None.
+
+    Returns (beams slice, tz_in (B,) horizontal distance where each beam enters [0, height], cos of those
+    beams' elevations (b,), lo_t and hi_t (b,) bounds on a ray's entry point: above min_hit_height_m, below
+    the box top, within the sensor's range)."""
+    # 3-D: the ray is within [0, height] for horizontal distances [tz_in, tz_out] (per beam); keep the
+    # beams that can reach some target at all (upward beams above a low target never do).
+    tan_e = np.tan(elevations)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tz_in, tz_out = _slab(np.full_like(tan_e, h - height / 2), tan_e, height / 2)
+    t_reach = np.where(crosses, t_out, -np.inf).max(initial=-np.inf)
+    t_near = np.where(crosses, t_in, np.inf).min(initial=np.inf)
+    slack = t_reach * np.tan(np.deg2rad(cfg.attitude_tol_deg)) if np.isfinite(t_reach) else 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):  # the band a tilted beam may hit the box in
+        band_in, band_out = _slab(np.full_like(tan_e, h - height / 2), tan_e, height / 2 + slack)
+    useful = np.flatnonzero((band_in <= band_out) & (band_in <= t_reach) & (band_out >= t_near))
+    if len(useful) == 0:
+        return None
+    beams = slice(useful[0], useful[-1] + 1)  # contiguous: the conditions are monotone in elevation
+    tan_b, cos_e = tan_e[beams], np.cos(elevations[beams])
+    # the ray is at least min_hit_height_m above the road for horizontal distances [tl_in, tl_out]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_lo = (cfg.min_hit_height_m - h) / tan_b
+    level = np.inf if h >= cfg.min_hit_height_m else -np.inf  # a level beam is always or never high enough
+    tl_in = np.where(tan_b > 0, t_lo, np.where(tan_b < 0, -np.inf, -level))
+    tl_out = np.where(tan_b < 0, t_lo, np.where(tan_b > 0, np.inf, level))
+    lo_t = np.maximum(tl_in, cfg.min_range_m * cos_e)  # bounds on the entry point t_hit (b,)
+    hi_t = np.minimum(np.minimum(tz_out[beams], tl_out), cfg.max_range_m * cos_e)
+
+    return beams, tz_in, cos_e, lo_t, hi_t
+
+
+def _footprint_columns(d, los, cb, sb, hl: float, hw: float, azimuths: np.ndarray, yaw: float, max_columns: int):
+    """The azimuth columns whose rays cross each target's footprint, and where (horizontal distances).
+
+    d, los, cb, sb: (K,) range, world bearing, cos and sin of the box axis relative to the line of sight;
+    hl, hw: half length and width [m]. Returns col (K, C) unwrapped column indices (at most max_columns
+    sampled per target), weight (K,) columns each sample stands for, t_in and t_out (K, C) entry and exit
+    distances of each column's ray through the footprint, crosses (K, C) whether it crosses it in front of
+    the sensor."""
+    az0, step = azimuths[0], _azimuth_step(azimuths)
+    # Angular window: the footprint corners' bearings relative to the line of sight.
+    kx, ky = np.array([hl, hl, -hl, -hl]), np.array([hw, -hw, hw, -hw])
+    cx = d[:, None] + cb[:, None] * kx - sb[:, None] * ky
+    cy = sb[:, None] * kx + cb[:, None] * ky
+    rel = np.arctan2(cy, cx)  # (K, 4); > pi/2 in magnitude only when the sensor is (nearly) inside the box
+    lo, hi = np.maximum(rel.min(axis=1), -np.pi / 2), np.minimum(rel.max(axis=1), np.pi / 2)
+    centre_col = (los - yaw - az0) / step
+    first = np.ceil(centre_col + lo / step)
+    last = np.floor(centre_col + hi / step)
+    narrow = last < first  # window narrower than one column: take the nearest column
+    first[narrow] = last[narrow] = np.round(centre_col[narrow])
+    n_window = (last - first + 1).astype(np.int64)  # (K,) columns in the window
+    n_cols = min(int(n_window.max()), max_columns)
+    m = np.minimum(n_window, n_cols)  # columns sampled per target
+    j = np.arange(n_cols)
+    valid_col = j[None, :] < m[:, None]  # (K, C)
+    offset = np.floor((j[None, :] + 0.5) * (n_window / m)[:, None]).astype(np.int64)
+    col = first.astype(np.int64)[:, None] + np.where(valid_col, offset, 0)  # unwrapped column index
+    weight = n_window / m  # columns each sample stands for
+
+    # 2-D slab intersection of each column's ray with the footprint (box frame: centre at the origin).
+    phi = az0 + col * step + yaw - los[:, None]  # ray bearing relative to the line of sight (K, C)
+    ux, uy = np.cos(phi), np.sin(phi)
+    ox, oy = -d * cb, d * sb  # sensor position in the box frame: R(-beta) @ (-d, 0)
+    rx = cb[:, None] * ux + sb[:, None] * uy  # ray direction in the box frame
+    ry = -sb[:, None] * ux + cb[:, None] * uy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_in, t_out = _slab(ox[:, None], rx, hl)
+        ty_in, ty_out = _slab(oy[:, None], ry, hw)
+    t_in, t_out = np.maximum(t_in, ty_in), np.minimum(t_out, ty_out)
+    crosses = valid_col & (t_out >= t_in) & (t_in > 0.0)  # t_in <= 0: the sensor is inside the footprint
+
+    return col, weight, t_in, t_out, crosses
 
 
 def _attitude_tolerant(cfg, expected, clear, r, r_h, sin_e, h, height, t_in, t_out, crosses):

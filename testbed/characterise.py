@@ -150,83 +150,33 @@ def _frames(scn: Scenario, on_frame: Callable[[int, int], None] | None):
             on_frame(i + 1, scn.n_frames)
 
 
+V_COLUMNS = ("frame", "vehicle_id", "range", "view", "visible", "n_points", "detected", "n_dets", "truck")
+D_COLUMNS = ("frame", "vehicle_id", "range", "view", "err_box", "err_centroid", "los", "merged", "split", "nees",
+             "truck", "n_points")
+
+
 def characterise(scn: Scenario, on_frame: Callable[[int, int], None] | None = None,
                  merge_sweep: bool = True) -> Characterisation:
     """Measure the perception of ``scn`` against truth (see the module docstring)."""
     lidar = scn.sensor.lidar
-    min_pts = scn.sensor.perception.cluster.min_points
-    occ = sensors.OcclusionConfig.from_lidar(lidar, pd_nominal=1.0, min_points=min_pts)
-    rows_v: dict[str, list] = {k: [] for k in ("frame", "vehicle_id", "range", "view", "visible", "n_points",
-                                               "detected", "n_dets", "truck")}
-    rows_d: dict[str, list] = {k: [] for k in ("frame", "vehicle_id", "range", "view", "err_box", "err_centroid",
-                                               "los", "merged", "split", "nees", "truck", "n_points")}
+    occ = sensors.OcclusionConfig.from_lidar(lidar, pd_nominal=1.0, min_points=scn.sensor.perception.cluster.min_points)
+    rows_v: dict[str, list] = {k: [] for k in V_COLUMNS}
+    rows_d: dict[str, list] = {k: [] for k in D_COLUMNS}
     clutter, areas = [], []
     rejected: dict[str, int] = {}
     tp = fp = fn = 0
     n = 0
     for truth, scan, perc, road in _frames(scn, on_frame):
         n += 1
-        gt = scan.source == sensors.GROUND
-        g = perc.is_ground
+        gt, g = scan.source == sensors.GROUND, perc.is_ground
         tp += int(np.count_nonzero(g & gt))
         fp += int(np.count_nonzero(g & ~gt))
         fn += int(np.count_nonzero(~g & gt))
-        dets = perc.detections
-        clutter.append(int(np.count_nonzero(dets.provenance < 0)))
+        clutter.append(int(np.count_nonzero(perc.detections.provenance < 0)))
         for reason in np.asarray(perc.rejected.reason, dtype=object):
             rejected[str(reason)] = rejected.get(str(reason), 0) + 1
         areas.append(_road_area_within(road, scan.origin[:2], lidar.max_range_m))
-
-        # per vehicle in range (ego excluded)
-        ids, xy, heading, size = truth.ids[1:], truth.xy[1:], truth.heading[1:], truth.size[1:]
-        rel = xy - scan.origin[:2]
-        rng_ = np.hypot(rel[:, 0], rel[:, 1])
-        inr = rng_ <= lidar.max_range_m
-        if not inr.any():
-            continue
-        ids, xy, heading, size, rel, rng_ = ids[inr], xy[inr], heading[inr], size[inr], rel[inr], rng_[inr]
-        los = rel / np.maximum(rng_, 1e-9)[:, None]
-        view = np.degrees(np.abs(np.arcsin(np.clip(np.abs(los[:, 0] * np.sin(heading) - los[:, 1] * np.cos(heading)),
-                                                   0.0, 1.0))))  # 0 end-on, 90 side-on
-        visible = np.array([float(occlusion_visibility(scan, xy[k:k + 1], occ, size_m=tuple(size[k]),
-                                                     heading=heading[k:k + 1]).visible_fraction[0])
-                            for k in range(len(ids))])
-        src_counts = _points_per_source(scan.source)
-        n_dets = np.array([int(np.count_nonzero(dets.provenance == i)) for i in ids])
-        rows_v["frame"] += [truth.frame] * len(ids)
-        rows_v["vehicle_id"] += list(ids)
-        rows_v["range"] += list(rng_)
-        rows_v["view"] += list(view)
-        rows_v["visible"] += list(visible)
-        rows_v["n_points"] += [src_counts.get(int(i), 0) for i in ids]
-        rows_v["detected"] += list(n_dets > 0)
-        rows_v["n_dets"] += list(n_dets)
-        rows_v["truck"] += list(size[:, 0] > 8.0)
-
-        owners = _detection_owners(scan.source, perc.labels, len(dets))
-        where = {int(i): k for k, i in enumerate(ids)}
-        for j in range(len(dets)):
-            k = where.get(int(dets.provenance[j]))
-            if k is None:
-                continue
-            e_box = dets.z[j] - xy[k]
-            e_cen = dets.centroid[j] - xy[k]
-            try:
-                nees = float(e_box @ np.linalg.solve(dets.R[j], e_box))
-            except np.linalg.LinAlgError:
-                nees = float("nan")
-            rows_d["frame"].append(truth.frame)
-            rows_d["vehicle_id"].append(int(ids[k]))
-            rows_d["range"].append(rng_[k])
-            rows_d["view"].append(view[k])
-            rows_d["err_box"].append(e_box)
-            rows_d["err_centroid"].append(e_cen)
-            rows_d["los"].append(los[k])
-            rows_d["merged"].append(owners[j] >= 2)
-            rows_d["split"].append(n_dets[k] > 1)
-            rows_d["nees"].append(nees)
-            rows_d["truck"].append(bool(size[k, 0] > 8.0))
-            rows_d["n_points"].append(int(dets.n_points[j]))
+        _vehicle_rows(truth, scan, perc, occ, lidar.max_range_m, rows_v, rows_d)
 
     res = Characterisation(scn.name, n, lidar.max_range_m, float(np.mean(areas)) if areas else 0.0,
                            tp, fp, fn, rejected=rejected)
@@ -238,6 +188,49 @@ def characterise(scn: Scenario, on_frame: Callable[[int, int], None] | None = No
     if merge_sweep:
         res.merge_curve = merge_curve(scn)
     return res
+
+
+def _vehicle_rows(truth, scan, perc, occ, max_range_m: float, rows_v: dict, rows_d: dict) -> None:
+    """Append one frame's rows: one per vehicle within range (ego excluded) to ``rows_v``, one per detection
+    of such a vehicle to ``rows_d``."""
+    ids, xy, heading, size = truth.ids[1:], truth.xy[1:], truth.heading[1:], truth.size[1:]
+    rel = xy - scan.origin[:2]
+    rng_ = np.hypot(rel[:, 0], rel[:, 1])
+    inr = rng_ <= max_range_m
+    if not inr.any():
+        return
+    ids, xy, heading, size, rel, rng_ = ids[inr], xy[inr], heading[inr], size[inr], rel[inr], rng_[inr]
+    los = rel / np.maximum(rng_, 1e-9)[:, None]
+    view = np.degrees(np.abs(np.arcsin(np.clip(np.abs(los[:, 0] * np.sin(heading) - los[:, 1] * np.cos(heading)),
+                                               0.0, 1.0))))  # 0 end-on, 90 side-on
+    visible = np.array([float(occlusion_visibility(scan, xy[k:k + 1], occ, size_m=tuple(size[k]),
+                                                 heading=heading[k:k + 1]).visible_fraction[0])
+                        for k in range(len(ids))])
+    dets = perc.detections
+    src_counts = _points_per_source(scan.source)
+    n_dets = np.array([int(np.count_nonzero(dets.provenance == i)) for i in ids])
+    truck = size[:, 0] > 8.0
+    for key, values in (("frame", [truth.frame] * len(ids)), ("vehicle_id", ids), ("range", rng_), ("view", view),
+                        ("visible", visible), ("n_points", [src_counts.get(int(i), 0) for i in ids]),
+                        ("detected", n_dets > 0), ("n_dets", n_dets), ("truck", truck)):
+        rows_v[key] += list(values)
+
+    owners = _detection_owners(scan.source, perc.labels, len(dets))
+    where = {int(i): k for k, i in enumerate(ids)}
+    for j in range(len(dets)):
+        k = where.get(int(dets.provenance[j]))
+        if k is None:
+            continue
+        e_box = dets.z[j] - xy[k]
+        try:
+            nees = float(e_box @ np.linalg.solve(dets.R[j], e_box))
+        except np.linalg.LinAlgError:
+            nees = float("nan")
+        row = dict(frame=truth.frame, vehicle_id=int(ids[k]), range=rng_[k], view=view[k], err_box=e_box,
+                   err_centroid=dets.centroid[j] - xy[k], los=los[k], merged=owners[j] >= 2, split=n_dets[k] > 1,
+                   nees=nees, truck=bool(truck[k]), n_points=int(dets.n_points[j]))
+        for key, value in row.items():
+            rows_d[key].append(value)
 
 
 def _points_per_source(source: np.ndarray) -> dict[int, int]:

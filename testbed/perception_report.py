@@ -105,16 +105,9 @@ def _fmt(v, spec: str) -> str:
     return format(v, spec)
 
 
-def write_report(ch: Characterisation, out: Path, ablation: dict[str, dict] | None = None,
-                 settings: dict[str, float] | None = None, note: str = "") -> Path:
-    """Write ``out``/report.md, summary.json and the PNG plots; return the markdown path."""
-    out.mkdir(parents=True, exist_ok=True)
-    plots = _plots(ch, out)
-    s = ch.summary()
-    lines = [f"# Perception characterisation: {ch.scenario}", ""]
-    if note:
-        lines += [note, ""]
-    lines += [
+def _summary_lines(ch: Characterisation, s: dict) -> list[str]:
+    """The headline table of the report."""
+    return [
         f"{s['frames']} frames; {s['vehicle_frames']} vehicle-frames within {ch.max_range_m:.0f} m of the sensor.",
         "Measured against the scan's per-point truth labels (`testbed/characterise.py` says how).", "",
         "| quantity | value |", "|---|---|",
@@ -133,6 +126,38 @@ def write_report(ch: Characterisation, out: Path, ablation: dict[str, dict] | No
         f"| per-detection R calibration, mean e' R^-1 e (2 = calibrated) | {_fmt(s['r_nees_mean'], '.2f')} |",
         "",
     ]
+
+
+def _ablation_lines(ablation: dict[str, dict]) -> list[str]:
+    """The false tracks each static-object method removes, scores in the thesis's form and ours."""
+    lines = ["## Static objects: false tracks removed by each method", "",
+              "The scenario's tracker run with each method switched off in turn. Left of the bar, the thesis's "
+              "form (Tables 4.3, 5.4: per car seen); right, ours.", "",
+              "| variant | " + " | ".join(h for _, h, _ in _THESIS_KEYS) + " || " +
+              " | ".join(h for _, h, _ in _OUR_KEYS) + " |",
+              "|---|" + "---|" * len(_THESIS_KEYS) + "|" + "---|" * len(_OUR_KEYS)]
+    for name, sc in ablation.items():
+        lines.append(f"| {name} | " + " | ".join(_fmt(sc[k], f) for k, _, f in _THESIS_KEYS) + " || " +
+                     " | ".join(_fmt(sc[k], f) for k, _, f in _OUR_KEYS) + " |")
+    ft = {k: v["false_tracks"] for k, v in ablation.items()}
+    if all(k in ft for k in ("full", "no map ROI", "no moving-object test", "neither")):
+        lines += ["", f"False confirmed tracks removed, each method on its own (the other off): the map ROI "
+                  f"{ft['neither'] - ft['no moving-object test']}, the moving-object test "
+                  f"{ft['neither'] - ft['no map ROI']}; both together {ft['neither'] - ft['full']} "
+                  f"({ft['neither']} without either, {ft['full']} left with both).", ""]
+    return lines
+
+
+def write_report(ch: Characterisation, out: Path, ablation: dict[str, dict] | None = None,
+                 settings: dict[str, float] | None = None, note: str = "") -> Path:
+    """Write ``out``/report.md, summary.json and the PNG plots; return the markdown path."""
+    out.mkdir(parents=True, exist_ok=True)
+    plots = _plots(ch, out)
+    s = ch.summary()
+    lines = [f"# Perception characterisation: {ch.scenario}", ""]
+    if note:
+        lines += [note, ""]
+    lines += _summary_lines(ch, s)
     if ch.rejected:
         lines += ["Clusters rejected by each selection test (all frames): " +
                   ", ".join(f"{k} {v}" for k, v in sorted(ch.rejected.items(), key=lambda kv: -kv[1])) + ".", ""]
@@ -158,21 +183,7 @@ def write_report(ch: Characterisation, out: Path, ablation: dict[str, dict] | No
                   "| merge rate | " + " | ".join(_fmt(ch.merge_curve[g], ".2f") for g in sorted(ch.merge_curve)) + " |",
                   ""]
     if ablation:
-        lines += ["## Static objects: false tracks removed by each method", "",
-                  "The scenario's tracker run with each method switched off in turn. Left of the bar, the thesis's "
-                  "form (Tables 4.3, 5.4: per car seen); right, ours.", "",
-                  "| variant | " + " | ".join(h for _, h, _ in _THESIS_KEYS) + " || " +
-                  " | ".join(h for _, h, _ in _OUR_KEYS) + " |",
-                  "|---|" + "---|" * len(_THESIS_KEYS) + "|" + "---|" * len(_OUR_KEYS)]
-        for name, sc in ablation.items():
-            lines.append(f"| {name} | " + " | ".join(_fmt(sc[k], f) for k, _, f in _THESIS_KEYS) + " || " +
-                         " | ".join(_fmt(sc[k], f) for k, _, f in _OUR_KEYS) + " |")
-        ft = {k: v["false_tracks"] for k, v in ablation.items()}
-        if all(k in ft for k in ("full", "no map ROI", "no moving-object test", "neither")):
-            lines += ["", f"False confirmed tracks removed, each method on its own (the other off): the map ROI "
-                      f"{ft['neither'] - ft['no moving-object test']}, the moving-object test "
-                      f"{ft['neither'] - ft['no map ROI']}; both together {ft['neither'] - ft['full']} "
-                      f"({ft['neither']} without either, {ft['full']} left with both).", ""]
+        lines += _ablation_lines(ablation)
     if settings:
         lines += ["## Measured tracker settings", "",
                   "`testbed perception --write-settings FILE` writes these into a copy of the scenario:", ""]
