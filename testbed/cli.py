@@ -26,8 +26,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    if args.tracker:
-        overrides["tracker.name"] = args.tracker
+    if args.tracker is not None:
+        overrides["tracker.name"] = args.tracker  # "" is refused by the loader, not silently ignored
     if args.seed is not None:
         overrides["seed"] = args.seed
     try:

@@ -466,3 +466,26 @@ def test_smoke_campaign_killed_on_dask_resumed_on_the_pool(tmp_path):
     assert code == 0, stderr
     assert_same_results(pd.read_parquet(out / store.RESULTS_FILE), pd.read_parquet(ref_out / store.RESULTS_FILE))
     assert len(list((out / store.RECORDINGS_DIR).glob("*/run.rrd"))) == 4
+
+
+def test_threads_zero_is_refused_not_ignored(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        campaign_main(["run", "campaigns/smoke.toml", "--threads", "0", "--out", str(tmp_path / "c")])
+    assert exc.value.code == 2
+    assert "argument --threads: expected an integer >= 1, got 0" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()
+
+
+def test_confidence_intervals_are_clipped_to_each_scores_range():
+    import pandas as pd
+
+    from testbed.campaign.report import summarize
+
+    df = pd.DataFrame(dict(scenario="s", tracker="t", status="ok", tp_pct=[100.0, 100.0, 40.0],
+                           fp_pct=[0.0, 0.0, 300.0], hota=[0.99, 0.2, 0.99]))
+    rows = summarize(df, []).set_index("score")
+    assert rows.loc["tp_pct", "ci_hi"] == 100.0 and rows.loc["tp_pct", "ci_lo"] < 100.0
+    assert rows.loc["fp_pct", "ci_lo"] == 0.0 and rows.loc["fp_pct", "ci_hi"] > 100.0  # FP % may pass 100
+    assert rows.loc["hota", "ci_hi"] == 1.0 and rows.loc["hota", "ci_lo"] == 0.0
+    raw = mean_sd_ci(np.array([100.0, 100.0, 40.0]))
+    assert raw[4] > 100.0  # without the clip the interval would pass 100 %

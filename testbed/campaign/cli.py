@@ -26,6 +26,13 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _at_least_one(text: str) -> int:
+    value = _positive_int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
+
+
 def _engine_args(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--workers", type=_positive_int, metavar="N",
@@ -33,7 +40,7 @@ def _engine_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--scheduler", metavar="ADDR", help="run on a Dask distributed scheduler, e.g. tcp://host:8786")
     g.add_argument("--dask-local", type=_positive_int, metavar="N",
                    help="start a Dask LocalCluster of N single-threaded worker processes (for testing)")
-    p.add_argument("--threads", type=_positive_int, metavar="N",
+    p.add_argument("--threads", type=_at_least_one, metavar="N",
                    help="threads (OpenMP, and as many pinned cores) per local worker (default: cores // workers; "
                    "results do not depend on it)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -45,7 +52,7 @@ def _engine(args: argparse.Namespace):
     if args.dask_local == 0:
         raise ValueError("--dask-local needs N >= 1")
     return EngineOptions(workers=args.workers, scheduler=args.scheduler, dask_local=args.dask_local,
-                         threads=args.threads or None)
+                         threads=args.threads)
 
 
 def _error(text: str, code: int = 2) -> int:

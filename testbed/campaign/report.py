@@ -28,6 +28,10 @@ import numpy as np
 
 from . import store
 
+BOUNDS = {"tp_pct": (0.0, 100.0), "fp_pct": (0.0, math.inf), "breakup_pct": (0.0, 100.0),
+          "coverage_pct": (0.0, 100.0), "pos_rmse_m": (0.0, math.inf), "vel_rmse_mps": (0.0, math.inf),
+          "hota": (0.0, 1.0), "idf1": (0.0, 1.0), "mota": (-math.inf, 1.0), "gospa": (0.0, math.inf)}
+"""Range of each score: a confidence interval is clipped to it (FP % per car seen can exceed 100)."""
 MAIN_SCORES = ("tp_pct", "fp_pct", "breakup_pct", "coverage_pct", "pos_rmse_m", "vel_rmse_mps", "hota", "mota",
                "idf1", "gospa")
 LABELS = {"tp_pct": "TP [%]", "fp_pct": "FP [%]", "breakup_pct": "break-ups [%]", "coverage_pct": "coverage [%]",
@@ -85,6 +89,8 @@ def summarize(df, grid_keys: tuple[str, ...] | list[str]):
         ok = group[group["status"] == "ok"]
         for score in scores:
             n, mean, sd, lo, hi = mean_sd_ci(ok[score].to_numpy(dtype=np.float64))
+            floor, ceil = BOUNDS.get(score, (-math.inf, math.inf))
+            lo, hi = min(max(lo, floor), ceil), min(max(hi, floor), ceil)  # NaN (n < 2) stays NaN
             rows.append(dict(zip(keys, cell), score=score, runs=len(group), failed=int((group["status"] != "ok").sum()),
                              n=n, mean=mean, sd=sd, ci_lo=lo, ci_hi=hi))
     return pd.DataFrame(rows)
