@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -134,14 +133,10 @@ class Characterisation:
 
 def _frames(scn: Scenario, on_frame: Callable[[int, int], None] | None):
     """(truth, scan, perception result, road map) per frame of ``scn``'s traffic, LiDAR and perception."""
-    from .envsource import make_simulation
-    from .run import _scan, rng_streams, road_map
-    from .simulation import roadside_objects
+    from .run import _scan, rng_streams, sensing_setup
 
     rngs = rng_streams(scn.seed)
-    sim = make_simulation(scn)
-    static = roadside_objects(sim.network, scn.roadside, rngs["roadside"])
-    road = road_map(sim.network)
+    sim, static, road = sensing_setup(scn, rngs)
     for i, truth in enumerate(sim.frames()):
         scan = _scan(truth, static, scn.sensor.lidar, rngs["lidar"])
         perc = sensors.perceive(scan, scn.sensor.perception, road)

@@ -60,11 +60,8 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     name = tracker_name or scn.tracker.name
     tracker = scn.tracker.build(name)
     rngs = rng_streams(scn.seed)
-    from .envsource import make_simulation  # a highway-env environment ([env]) or our scripted traffic
-
-    sim = make_simulation(scn)
-    static = roadside_objects(sim.network, scn.roadside, rngs["roadside"])
-    road = road_map(sim.network)
+    sim, static, road = sensing_setup(scn, rngs)
+    pd_input = occlusion_pd(scn, tracker.association.pd, road) if scn.sensor.occlusion_pd else None
     moving = MovingTest(scn.moving_test)
 
     out = Path(out_dir) if out_dir is not None else None
@@ -81,7 +78,7 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         for truth in sim.frames():
             watch.lap("simulation")
             scan, perc, dets = _sense(truth, static, scn, rngs, watch, road)
-            pd = occlusion_pd(scan, scn, tracker.association.pd, road) if scn.sensor.occlusion_pd else None
+            pd = pd_input(scan) if pd_input is not None else None
             result = tracker.step(tracks, dets.z, scn.dt if truth.frame > 0 else 0.0, next_id, pd=pd)
             tracks, next_id = result.tracks, result.next_id
             reported = tuple(t for t in tracks if not t.candidate)  # candidates await a second measurement
@@ -132,13 +129,24 @@ class _Stopwatch:
         self.tic = now
 
 
+def sensing_setup(scn: Scenario, rngs: dict[str, np.random.Generator]):
+    """The traffic source of ``scn`` (a highway-env environment with ``[env]``, else our scripted traffic), its
+    roadside boxes (K, 7) drawn from ``rngs["roadside"]`` and the perception's road map."""
+    from .envsource import make_simulation
+
+    sim = make_simulation(scn)
+    static = roadside_objects(sim.network, scn.roadside, rngs["roadside"])
+    return sim, static, road_map(sim.network)
+
+
 def road_map(network) -> sensors.RoadMap:
     """The perception's road map (lane centre lines and half widths) of a highway-env road network."""
     return sensors.RoadMap(*lane_centres(network))
 
 
-def occlusion_pd(scan: sensors.Scan, scn: Scenario, pd: float, road: sensors.RoadMap):
-    """The tracker's per-track P_D input: a function of the predicted positions (T, 2) -> (T,).
+def occlusion_pd(scn: Scenario, pd: float, road: sensors.RoadMap):
+    """The tracker's per-track P_D input, per scan: ``occlusion_pd(...)(scan)`` is a function of the predicted
+    positions (T, 2) -> (T,).
 
     Within the sensor's range: the associator's nominal ``pd`` where the range image shows a car-sized box at
     the position (heading along the road) in view, near 0 (at least ``sensor.occlusion_pd_floor``) in the
@@ -149,16 +157,16 @@ def occlusion_pd(scan: sensors.Scan, scn: Scenario, pd: float, road: sensors.Roa
     cfg = sensors.OcclusionConfig.from_lidar(lidar, pd_nominal=pd, min_points=scn.sensor.perception.cluster.min_points)
     floor = min(scn.sensor.occlusion_pd_floor, pd)
 
-    def pd_of(z_hat: np.ndarray) -> np.ndarray:
-        xy = z_hat[:, :2]
-        occ = sensors.detection_probability(scan, xy, cfg, heading=road.heading_at(xy) if len(xy) else None)
-        beyond = np.hypot(xy[:, 0] - scan.origin[0], xy[:, 1] - scan.origin[1]) > lidar.max_range_m
-        return np.where(beyond, pd, np.maximum(occ, floor))
+    def for_scan(scan: sensors.Scan):
+        def pd_of(z_hat: np.ndarray) -> np.ndarray:
+            xy = z_hat[:, :2]
+            occ = sensors.detection_probability(scan, xy, cfg, heading=road.heading_at(xy) if len(xy) else None)
+            beyond = np.hypot(xy[:, 0] - scan.origin[0], xy[:, 1] - scan.origin[1]) > lidar.max_range_m
+            return np.where(beyond, pd, np.maximum(occ, floor))
 
-    return pd_of
+        return pd_of
 
-
-STATUSES = ("confirmed", "tentative", "static")
+    return for_scan
 
 
 def track_status(tracks: tuple, kin: tuple[np.ndarray, np.ndarray], moving: MovingTest, time: float) -> np.ndarray:
