@@ -1,52 +1,118 @@
-"""``testbed`` command line: run scenarios, view recordings, list scenarios and trackers.
+"""``testbed`` command line: run scenarios, view recordings, check files, list scenarios and trackers.
 
-Exit codes: 0 success, 2 bad input (malformed scenario, unknown tracker, missing run directory).
+Exit codes (every command): 0 success; 1 run-time failure (what was finished is kept); 2 bad input
+(malformed file or option, unusable output folder), nothing run; 130 Ctrl-C. An error is ONE line on
+stderr (``error: ...``); ``--debug`` (before or after the command) adds its traceback.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
-import shutil
-import subprocess
 import sys
+import traceback
+import warnings
 from pathlib import Path
 
 from .config import ConfigError
+from .check import cmd_check
+from .errors import describe_os_error, exit_code, guarded, one_line
+from .view import WEB_VIEWER_PORT, cmd_view, port_arg
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors (exit 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {self.prog}: {message} (see `{self.prog} --help`)\n")
+
+
+def _folder_name(name: str, key: str) -> str:
+    from .limits import check_folder_name
+
+    return check_folder_name(name, key)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from .run import run_scenario
+    from .outdir import RUN_FILES, Staging
     from .scenario import load_scenario
-    from .scoring import format_table
 
-    try:
-        overrides = _parse_sets(args.set or [])
-    except ConfigError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+    overrides = _parse_sets(args.set or [])
     if args.tracker is not None:
         overrides["tracker.name"] = args.tracker  # "" is refused by the loader, not silently ignored
     if args.seed is not None:
         overrides["seed"] = args.seed
+    scn = load_scenario(args.scenario, overrides)
+    out = args.out if args.out is not None else str(Path("runs") / _folder_name(scn.name, "name"))
+    stage = Staging(out, RUN_FILES)  # refused up front (exit 2), before any simulation
     try:
-        scn = load_scenario(args.scenario, overrides)
-    except ConfigError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    out = Path(args.out) if args.out else Path("runs") / scn.name
+        res = _run_with_progress(scn, stage.tmp, args)
+    except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - kept, marked INCOMPLETE, one line
+        return _failed(err, stage, args.debug)
+    _commit(stage)
+    _print_run(res, args, stage.shown)
+    return 0
+
+
+def _run_with_progress(scn, out: Path, args: argparse.Namespace):
+    from tqdm import tqdm
+
+    from .run import run_scenario
+
     with tqdm(total=scn.n_frames, desc=f"{scn.name} [{scn.tracker.name}]", unit="frame",
               disable=args.quiet or None, leave=False) as bar:
-        try:
-            res = run_scenario(scn, out_dir=out, record=not args.no_record,
-                               on_frame=lambda i, n: bar.update(1))
-        except (ValueError, RuntimeError, ArithmeticError) as err:  # trackers' FilterError, JPDA overflow, ...
-            bar.close()
-            where = "; ".join(getattr(err, "__notes__", []))
-            print(f"error: {type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''} ({where}; "
-                  f"the tables of the frames before it are in {out}/)", file=sys.stderr)
-            return 1
+        return run_scenario(scn, out_dir=out, record=not args.no_record, on_frame=lambda i, n: bar.update(1))
+
+
+def _failed(err: BaseException, stage, debug: bool) -> int:
+    """A command that wrote into ``stage`` failed or was interrupted: keep what it wrote (marked INCOMPLETE)
+    in the output folder, print one line saying what happened and where it is, return the exit code."""
+    interrupted = isinstance(err, KeyboardInterrupt)
+    written = stage.written()
+    head = "interrupted (Ctrl-C)" if interrupted else stage.shown_text(_headline(err))
+    notes = [stage.shown_text(n) for n in getattr(err, "__notes__", [])]
+    if written:
+        where = stage.abandon("; ".join([head, *notes]))
+        shown = stage.shown if where == stage.path else str(where)
+        tables = any(name.endswith(".parquet") for name in written)
+        kept = f"the tables of the frames before it are in {shown}/" if tables else \
+            f"{', '.join(written)} kept in {shown}/"
+        kept += ", marked INCOMPLETE"
+    else:
+        stage.discard()
+        kept = f"nothing was written ({stage.shown} is unchanged)"
+    if debug:
+        traceback.print_exception(err, file=sys.stderr)
+    detail = "; ".join([*notes, kept])
+    print(f"interrupted: {detail}" if interrupted else f"error: {head} ({detail})", file=sys.stderr)
+    return exit_code(err)
+
+
+def _commit(stage) -> None:
+    """Move the finished output into place; if that fails, say where it is (exit 1)."""
+    from .errors import RunError
+
+    try:
+        stage.commit()
+    except OSError as err:
+        raise RunError(f"{stage.shown_text(describe_os_error(err))}; the finished output is in {stage.tmp}/") from err
+
+
+def _headline(err: BaseException) -> str:
+    """What went wrong, one line: an OSError as ``path: what``, a tracker's error with its type."""
+    from .errors import RunError
+
+    if isinstance(err, OSError):
+        return describe_os_error(err)
+    if isinstance(err, ConfigError | RunError):
+        return one_line(err)
+    return f"{type(err).__name__}: {one_line(err)}"
+
+
+def _print_run(res, args: argparse.Namespace, out: str) -> None:
+    from .scoring import format_table
+
+    scn = res.scenario
     print(format_table({f"{scn.name}/{scn.tracker.name}": res.scores}))
     m = res.metrics
     for label, sfx in (("visible truth", ""), ("all truth    ", "_all")):
@@ -63,7 +129,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
     print(f"wrote {', '.join(written)} to {out}/")
     if not args.no_record:
         print(f"view it: testbed view {out}")
-    return 0
 
 
 def _parse_sets(items: list[str]) -> dict:
@@ -84,25 +149,50 @@ def _parse_sets(items: list[str]) -> dict:
 
 
 def _cmd_perception(args: argparse.Namespace) -> int:
+    from .outdir import REPORT_FILES, Staging
+    from .perception_report import write_settings
+    from .scenario import apply_overrides, parse_scenario, read_toml
+
+    base = apply_overrides(read_toml(args.scenario), _parse_sets(args.set or []))  # what --write-settings keeps
+    run = {"seed": args.seed, "duration_s": args.duration}
+    data = apply_overrides(base, {k: v for k, v in run.items() if v is not None})
+    scn = parse_scenario(data)
+    settings_path = Path(args.write_settings) if args.write_settings else None
+    if settings_path is not None and not settings_path.parent.is_dir():
+        raise ConfigError("--write-settings", f"folder {settings_path.parent} does not exist")
+    out = args.out if args.out is not None else str(Path("runs") / "perception" / _folder_name(scn.name, "name"))
+    stage = Staging(out, REPORT_FILES)
+    try:
+        ch, abl, settings, md = _characterise(scn, data, stage.tmp, args)
+    except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - one line
+        return _failed(err, stage, args.debug)
+    _commit(stage)
+    s = ch.summary()
+    print(f"ground precision {100 * s['ground_precision']:.2f} %, recall {100 * s['ground_recall']:.2f} %; "
+          f"P_D in range {s['pd_in_range']:.3f} (visible {s['pd_visible']:.3f}, occluded {s['pd_occluded']:.3f}); "
+          f"split {s['split_rate']:.4f}, merge {s['merge_rate']:.4f}; clutter {s['clutter_per_frame']:.2f}/frame "
+          f"({s['clutter_per_m2_road']:.2e}/m^2 of road); centre RMSE box {s['centre_rmse_box_m']:.2f} m, "
+          f"centroid {s['centre_rmse_centroid_m']:.2f} m")
+    if abl:
+        print("false confirmed tracks: " + ", ".join(f"{k} {v['false_tracks']}" for k, v in abl.items()))
+    print(f"wrote {Path(stage.shown) / md.name} and its plots")
+    if settings_path is not None:
+        try:
+            write_settings(base, settings, settings_path, source=str(args.scenario))
+        except ConfigError as err:
+            raise ConfigError("--write-settings", str(err)) from None
+        print(f"wrote {settings_path} ({', '.join(f'{k} = {v}' for k, v in settings.items())})")
+    return 0
+
+
+def _characterise(scn, data: dict, out: Path, args: argparse.Namespace):
+    """The perception characterisation of ``scn``, its ablation runs and the report written into ``out``:
+    (characterisation, ablation or None, measured settings, report path)."""
     from tqdm import tqdm
 
     from .characterise import ABLATION, ablation, characterise, measured_settings
-    from .perception_report import write_report, write_settings
-    from .scenario import apply_overrides, parse_scenario, read_toml
+    from .perception_report import write_report
 
-    try:
-        base = apply_overrides(read_toml(args.scenario), _parse_sets(args.set or []))  # what --write-settings keeps
-        run = {"seed": args.seed, "duration_s": args.duration}
-        data = apply_overrides(base, {k: v for k, v in run.items() if v is not None})
-        scn = parse_scenario(data)
-    except ConfigError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    settings_path = Path(args.write_settings) if args.write_settings else None
-    if settings_path is not None and not settings_path.parent.is_dir():
-        print(f"error: --write-settings: folder {settings_path.parent} does not exist", file=sys.stderr)
-        return 2
-    out = Path(args.out) if args.out else Path("runs") / "perception" / scn.name
     with tqdm(total=scn.n_frames, desc=f"{scn.name} perception", unit="frame", disable=args.quiet or None,
               leave=False) as bar:
         ch = characterise(scn, on_frame=lambda i, n: bar.update(1), merge_sweep=not args.no_merge_sweep)
@@ -114,42 +204,7 @@ def _cmd_perception(args: argparse.Namespace) -> int:
     settings = measured_settings(ch)
     note = f"Scenario `{scn.name}`, seed {scn.seed}, {scn.duration_s:g} s, pipeline `{scn.sensor.pipeline}`, " \
            f"LiDAR preset `{scn.sensor.lidar.preset}`."
-    md = write_report(ch, out, abl, settings, note=note)
-    s = ch.summary()
-    print(f"ground precision {100 * s['ground_precision']:.2f} %, recall {100 * s['ground_recall']:.2f} %; "
-          f"P_D in range {s['pd_in_range']:.3f} (visible {s['pd_visible']:.3f}, occluded {s['pd_occluded']:.3f}); "
-          f"split {s['split_rate']:.4f}, merge {s['merge_rate']:.4f}; clutter {s['clutter_per_frame']:.2f}/frame "
-          f"({s['clutter_per_m2_road']:.2e}/m^2 of road); centre RMSE box {s['centre_rmse_box_m']:.2f} m, "
-          f"centroid {s['centre_rmse_centroid_m']:.2f} m")
-    if abl:
-        print("false confirmed tracks: " + ", ".join(f"{k} {v['false_tracks']}" for k, v in abl.items()))
-    print(f"wrote {md} and its plots")
-    if settings_path is not None:
-        try:
-            write_settings(base, settings, settings_path, source=str(args.scenario))
-        except ConfigError as err:
-            print(f"error: --write-settings: {err}", file=sys.stderr)
-            return 2
-        print(f"wrote {settings_path} ({', '.join(f'{k} = {v}' for k, v in settings.items())})")
-    return 0
-
-
-def _cmd_view(args: argparse.Namespace) -> int:
-    path = Path(args.run_dir)
-    rrd = path if path.suffix == ".rrd" else path / "run.rrd"
-    if not rrd.is_file():
-        print(f"error: {rrd}: no recording (run `testbed run SCENARIO --out {path}` first)", file=sys.stderr)
-        return 2
-    exe = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
-    cmd = [exe, str(rrd)]
-    headless = sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-    if headless and not args.web:
-        print("no display found: serving the web viewer on 127.0.0.1 instead (open the URL rerun prints; "
-              "Ctrl-C to stop)", file=sys.stderr)
-    if args.web or headless:
-        cmd = [exe, "--serve-web", "--bind", "127.0.0.1", str(rrd)]
-    env = dict(os.environ, RERUN_ANALYTICS="0")
-    return subprocess.call(cmd, env=env)
+    return ch, abl, settings, write_report(ch, out, abl, settings, note=note)
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
@@ -187,7 +242,9 @@ def _cmd_keys(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="testbed", description="roadtrack: simulator-coupled target tracking testbed")
+    p = _Parser(prog="testbed", description="roadtrack: simulator-coupled target tracking testbed")
+    p.add_argument("--debug", action="store_true", help="show the traceback of an error (also accepted after "
+                   "the command)")
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run a scenario end to end: recording, tables, scores")
     r.add_argument("scenario", help="scenario file, or the name of a shipped one (see `testbed scenarios`)")
@@ -218,7 +275,13 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("view", help="open the rerun viewer on a run's recording")
     v.add_argument("run_dir", help="run folder (or .rrd file)")
     v.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1 instead of a window")
-    v.set_defaults(func=_cmd_view)
+    v.add_argument("--port", type=port_arg, help=f"port of the web viewer (default {WEB_VIEWER_PORT}), or of the "
+                   "native viewer's server (default: rerun's, 9876); refused if in use")
+    v.set_defaults(func=cmd_view)
+    ch = sub.add_parser("check", help="validate a scenario or campaign file fully without running it (one line)")
+    ch.add_argument("file", help="scenario or campaign file, or the name of a shipped one")
+    ch.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scenario key (repeatable)")
+    ch.set_defaults(func=cmd_check)
     s = sub.add_parser("scenarios", help="list the shipped scenarios")
     s.set_defaults(func=_cmd_scenarios)
     k = sub.add_parser("keys", help="print every scenario key with its default and meaning (markdown)")
@@ -230,16 +293,52 @@ def build_parser() -> argparse.ArgumentParser:
     from .campaign.cli import add_campaign_parser
 
     add_campaign_parser(sub)
+    from .reproduce.cli import add_reproduce_parser
+
+    add_reproduce_parser(sub)
+    _debug_everywhere(p)
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def _debug_everywhere(parser: argparse.ArgumentParser) -> None:
+    """Accept ``--debug`` after any (sub-)command too (unset unless given, so it never hides the global one)."""
+    for action in parser._actions:  # noqa: SLF001 - argparse has no public walk over sub-parsers
+        if isinstance(action, argparse._SubParsersAction):  # noqa: SLF001
+            for child in dict.fromkeys(action.choices.values()):
+                if "--debug" not in child._option_string_actions:  # noqa: SLF001
+                    child.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                                       help="show the traceback of an error")
+                _debug_everywhere(child)
+
+
+@contextlib.contextmanager
+def _one_line_warnings(debug: bool):
+    """Warnings as ``warning: MESSAGE`` lines (the default format, with the source line, under ``--debug``)."""
+    previous = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        print(f"warning: {one_line(message) if isinstance(message, Warning) else message}",
+              file=file or sys.stderr)
+
+    if not debug:
+        warnings.showwarning = show
     try:
-        return args.func(args)
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+        yield
+    finally:
+        warnings.showwarning = previous
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``testbed ...``: every error one line on stderr and exit code 1 (run time), 2 (input) or 130 (Ctrl-C);
+    ``--debug`` adds the traceback."""
+    os.environ.setdefault("RERUN_ANALYTICS", "0")  # before rerun is imported (rerun 0.41 ignores it, see view)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as stop:  # --help, or a usage error already printed as one line
+        return stop.code if isinstance(stop.code, int) else (0 if stop.code is None else 2)
+    debug = bool(getattr(args, "debug", False))
+    with _one_line_warnings(debug):
+        return guarded(args.func, args, debug)
 
 
 if __name__ == "__main__":

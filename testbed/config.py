@@ -5,17 +5,23 @@ names the dotted key and what is allowed. Dataclass fields may carry ``metadata`
 
 * ``choices``: tuple of allowed values (strings);
 * ``check``: ``(predicate, text)``, e.g. ``(lambda v: v > 0, "> 0")``;
+* ``validate``: ``func(value, dotted_key)`` raising ConfigError, e.g. a resource limit (``testbed.limits.at_most``);
+* ``limit``: the name of the resource limit the key is checked against (shown by ``testbed keys``);
 * ``doc``: a short description (listed by ``testbed scenarios --keys``).
 
 A dataclass's own ``__post_init__`` may raise ``ValueError``; it is reported at that table's path.
 """
 from __future__ import annotations
 
+import codecs
 import dataclasses
 import math
+import os
 import re
+import tomllib
 import types
 import typing
+from pathlib import Path
 from typing import Any
 
 
@@ -80,9 +86,13 @@ def _convert(tp: Any, value: Any, path: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(path, f"expected a number, got {value!r}")
-        if not math.isfinite(value):
+        try:
+            number = float(value)
+        except OverflowError:  # an integer beyond float64
+            raise ConfigError(path, f"expected a finite number, got an integer of {len(str(value))} digits") from None
+        if not math.isfinite(number):
             raise ConfigError(path, f"expected a finite number, got {value!r}")
-        return float(value)
+        return number
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(path, f"expected an integer, got {value!r}")
@@ -125,12 +135,15 @@ def from_dict(cls: type, data: dict, path: str = "") -> Any:
             predicate, text = check
             if not predicate(value):
                 raise ConfigError(key_path, f"{value!r} is not allowed; must be {text}")
+        validate = field.metadata.get("validate")
+        if validate is not None and value is not None:
+            validate(value, key_path)
         kwargs[name] = value
     try:
         return cls(**kwargs)
     except ConfigError as err:  # raised by __post_init__ with a key relative to this table
         raise ConfigError(_join(path, err.path), str(err).split(": ", 1)[-1]) from None
-    except (ValueError, TypeError) as err:
+    except (ValueError, TypeError, ArithmeticError) as err:
         msg = str(err).splitlines()[0] if str(err) else type(err).__name__
         named = re.match(r"^\w+\.(\w+): (.*)$", msg)  # "LidarConfig.max_range_m: ..." from a __post_init__
         if named and named.group(1) in fields:
@@ -165,3 +178,87 @@ def field(default: Any = dataclasses.MISSING, *, doc: str = "", **meta: Any) -> 
         value = default
         return dataclasses.field(default_factory=lambda: value, metadata=metadata)
     return dataclasses.field(default=default, metadata=metadata)
+
+
+def show_path(path: str | Path, width: int = 120) -> str:
+    """``path`` for a one-line message: quoted when it holds control characters, shortened beyond ``width``."""
+    text = str(path)
+    if len(text) > width:
+        text = text[: width // 2] + "..." + text[-width // 2:]
+    if any(ord(c) < 32 or ord(c) == 127 for c in text):
+        return repr(text)
+    return text
+
+
+def find_file(path: str | Path, shipped_dir: Path, kind: str) -> Path:
+    """``path`` if it is a file, else the shipped ``shipped_dir/<path>.toml`` when ``path`` is a bare name.
+
+    ConfigError (one line) for a missing file, a directory, a path with a NUL character or one the system
+    refuses (too long). ``kind``: "scenario" or "campaign", for the messages.
+    """
+    text, shown = str(path), show_path(path)
+    if "\x00" in text:
+        raise ConfigError("", f"{shown}: a path cannot contain a NUL character")
+    candidate = Path(text)
+    try:
+        if candidate.is_file():
+            return candidate
+        named = shipped_dir / f"{text}.toml"
+        if candidate.suffix == "" and "/" not in text and named.is_file():
+            return named
+        if candidate.is_dir():
+            raise ConfigError("", f"{shown}: is a directory; expected a {kind} file (.toml)")
+        if candidate.exists():
+            raise ConfigError("", f"{shown}: not a regular file; expected a {kind} file (.toml)")
+    except OSError as err:  # ENAMETOOLONG, ELOOP, EACCES on a parent ...
+        what = os.strerror(err.errno).lower() if err.errno else type(err).__name__
+        raise ConfigError("", f"{shown}: {what}") from None
+    shipped = ", ".join(sorted(p.stem for p in shipped_dir.glob("*.toml")))
+    raise ConfigError("", f"{shown}: no such {kind} file (shipped: {shipped})")
+
+
+def read_toml_file(path: Path) -> dict:
+    """The TOML dict of file ``path``. Unreadable, oversized, non-UTF-8, binary or malformed files raise a
+    one-line ConfigError naming the file (a UTF-8 byte-order mark is accepted)."""
+    shown = show_path(path)
+    raw = _read_bytes(path, shown)
+    for bom, name in ((codecs.BOM_UTF32_LE, "UTF-32"), (codecs.BOM_UTF32_BE, "UTF-32"),
+                      (codecs.BOM_UTF16_LE, "UTF-16"), (codecs.BOM_UTF16_BE, "UTF-16")):
+        if raw.startswith(bom):
+            raise ConfigError("", f"{shown}: is {name} text; expected UTF-8 (save the file as UTF-8)")
+    if b"\x00" in raw:
+        raise ConfigError("", f"{shown}: contains NUL bytes (a binary file?); expected UTF-8 TOML text")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = raw.count(b"\n", 0, err.start) + 1
+        raise ConfigError("", f"{shown}: not UTF-8 text (byte 0x{raw[err.start]:02x} on line {line}); expected "
+                          f"UTF-8 TOML (save the file as UTF-8)") from None
+    try:
+        return tomllib.loads(text.removeprefix("\ufeff"))
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError("", f"{shown}: not valid TOML ({one_line_text(err)})") from None
+    except RecursionError:
+        raise ConfigError("", f"{shown}: not valid TOML (arrays or tables nested too deeply)") from None
+
+
+def _read_bytes(path: Path, shown: str) -> bytes:
+    """The bytes of ``path``, after checking its size against the ``file_bytes`` limit (one-line errors)."""
+    from .limits import check
+
+    try:
+        size = path.stat().st_size
+        try:
+            check("file_bytes", size, shown)
+        except ConfigError as err:
+            raise ConfigError("", str(err)) from None
+        return path.read_bytes()
+    except OSError as err:
+        what = os.strerror(err.errno).lower() if err.errno else type(err).__name__
+        raise ConfigError("", f"{shown}: cannot read it ({what})") from None
+
+
+def one_line_text(err: BaseException) -> str:
+    """First line of ``str(err)`` (the exception's type name when empty)."""
+    lines = [ln.strip() for ln in str(err).splitlines() if ln.strip()]
+    return lines[0] if lines else type(err).__name__

@@ -251,10 +251,12 @@ def _emit_table(table: dict, path: list[str], lines: list[str]) -> None:
 
 def write_settings(scenario_data: dict, settings: dict[str, float], path: Path, source: str) -> None:
     """Write ``scenario_data`` with the dotted ``settings`` applied to ``path`` (a new scenario file)."""
+    from .outdir import write_atomic
     from .scenario import apply_overrides, parse_scenario
 
     data = apply_overrides(scenario_data, settings)
     parse_scenario(data)  # never write a file that does not load
     head = (f"# {source} with the tracker settings measured by `testbed perception` "
             f"({', '.join(f'{k} = {v}' for k, v in settings.items())}).\n")
-    path.write_text(head + dumps_toml(data))
+    text = head + dumps_toml(data)
+    write_atomic(Path(path), lambda tmp: tmp.write_text(text))  # never a half-written scenario file

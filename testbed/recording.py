@@ -336,6 +336,8 @@ class Recorder:
         self.series_frames = 0
 
     def close(self) -> None:
-        self._flush_series()
-        self.rec.flush()
-        self.rec.disconnect()
+        try:
+            self._flush_series()
+            self.rec.flush()
+        finally:  # a failed flush (full disk) still releases the recording, so rerun logs its cause
+            self.rec.disconnect()

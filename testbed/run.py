@@ -6,8 +6,11 @@ does not change the LiDAR noise.
 """
 from __future__ import annotations
 
+import errno
 import json
+import os
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -19,6 +22,7 @@ import sensors
 from .config import to_dict
 from .mot_metrics import mot_metrics, visible_truth
 from .moving import MovingTest
+from .outdir import write_atomic
 from .roadside import boxes_near
 from .scenario import Scenario
 from .scoring import Scores, score_run
@@ -56,64 +60,181 @@ def rng_streams(seed: int) -> dict[str, np.random.Generator]:
 def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool = True,
                  tracker_name: str | None = None,
                  on_frame: Callable[[int, int], None] | None = None) -> RunResult:
-    """Run ``scn``; with ``out_dir`` write scores.json, the parquet tables and (``record``) run.rrd."""
+    """Run ``scn``; with ``out_dir`` write scores.json, the parquet tables and (``record``) run.rrd, each file
+    atomically (complete or absent).
+
+    On any exception, Ctrl-C included, the recording is closed and the tables of the frames done are written
+    before it propagates, with a note saying where the run stopped. JPDA overflow warnings (one per oversize
+    cluster) are counted and given once at the end of the run."""
     name = tracker_name or scn.tracker.name
     tracker = scn.tracker.build(name)
     rngs = rng_streams(scn.seed)
     sim, static, road = sensing_setup(scn, rngs)
-    pd_input = occlusion_pd(scn, tracker.association.pd, road) if scn.sensor.occlusion_pd else None
-    moving = MovingTest(scn.moving_test)
-
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     recorder = _recorder(scn, out / "run.rrd", name, sim, static) if out is not None and record else None
-
     tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(), diagnostics=diagnostics_log())
     watch = _Stopwatch()
-    tracks: tuple = ()
-    next_id = 1
-    n = 0
+    state = _Progress()
+    overflows = _Overflows()
     try:
-        for truth in sim.frames():
-            watch.lap("simulation")
-            scan, perc, dets = _sense(truth, static, scn, rngs, watch, road)
-            pd = pd_input(scan) if pd_input is not None else None
-            result = tracker.step(tracks, dets.z, scn.dt if truth.frame > 0 else 0.0, next_id, pd=pd)
-            tracks, next_id = result.tracks, result.next_id
-            reported = tuple(t for t in tracks if not t.candidate)  # candidates await a second measurement
-            kin = tracker.kinematics(reported)
-            status = track_status(reported, kin, moving, truth.time)
-            watch.lap("tracking")
-            _log_tables(truth, visibility(truth, scan, scn.sensor.lidar.max_range_m), dets, reported, kin, status,
-                        tables["truth"], tables["detections"], tables["tracks"])
-            _log_diagnostics(truth, result.info, tables["diagnostics"])
-            if recorder is not None:
-                recorder.frame(truth, scan, perc, dets, reported, kin, result.info, tracker.association.gate_alpha,
-                               status)
-            watch.lap("recording")
-            n += 1
-            if on_frame is not None:
-                on_frame(n, scn.n_frames)
-    except Exception as err:  # keep what was computed: the tables of the frames before the failure
-        err.add_note(f"the run stopped at frame {n} (t = {n * scn.dt:.1f} s)")
+        _frames(scn, tracker, sim, static, road, rngs, recorder, tables, watch, state, overflows, on_frame)
+        state.looping = False
         if recorder is not None:
-            recorder.close()
+            t0 = time.perf_counter()
+            closing, recorder = recorder, None  # closed once, even if closing fails
+            _close_recording(closing)
+            watch.spent["recording"] += time.perf_counter() - t0
+        scores, metrics = score_tables(scn, tables["truth"], tables["tracks"], state.frames)
+        timings = {k: 1000.0 * v / max(state.frames, 1) for k, v in watch.spent.items()}
+        res = RunResult(scn, scores, timings, state.frames, out, tables, metrics)
         if out is not None:
             _write_tables(out, tables)
+            state.tables_written = True
+            write_scores(res, name)
+    except BaseException as err:  # keep what was computed: the tables of the frames before the failure
+        _keep_partial(err, scn, state, recorder, out, tables)
         raise
-    spent = watch.spent
-    if recorder is not None:
-        t0 = time.perf_counter()
-        recorder.close()
-        spent["recording"] += time.perf_counter() - t0
-
-    scores, metrics = score_tables(scn, tables["truth"], tables["tracks"], n)
-    timings = {k: 1000.0 * v / max(n, 1) for k, v in spent.items()}
-    res = RunResult(scn, scores, timings, n, out, tables, metrics)
-    if out is not None:
-        write_outputs(res, name)
+    finally:
+        overflows.report()
     return res
+
+
+@dataclass
+class _Progress:
+    """Where a run is: frames done, whether still in the frame loop, whether its tables are written."""
+
+    frames: int = 0
+    looping: bool = True
+    tables_written: bool = False
+
+
+def _frames(scn, tracker, sim, static, road, rngs, recorder, tables, watch, state: _Progress, overflows,
+            on_frame) -> None:
+    """The frame loop: sense, track, log; ``state.frames`` counts the frames done."""
+    pd_input = occlusion_pd(scn, tracker.association.pd, road) if scn.sensor.occlusion_pd else None
+    moving = MovingTest(scn.moving_test)
+    tracks: tuple = ()
+    next_id = 1
+    for truth in sim.frames():
+        watch.lap("simulation")
+        scan, perc, dets = _sense(truth, static, scn, rngs, watch, road)
+        pd = pd_input(scan) if pd_input is not None else None
+        result = overflows.call(tracker.step, tracks, dets.z, scn.dt if truth.frame > 0 else 0.0, next_id, pd=pd)
+        tracks, next_id = result.tracks, result.next_id
+        reported = tuple(t for t in tracks if not t.candidate)  # candidates await a second measurement
+        kin = tracker.kinematics(reported)
+        status = track_status(reported, kin, moving, truth.time)
+        watch.lap("tracking")
+        _log_tables(truth, visibility(truth, scan, scn.sensor.lidar.max_range_m), dets, reported, kin, status,
+                    tables["truth"], tables["detections"], tables["tracks"])
+        _log_diagnostics(truth, result.info, tables["diagnostics"])
+        if recorder is not None:
+            recorder.frame(truth, scan, perc, dets, reported, kin, result.info, tracker.association.gate_alpha,
+                           status)
+        watch.lap("recording")
+        state.frames += 1
+        if on_frame is not None:
+            on_frame(state.frames, scn.n_frames)
+
+
+def _keep_partial(err: BaseException, scn: Scenario, state: _Progress, recorder, out: Path | None,
+                  tables: dict) -> None:
+    """After a failure: note where the run stopped on ``err``, close the recording, write the tables (best
+    effort: an error here is noted, never raised over ``err``)."""
+    n = state.frames
+    if state.looping:
+        err.add_note(f"the run stopped at frame {n} (t = {n * scn.dt:.1f} s)")
+    else:
+        err.add_note(f"the run had done its {n} frames")
+    if recorder is not None:
+        try:
+            _close_recording(recorder)
+        except (Exception, KeyboardInterrupt) as close_err:  # noqa: BLE001 - err is the one to report
+            err.add_note(f"the recording could not be closed ({_one_line(close_err)})")
+    if out is not None and not state.tables_written:
+        try:
+            _write_tables(out, tables)
+        except (Exception, KeyboardInterrupt) as write_err:  # noqa: BLE001
+            err.add_note(f"the tables could not be written ({_one_line(write_err)})")
+
+
+def _one_line(err: BaseException) -> str:
+    """A short cause: ``no space left on device`` for an OSError, else ``Type: message``."""
+    from .errors import one_line
+
+    if isinstance(err, OSError) and err.errno:
+        return os.strerror(err.errno).lower()
+    return f"{type(err).__name__}: {one_line(err)}"
+
+
+LOW_SPACE_BYTES = 1 << 20
+"""Free space below which a recording that rerun could not finish is reported as a full disk."""
+
+
+def _close_recording(recorder) -> None:
+    """Close the recording. rerun's file writer stopping early (it has logged why; ours is then the last line)
+    is raised as an OSError ENOSPC naming the file when its disk is (nearly) full, else as a RunError."""
+    from .errors import RunError, one_line
+
+    try:
+        recorder.close()
+    except RuntimeError as err:
+        try:
+            recorder.rec.disconnect()  # close() stopped at the flush; rerun logs its own line here
+        except Exception:  # noqa: BLE001 - already failing
+            pass
+        path = Path(recorder.path)
+        try:
+            st = os.statvfs(path.parent)
+            full = st.f_bavail * st.f_frsize < LOW_SPACE_BYTES
+        except OSError:
+            full = False
+        if full:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path)) from err
+        raise RunError(f"{path}: the recording could not be written (rerun: {one_line(err)}; rerun's log "
+                       f"above says why)") from err
+
+
+class _Overflows:
+    """JPDA overflow warnings of a run (one per oversize cluster and frame), given once at the end with a
+    count; other warnings of the tracker pass through (each once per run)."""
+
+    def __init__(self):
+        self.frames = 0
+        self.clusters = 0
+        self.largest = (0, 0)  # (tracks, measurements) of the largest cluster (by tracks x measurements)
+        self.registry: dict = {}
+
+    def call(self, func, *args, **kwargs):
+        from trackers import JPDAOverflowWarning
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", JPDAOverflowWarning)  # counted here, not shown one by one
+            out = func(*args, **kwargs)
+        mine = [w for w in caught if issubclass(w.category, JPDAOverflowWarning)]
+        for w in caught:
+            if not issubclass(w.category, JPDAOverflowWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, registry=self.registry,
+                                       source=w.source)
+        if mine:
+            self.frames += 1
+            self.clusters += len(mine)
+            for w in mine:
+                size = (getattr(w.message, "tracks", 0), getattr(w.message, "measurements", 0))
+                self.largest = max(self.largest, size, key=lambda tm: tm[0] * tm[1])
+        return out
+
+    def report(self) -> None:
+        from trackers import JPDAOverflowWarning
+
+        if self.frames:
+            t, m = self.largest
+            plural = "s" if self.frames > 1 else ""
+            warnings.warn(JPDAOverflowWarning(
+                f"JPDA: {self.frames} frame{plural} exceeded max_events ({self.clusters} clusters, the largest "
+                f"{t} tracks x {m} measurements); those clusters used per-track PDA"), stacklevel=3)
 
 
 class _Stopwatch:
@@ -290,15 +411,23 @@ def _log_tables(truth, vis, dets, tracks, kin, status, truth_t, det_t, trk_t) ->
 
 def _write_tables(out: Path, tables: dict) -> None:
     for name, log in tables.items():
-        log.write(out / f"{name}.parquet")
+        write_atomic(out / f"{name}.parquet", log.write)
 
 
-def write_outputs(res: RunResult, tracker_name: str) -> None:
+def write_scores(res: RunResult, tracker_name: str) -> None:
+    """``scores.json`` of a run: scenario, seed, tracker, frames, scores, MOT metrics, timings, config."""
     out = res.out_dir
     assert out is not None
-    _write_tables(out, res.tables)
     doc = dict(scenario=res.scenario.name, seed=res.scenario.seed, tracker=tracker_name,
                frames=res.n_frames, scores=res.scores.to_dict(), mot_metrics=res.metrics,
                timings_ms_per_frame=res.timings_ms,
                config=to_dict(res.scenario))
-    (out / "scores.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
+    text = json.dumps(doc, indent=2, default=float) + "\n"
+    write_atomic(out / "scores.json", lambda tmp: tmp.write_text(text))
+
+
+def write_outputs(res: RunResult, tracker_name: str) -> None:
+    """The tables and scores.json of a finished run into ``res.out_dir``."""
+    assert res.out_dir is not None
+    _write_tables(res.out_dir, res.tables)
+    write_scores(res, tracker_name)

@@ -8,15 +8,15 @@ key and the allowed values) on any malformed file. See ``docs/scenarios.md`` for
 from __future__ import annotations
 
 import copy
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from sensors import LidarConfig, PerceptionConfig
 
-from .config import ConfigError, field, from_dict, non_negative, positive, to_dict
+from .config import ConfigError, field, find_file, from_dict, non_negative, positive, read_toml_file, to_dict
 from .envsource import EnvSpec, check_env_scenario
+from .limits import at_most, check_folder_name, check_frames, check_scenario, seed_field
 from .moving import MovingTestSpec
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
@@ -24,13 +24,14 @@ SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 BEHAVIOURS = ("idm", "hold_speed", "follow")
 ROAD_KINDS = ("straight", "curved", "u_turn", "motorway")
 PIPELINES = ("full", "thesis")
+LANE_WIDTH_M = 4.0  # highway-env's StraightLane.DEFAULT_WIDTH (testbed/simulation.py LANE_WIDTH): lanes' spacing
 
 
 @dataclass(frozen=True)
 class LaneChange:
     """Scripted lane change: at ``at_s`` seconds the vehicle steers to lane ``lane`` (0 = rightmost)."""
 
-    at_s: float = field(doc="time of the manoeuvre [s]", **non_negative())
+    at_s: float = field(doc="time of the manoeuvre [s]", **non_negative(), **at_most("duration_s"))
     lane: int = field(doc="target lane index", **non_negative())
 
 
@@ -41,17 +42,18 @@ class VehicleSpec:
     name: str = field("", doc="label shown in the viewer (default car<ID>)")
     lane: int = field(0, doc="start lane, 0 = first lane of the segment", **non_negative())
     position_m: float = field(0.0, doc="longitudinal start position along the first segment [m]")
-    speed_mps: float = field(25.0, doc="initial speed [m/s]", **non_negative())
+    speed_mps: float = field(25.0, doc="initial speed [m/s]", **non_negative(), **at_most("speed_mps"))
     target_speed_mps: float | None = field(None, doc="cruise speed [m/s] (default: the initial speed)",
-                                           **non_negative())
+                                           **non_negative(), **at_most("speed_mps"))
     behaviour: str = field("idm", doc="idm: IDM car-following; hold_speed: cruise control ignoring "
                            "traffic; follow: keep gap_m to the car ahead", choices=BEHAVIOURS)
-    gap_m: float | None = field(None, doc="bumper-to-bumper gap kept by behaviour 'follow' [m]", **positive())
+    gap_m: float | None = field(None, doc="bumper-to-bumper gap kept by behaviour 'follow' [m]", **positive(),
+                               **at_most("road_length_m"))
     mobil: bool = field(False, doc="allow free MOBIL lane changes (behaviour idm)")
     lane_changes: tuple[LaneChange, ...] = field((), doc="scripted lane changes")
-    length_m: float = field(5.0, doc="box length [m]", **positive())
-    width_m: float = field(2.0, doc="box width [m]", **positive())
-    height_m: float = field(1.6, doc="box height [m]", **positive())
+    length_m: float = field(5.0, doc="box length [m]", **positive(), **at_most("vehicle_size_m"))
+    width_m: float = field(2.0, doc="box width [m]", **positive(), **at_most("vehicle_size_m"))
+    height_m: float = field(1.6, doc="box height [m]", **positive(), **at_most("vehicle_size_m"))
 
     def __post_init__(self) -> None:
         if self.behaviour == "follow" and self.gap_m is None:
@@ -65,16 +67,16 @@ class VehicleSpec:
 class ConvoySpec:
     """``count`` cars in one lane, ``gap_m`` bumper to bumper, the first (front) at ``front_position_m``."""
 
-    count: int = field(5, doc="number of cars", **positive())
+    count: int = field(5, doc="number of cars", **positive(), **at_most("vehicles"))
     lane: int = field(0, doc="lane", **non_negative())
     front_position_m: float = field(60.0, doc="longitudinal position of the front car [m]")
-    gap_m: float = field(10.0, doc="bumper-to-bumper gap [m]", **positive())
-    speed_mps: float = field(22.0, doc="speed of every car [m/s]", **non_negative())
+    gap_m: float = field(10.0, doc="bumper-to-bumper gap [m]", **positive(), **at_most("road_length_m"))
+    speed_mps: float = field(22.0, doc="speed of every car [m/s]", **non_negative(), **at_most("speed_mps"))
     behaviour: str = field("follow", doc="behaviour of the followers (the front car holds speed)",
                            choices=BEHAVIOURS)
-    length_m: float = field(5.0, doc="box length [m]", **positive())
-    width_m: float = field(2.0, doc="box width [m]", **positive())
-    height_m: float = field(1.6, doc="box height [m]", **positive())
+    length_m: float = field(5.0, doc="box length [m]", **positive(), **at_most("vehicle_size_m"))
+    width_m: float = field(2.0, doc="box width [m]", **positive(), **at_most("vehicle_size_m"))
+    height_m: float = field(1.6, doc="box height [m]", **positive(), **at_most("vehicle_size_m"))
 
     def vehicles(self) -> tuple[VehicleSpec, ...]:
         size = dict(length_m=self.length_m, width_m=self.width_m, height_m=self.height_m)
@@ -97,13 +99,22 @@ class RoadSpec:
 
     kind: str = field("straight", doc="road geometry", choices=ROAD_KINDS)
     lanes: int = field(3, doc="lanes per direction (u_turn: always 2)", check=(lambda v: 1 <= v <= 8, "1..8"))
-    length_m: float = field(2000.0, doc="length of each straight segment [m]", **positive())
-    curve_radius_m: float = field(300.0, doc="curved: radius of the arc's first lane [m]", **positive())
+    length_m: float = field(2000.0, doc="length of each straight segment [m]", **positive(),
+                            **at_most("road_length_m"))
+    curve_radius_m: float = field(300.0, doc="curved: radius of the arc's first lane [m]", **positive(),
+                                  **at_most("road_length_m"))
     curve_angle_deg: float = field(45.0, doc="curved: turn angle, > 0 turns left [deg]",
                                    check=(lambda v: 0 < abs(v) <= 180, "0 < |angle| <= 180"))
-    speed_limit_mps: float = field(30.0, doc="speed limit [m/s]", **positive())
+    speed_limit_mps: float = field(30.0, doc="speed limit [m/s]", **positive(), **at_most("speed_mps"))
     median_m: float = field(4.0, doc="motorway: width of the median between the carriageways' inner lane "
-                            "edges [m]", **positive())
+                            "edges [m]", **positive(), **at_most("offset_m"))
+
+    def __post_init__(self) -> None:
+        width = (self.lanes - 1) * LANE_WIDTH_M
+        if self.kind == "curved" and self.curve_angle_deg > 0 and self.curve_radius_m <= width:
+            raise ConfigError("curve_radius_m", f"{self.curve_radius_m:g} m is too small for a left turn of "
+                              f"{self.lanes} lanes; allowed: > {width:g} m (the road width between the outer "
+                              "lanes' centres)")
 
 
 @dataclass(frozen=True)
@@ -111,19 +122,23 @@ class RoadsideSpec:
     """Static objects beside the road: they are what makes the LiDAR pipeline's clutter."""
 
     barriers: bool = field(True, doc="guard-rail segments along both road edges")
-    barrier_offset_m: float = field(1.5, doc="distance from the road edge to the barriers [m]", **non_negative())
-    post_spacing_m: float = field(40.0, doc="spacing of posts along both edges, 0 = none [m]", **non_negative())
-    trees_per_km: float = field(20.0, doc="trees (0.4 m trunk, crown from 2.2-3.5 m up) per km per side", **non_negative())
-    bushes_per_km: float = field(3.0, doc="bushes (0.8-2.5 m high) per km per side", **non_negative())
-    signs_per_km: float = field(2.0, doc="sign panels per km per side", **non_negative())
+    barrier_offset_m: float = field(1.5, doc="distance from the road edge to the barriers [m]", **non_negative(),
+                                     **at_most("offset_m"))
+    post_spacing_m: float = field(40.0, doc="spacing of posts along both edges, 0 = none [m]", **non_negative(),
+                                   **at_most("road_length_m"))
+    trees_per_km: float = field(20.0, doc="trees (0.4 m trunk, crown from 2.2-3.5 m up) per km per side",
+                                limit="roadside_objects", **non_negative())
+    bushes_per_km: float = field(3.0, doc="bushes (0.8-2.5 m high) per km per side", limit="roadside_objects",
+                                 **non_negative())
+    signs_per_km: float = field(2.0, doc="sign panels per km per side", limit="roadside_objects", **non_negative())
 
 
 def _speed_range() -> dict:
-    return {"check": (lambda v: 0 <= v[0] <= v[1], "[min, max] with 0 <= min <= max")}
+    return {"check": (lambda v: 0 <= v[0] <= v[1], "[min, max] with 0 <= min <= max"), **at_most("speed_mps")}
 
 
 def _size_range() -> dict:
-    return {"check": (lambda v: 0 < v[0] <= v[1], "[min, max] with 0 < min <= max")}
+    return {"check": (lambda v: 0 < v[0] <= v[1], "[min, max] with 0 < min <= max"), **at_most("vehicle_size_m")}
 
 
 def _lane_list() -> dict:
@@ -147,9 +162,9 @@ class TrafficSpec:
     """
 
     count: int = field(0, doc="background vehicles in the window at the start; the density this makes is "
-                       "kept afterwards", **non_negative())
+                       "kept afterwards", **non_negative(), **at_most("vehicles"))
     density_per_km_lane: float = field(0.0, doc="background vehicles per km per lane, kept in the window",
-                                       **non_negative())
+                                       limit="vehicles", **non_negative())
     lanes: tuple[int, ...] | None = field(None, doc="lanes of the ego's carriageway with traffic (default: "
                                           "all)", **_lane_list())
     opposite_lanes: tuple[int, ...] | None = field(None, doc="motorway: lanes of the opposite carriageway "
@@ -174,15 +189,16 @@ class TrafficSpec:
     truck_height_m: tuple[float, float] = field((3.4, 4.0), doc="range of truck heights [m]", **_size_range())
     min_gap_m: float = field(8.0, doc="least bumper-to-bumper gap to any vehicle when a vehicle is spawned "
                              "(which also starts no faster than its IDM gap to the leader allows) [m]",
-                             **positive())
+                             **positive(), **at_most("road_length_m"))
     window_behind_m: float = field(300.0, doc="traffic is kept from this far behind the ego car [m]",
-                                   **positive())
-    window_ahead_m: float = field(400.0, doc="to this far ahead of the ego car [m]", **positive())
+                                   **positive(), **at_most("road_length_m"))
+    window_ahead_m: float = field(400.0, doc="to this far ahead of the ego car [m]", **positive(),
+                                  **at_most("road_length_m"))
     position_jitter_m: float = field(0.0, doc="scripted vehicles (not the ego) start U(-j, j) from their "
-                                     "position_m [m]", **non_negative())
+                                     "position_m [m]", **non_negative(), **at_most("road_length_m"))
     speed_jitter_mps: float = field(0.0, doc="scripted vehicles (not the ego) start U(-j, j) from their "
                                     "speed_mps (and cruise at it unless target_speed_mps is set) [m/s]",
-                                    **non_negative())
+                                    **non_negative(), **at_most("speed_mps"))
 
     def __post_init__(self) -> None:
         if self.count > 0 and self.density_per_km_lane > 0:
@@ -198,8 +214,10 @@ class TrafficSpec:
 class ClutterSpec:
     """Optional Poisson clutter added on top of the pipeline's own (the papers' experiments)."""
 
-    density_per_m2: float = field(0.0, doc="Poisson clutter density [1/m^2], 0 = none", **non_negative())
-    radius_m: float = field(70.0, doc="clutter disk radius around the sensor [m]", **positive())
+    density_per_m2: float = field(0.0, doc="Poisson clutter density [1/m^2], 0 = none", limit="clutter_points",
+                                  **non_negative())
+    radius_m: float = field(70.0, doc="clutter disk radius around the sensor [m]", **positive(),
+                            **at_most("lidar_range_m"))
 
 
 @dataclass(frozen=True)
@@ -250,7 +268,8 @@ class TrackerSpec:
 
 @dataclass(frozen=True)
 class ScoringSpec:
-    match_distance_m: float = field(3.0, doc="track-to-truth association distance [m]", **positive())
+    match_distance_m: float = field(3.0, doc="track-to-truth association distance [m]", **positive(),
+                                     **at_most("lidar_range_m"))
     correct_fraction: float = field(0.5, doc="a confirmed track is correct when matched to one vehicle for "
                                     "at least this fraction of its confirmed life",
                                     check=(lambda v: 0 < v <= 1, "in (0, 1]"))
@@ -259,7 +278,7 @@ class ScoringSpec:
     similarity_scale_m: float | None = field(None, doc="MOT metrics: distance [m] at which the similarity "
                                              "1 - d / scale reaches 0, so a CLEAR / Identity match (HOTA at "
                                              "alpha 0.5) needs d <= scale / 2 (default: match_distance_m)",
-                                             **positive())
+                                             **positive(), **at_most("lidar_range_m"))
 
 
 @dataclass(frozen=True)
@@ -270,12 +289,14 @@ class RecordSpec:
 
 @dataclass(frozen=True)
 class Scenario:
-    name: str = field(doc="scenario name")
+    name: str = field(doc="scenario name, also its output folder runs/<name> (letters, digits, '.', '_', '-')",
+                      validate=check_folder_name)
     description: str = field("", doc="one-line description")
-    seed: int = field(0, doc="master seed: every random stream derives from it", **non_negative())
-    duration_s: float = field(20.0, doc="simulated time [s]", **positive())
-    rate_hz: float = field(10.0, doc="sensor (and tracker) rate [Hz]", **positive())
-    physics_substeps: int = field(1, doc="highway-env physics ticks per sensor frame", **positive())
+    seed: int = field(0, doc="master seed: every random stream derives from it", **seed_field())
+    duration_s: float = field(20.0, doc="simulated time [s]", **positive(), **at_most("duration_s"))
+    rate_hz: float = field(10.0, doc="sensor (and tracker) rate [Hz]", **positive(), **at_most("rate_hz"))
+    physics_substeps: int = field(1, doc="highway-env physics ticks per sensor frame", **positive(),
+                                  **at_most("physics_substeps"))
     road: RoadSpec = field(RoadSpec(), doc="road")
     roadside: RoadsideSpec = field(RoadsideSpec(), doc="roadside objects")
     ego: VehicleSpec = field(VehicleSpec(name="ego"), doc="the car carrying the LiDAR")
@@ -289,6 +310,9 @@ class Scenario:
     tracker: TrackerSpec = field(TrackerSpec(), doc="tracker")
     scoring: ScoringSpec = field(ScoringSpec(), doc="scoring")
     record: RecordSpec = field(RecordSpec(), doc="recording")
+
+    def __post_init__(self) -> None:
+        check_frames(self.duration_s, self.rate_hz)
 
     @property
     def dt(self) -> float:
@@ -344,8 +368,9 @@ def _validate(scn: Scenario) -> Scenario:
         scn.tracker.build()
     except ParamError as err:
         raise ConfigError(f"tracker.{err.path}", str(err).split(": ", 1)[-1]) from None
-    except (ValueError, TypeError) as err:
-        raise ConfigError("tracker", str(err).splitlines()[0]) from None
+    except (ValueError, TypeError, ArithmeticError) as err:
+        raise ConfigError("tracker", str(err).splitlines()[0] if str(err) else type(err).__name__) from None
+    check_scenario(scn)  # sizes first: all_vehicles() builds every convoy car, check_env_scenario the env
     if scn.env is not None:
         check_env_scenario(scn)
     lanes = 2 if scn.road.kind == "u_turn" else scn.road.lanes
@@ -360,7 +385,37 @@ def _validate(scn: Scenario) -> Scenario:
             key = "front_position_m" if where == "convoy" else "position_m"
             raise ConfigError(f"{where}.{key}", f"{v.position_m} m is off the road; allowed: 0..{scn.road.length_m}")
     _validate_traffic(scn.traffic, scn.road, lanes)
+    if scn.env is None:
+        _check_overlaps(scn, paths)
     return scn
+
+
+def _check_overlaps(scn: Scenario, paths: list[str]) -> None:
+    """Refuse scripted vehicles whose boxes overlap at t = 0 (highway-env would crash them all at frame 0).
+
+    Vehicles start on the first segment, lane k at ``k * LANE_WIDTH_M`` across and ``position_m`` along;
+    ``traffic.position_jitter_m`` may move every vehicle but the ego by up to j along the road.
+    """
+    specs = scn.all_vehicles()
+    names = list(paths)
+    if scn.convoy is not None:
+        first = len(paths) - scn.convoy.count
+        names[first:] = [f"convoy[{k}]" for k in range(scn.convoy.count)]
+    jitter = scn.traffic.position_jitter_m
+    for i, a in enumerate(specs):
+        for j in range(i + 1, len(specs)):
+            b = specs[j]
+            room = 0.5 * (a.length_m + b.length_m) + jitter * ((i > 0) + 1)
+            if abs(a.lane - b.lane) * LANE_WIDTH_M >= 0.5 * (a.width_m + b.width_m) or \
+                    abs(a.position_m - b.position_m) >= room:
+                continue
+            key = "convoy.gap_m" if names[j].startswith("convoy") and names[i].startswith("convoy") else \
+                ("convoy.front_position_m" if names[j].startswith("convoy") else f"{names[j]}.position_m")
+            extra = f" + {(i > 0) + 1} x traffic.position_jitter_m" if jitter > 0 else ""
+            raise ConfigError(key, f"{names[j]} (lane {b.lane}, position_m {b.position_m:g}) overlaps {names[i]} "
+                              f"(lane {a.lane}, position_m {a.position_m:g}) at the start: every car would crash at "
+                              f"frame 0; allowed: centres at least {room:g} m apart along the road (half their "
+                              f"lengths{extra}), or lanes far enough apart")
 
 
 def _validate_traffic(spec: TrafficSpec, road: RoadSpec, lanes: int) -> None:
@@ -403,19 +458,9 @@ def apply_pipeline_preset(data: dict) -> dict:
 
 
 def read_toml(path: str | Path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        named = SCENARIO_DIR / f"{path}.toml"
-        if named.is_file() and path.suffix == "":
-            path = named
-        else:
-            known = ", ".join(list_scenarios())
-            raise ConfigError("", f"{path}: no such scenario file (shipped: {known})")
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError("", f"{path}: not valid TOML ({err})") from None
+    """The TOML dict of a scenario file (a path, or the name of a shipped scenario); a missing, unreadable,
+    non-UTF-8 or malformed file is a one-line ConfigError naming it."""
+    return read_toml_file(find_file(path, SCENARIO_DIR, "scenario"))
 
 
 def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> Scenario:

@@ -4,8 +4,11 @@
 ``python -m testbed.campaign.cli run|resume|report ...`` runs the same sub-commands stand-alone.
 
 Exit codes: 0 done (runs that failed inside the scenario or tracker are recorded, not fatal);
-1 the engine failed (a worker died, the scheduler is unreachable): finished runs are kept, resume;
-2 bad input (malformed campaign file, not a campaign directory): nothing written; 130 Ctrl-C.
+1 the engine failed (a worker died, the scheduler is unreachable, the disk is full): finished runs are
+kept, resume; 2 bad input (malformed campaign file or --scheduler address, not a campaign directory or a
+damaged one, a folder in use by another campaign process): nothing written; 130 Ctrl-C. The sub-command
+functions raise ConfigError / RunError / OSError and leave the one-line message and the exit code to
+:func:`testbed.errors.guarded` (``testbed``'s and this module's :func:`main`).
 
 Only the standard library is imported at module level: spawned workers re-import this module.
 """
@@ -47,31 +50,35 @@ def _engine_args(p: argparse.ArgumentParser) -> None:
 
 
 def _engine(args: argparse.Namespace):
-    from .engine import EngineOptions
+    """The engine options of the command line; a malformed ``--scheduler`` is a ConfigError."""
+    from ..config import ConfigError
+    from .engine import EngineOptions, check_scheduler_address
 
     if args.dask_local == 0:
-        raise ValueError("--dask-local needs N >= 1")
+        raise ConfigError("--dask-local", "0 is not allowed; must be >= 1")
+    if args.scheduler is not None:
+        check_scheduler_address(args.scheduler)
     return EngineOptions(workers=args.workers, scheduler=args.scheduler, dask_local=args.dask_local,
                          threads=args.threads)
 
 
-def _error(text: str, code: int = 2) -> int:
-    print(f"error: {text}", file=sys.stderr)
-    return code
+def _reach(engine) -> None:
+    """A RunError now, before anything is written, if ``--scheduler`` does not answer."""
+    if engine.scheduler is not None:
+        from .engine import check_scheduler
+
+        check_scheduler(engine.scheduler)
 
 
-def _execute(campaign, out: Path, args: argparse.Namespace, retry_errors: bool = False) -> int:
+def _execute(campaign, out: Path, engine, args: argparse.Namespace, retry_errors: bool = False) -> int:
+    from ..errors import RunError, describe_os_error
     from .engine import run_campaign
 
     try:
-        engine = _engine(args)
-    except ValueError as err:
-        return _error(str(err))
-    try:
         outcome = run_campaign(campaign, out, engine, quiet=args.quiet, retry_errors=retry_errors)
-    except OSError as err:  # e.g. the Dask scheduler cannot be reached
-        return _error(f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}; "
-                      f"resume with: testbed campaign resume {out}", 1)
+    except OSError as err:  # e.g. a full disk: the finished runs are kept
+        raise RunError(f"{describe_os_error(err)}; the finished runs are kept: resume with: testbed campaign "
+                       f"resume {out}") from None
     done = outcome.before + outcome.ran
     failed = f" ({outcome.failed} failed: see the error column)" if outcome.failed else ""
     if outcome.interrupted:
@@ -79,7 +86,7 @@ def _execute(campaign, out: Path, args: argparse.Namespace, retry_errors: bool =
               f"resume with: testbed campaign resume {out}", file=sys.stderr)
         return 130
     if outcome.broken:
-        print(f"error: {outcome.broken}; {done} of {outcome.total} runs finished and kept in {out}/\n"
+        print(f"error: {outcome.broken}; {done} of {outcome.total} runs finished and kept in {out}/; "
               f"resume with: testbed campaign resume {out}", file=sys.stderr)
         return 1
     print(f"{campaign.name}: {done} runs{failed}, {outcome.ran} run now; results: {out / 'results.parquet'}")
@@ -88,49 +95,45 @@ def _execute(campaign, out: Path, args: argparse.Namespace, retry_errors: bool =
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from ..config import ConfigError
+    """``campaign run``: errors are raised (ConfigError -> exit 2, RunError / OSError -> 1) for
+    :func:`testbed.errors.guarded`; nothing is written before the campaign and the engine check out."""
     from . import store
     from .spec import load_campaign
 
-    try:
-        campaign = load_campaign(args.file)
-        out = Path(args.out) if args.out else Path("runs") / "campaigns" / campaign.name
-        _engine(args)
-        store.create(out, campaign.source, campaign)
-    except (ConfigError, ValueError) as err:
-        return _error(str(err))
-    return _execute(campaign, out, args)
+    campaign = load_campaign(args.file)
+    out = Path(args.out) if args.out else Path("runs") / "campaigns" / campaign.name
+    engine = _engine(args)
+    _reach(engine)
+    store.create(out, campaign.source, campaign)
+    return _execute(campaign, out, engine, args)
 
 
 def _cmd_resume(args: argparse.Namespace) -> int:
-    from ..config import ConfigError
     from . import store
 
-    try:
-        campaign = store.open_campaign(args.dir)
-    except ConfigError as err:
-        return _error(str(err))
-    return _execute(campaign, Path(args.dir), args, retry_errors=args.retry_errors)
+    campaign = store.open_campaign(args.dir)
+    engine = _engine(args)
+    _reach(engine)
+    return _execute(campaign, Path(args.dir), engine, args, retry_errors=args.retry_errors)
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from ..config import ConfigError
+    """``campaign report``: reads only finished runs, so it may run while the campaign runs."""
+    from ..errors import RunError
     from . import store
     from .report import write_report
 
-    try:
-        campaign = store.open_campaign(args.dir)
-    except ConfigError as err:
-        return _error(str(err))
+    campaign = store.open_campaign(args.dir)
     rep = write_report(args.dir, campaign)
     if rep.n_runs == 0:
-        return _error(f"{args.dir}: no finished run yet (run or resume the campaign first)", 1)
+        raise RunError(f"{args.dir}: no finished run yet (run or resume the campaign first)")
     print(f"{rep.n_runs} runs ({rep.n_failed} failed): {len(rep.tables)} tables, {len(rep.plots)} plots")
     print(f"wrote {rep.path}")
     return 0
 
 
-def _add_subcommands(sub) -> None:
+def _add_subcommands(sub, debug: bool = False) -> None:
+    """run, resume and report; with ``debug`` each also takes ``--debug`` (after the sub-command)."""
     r = sub.add_parser("run", help="run a campaign file into a new results directory")
     r.add_argument("file", help="campaign file, or the name of a shipped one (campaigns/*.toml)")
     r.add_argument("--out", metavar="DIR", help="results directory (default runs/campaigns/<name>); must not "
@@ -145,6 +148,10 @@ def _add_subcommands(sub) -> None:
     p = sub.add_parser("report", help="mean, sd and 95%% CI tables and plots of a campaign: DIR/report.md")
     p.add_argument("dir", metavar="DIR", help="results directory")
     p.set_defaults(func=_cmd_report)
+    if debug:
+        for parser in (r, s, p):
+            parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                                help="show the traceback of an error")
 
 
 def add_campaign_parser(subparsers) -> argparse.ArgumentParser:
@@ -157,16 +164,16 @@ def add_campaign_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m testbed.campaign.cli run|resume|report ...`` = ``testbed campaign ...``."""
+    """``python -m testbed.campaign.cli [--debug] run|resume|report ...`` = ``testbed campaign ...``: every
+    error one line on stderr (with ``--debug`` also its traceback) and exit code 1 or 2."""
+    from ..errors import guarded
+
     p = argparse.ArgumentParser(prog="python -m testbed.campaign.cli",
                                 description="Monte Carlo campaigns (see docs/campaigns.md).")
-    _add_subcommands(p.add_subparsers(dest="campaign_command", required=True))
+    p.add_argument("--debug", action="store_true", help="show the traceback of an error")
+    _add_subcommands(p.add_subparsers(dest="campaign_command", required=True), debug=True)
     args = p.parse_args(argv)
-    try:
-        return args.func(args)
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    return guarded(args.func, args, args.debug)
 
 
 if __name__ == "__main__":

@@ -38,6 +38,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from ..config import ConfigError
+from ..errors import RunError, describe_os_error
 from . import store
 from .spec import Campaign, RunSpec, for_tracker, plan
 
@@ -71,9 +73,19 @@ def _core_block(k: int, threads: int) -> list[int]:
     return sorted({cores[(k * threads + j) % len(cores)] for j in range(threads)})
 
 
-def die_with_parent() -> None:
-    """Linux: have the kernel SIGKILL this process when its parent dies, so a `kill -9` of `testbed campaign
-    run` leaves no worker behind (they would otherwise run on, holding memory and the parent's pipes)."""
+PARENT_PID_VAR = "ROADTRACK_CAMPAIGN_PARENT"  # pid of the campaign process, for the LocalCluster workers
+
+
+def die_with_parent(parent_pid: int | None = None) -> None:
+    """Linux: have the kernel SIGKILL this process when its parent dies, whatever kills the parent (SIGKILL
+    included), so a `kill -9` of `testbed campaign run` leaves no worker behind (they would otherwise run
+    on, holding memory, the parent's stdout/stderr and multiprocessing's resource tracker, which lives as
+    long as a process holds its pipe). ``parent_pid``: the pid the parent had; if the parent is already
+    gone (reparented to init or a subreaper) the process exits at once.
+
+    The signal follows the *thread* that started this process: pool workers are started by ``submit`` in
+    the campaign's thread, LocalCluster workers by Dask's per-process watcher thread, both living as long
+    as the pool or cluster does."""
     if not sys.platform.startswith("linux"):
         return
     import ctypes
@@ -83,15 +95,24 @@ def die_with_parent() -> None:
         libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG = 1
     except (OSError, AttributeError):
         return
-    if os.getppid() == 1:  # the parent died before the request took effect
-        os._exit(1)
+    if os.getppid() == 1 or (parent_pid is not None and os.getppid() != parent_pid):
+        os._exit(1)  # the parent died before the request took effect
 
 
-def init_worker(threads: int | None, counter=None) -> None:
+def dask_setup(worker) -> None:
+    """Dask preload (``LocalCluster(preload=["testbed.campaign.engine"])``), run in each LocalCluster worker
+    process: it dies with the campaign process (its parent) by SIGKILL, not only when Dask's own
+    parent-alive pipe watcher thread gets the GIL."""
+    pid = os.environ.get(PARENT_PID_VAR, "")
+    die_with_parent(int(pid) if pid.isdigit() else None)
+
+
+def init_worker(threads: int | None, counter=None, parent_pid: int | None = None) -> None:
     """Local-pool worker start-up: thread limits (before open3d loads), no rerun analytics, Ctrl-C left
     to the parent (which stops the campaign and terminates the workers), and, with ``counter`` (a shared
     int), pinning of the k-th worker to its own block of ``threads`` cores: open3d's ray-casting scene
-    build runs on a TBB thread pool that ignores OMP_NUM_THREADS but follows the CPU affinity."""
+    build runs on a TBB thread pool that ignores OMP_NUM_THREADS but follows the CPU affinity; death with
+    the parent (pid ``parent_pid``)."""
     if threads is not None:
         for var in THREAD_VARS:
             os.environ.setdefault(var, str(threads))
@@ -102,7 +123,7 @@ def init_worker(threads: int | None, counter=None) -> None:
         pin_process(_core_block(k, threads))
     os.environ.setdefault("RERUN_ANALYTICS", "0")
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    die_with_parent()
+    die_with_parent(parent_pid)
 
 
 def make_task(campaign: Campaign, run: RunSpec, out_dir: str | Path | None) -> dict[str, Any]:
@@ -239,7 +260,7 @@ class _LocalPool:
         self.description = f"local process pool, {workers} worker{'s' * (workers != 1)}" + (
             f", {threads} thread{'s' * (threads != 1)} each" if threads else "") + (", pinned" if pin else "")
         self.pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=init_worker,
-                                           initargs=(threads, counter))
+                                           initargs=(threads, counter, os.getpid()))
 
     def submit(self, task):
         try:
@@ -272,7 +293,8 @@ def _local_cluster(n_workers: int):
     ``MALLOC_TRIM_THRESHOLD_=65536`` in the workers: setting it switches off glibc's adaptive mmap
     threshold, so every large numpy temporary is mmap'ed and page-faulted afresh, which makes a roadtrack
     run ~40 % slower; and without the workers' statistical profiler (a stack sample every 10 ms that
-    nobody reads here). Dask's nanny also writes its pre-spawn variables (OMP_NUM_THREADS=1, ...) into
+    nobody reads here). Each worker runs :func:`dask_setup` as a preload: it dies with this process
+    (PR_SET_PDEATHSIG). Dask's nanny also writes its pre-spawn variables (OMP_NUM_THREADS=1, ...) into
     this process's environment; they are put back afterwards so that later local pools are unaffected."""
     import logging
 
@@ -284,7 +306,8 @@ def _local_cluster(n_workers: int):
         with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
                               "distributed.worker.profile.enabled": False}):
             return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                                silence_logs=logging.ERROR, env={"RERUN_ANALYTICS": "0"})
+                                silence_logs=logging.ERROR, preload=[__name__],
+                                env={"RERUN_ANALYTICS": "0", PARENT_PID_VAR: str(os.getpid())})
     finally:
         for key in set(os.environ) - set(saved):
             del os.environ[key]
@@ -304,7 +327,11 @@ class _Dask:
                     self.client.run(pin_process, _core_block(k, 1), workers=[addr])
             self.description = f"Dask LocalCluster, {n_local} worker process{'es' * (n_local != 1)}"
         else:
-            self.client = Client(scheduler, timeout="30s")
+            try:
+                self.client = Client(scheduler, timeout="30s")
+            except (OSError, TimeoutError) as err:
+                raise InfrastructureError(f"Dask scheduler {scheduler}: {type(err).__name__}: {_one_line(err)}") \
+                    from None
             self.description = f"Dask scheduler {scheduler}"
 
     @property
@@ -341,6 +368,74 @@ class _Dask:
         finally:
             if self.cluster is not None:
                 self.cluster.close()
+
+
+SCHEDULER_TIMEOUT_S = 3.0  # seconds to connect to a Dask scheduler before giving up
+SCHEDULER_FORMS = "tcp://host:port, host:port, tls://host:port, ws://host:port, wss://host:port or ucx://host:port"
+
+
+def check_scheduler_address(address: str) -> None:
+    """A ConfigError unless ``address`` is a Dask scheduler address (:data:`SCHEDULER_FORMS`)."""
+    import importlib.util
+
+    from distributed.comm import registry
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, loc = parse_address(address, strict=False)
+        if scheme == "inproc":
+            raise ValueError("inproc:// addresses exist only inside one process")
+        registry.get_backend(scheme)
+        if scheme == "ucx" and importlib.util.find_spec("distributed_ucxx") is None:
+            raise ValueError("ucx:// needs the distributed-ucxx package, which is not installed")
+        host, port = parse_host_port(loc)
+        if not host or not 0 < port < 65536:
+            raise ValueError(f"{'no host' if not host else f'port {port} is not in 1..65535'}")
+    except (ValueError, TypeError) as err:
+        raise ConfigError("--scheduler", f"{address!r} is not a Dask scheduler address ({_one_line(err)}); "
+                          f"expected {SCHEDULER_FORMS}") from None
+
+
+def check_scheduler(address: str, timeout: float = SCHEDULER_TIMEOUT_S) -> None:
+    """Check ``address`` (a ConfigError if malformed) and that a Dask scheduler answers there within
+    ``timeout`` seconds (a RunError if not): a full Dask handshake, before anything is written."""
+    import asyncio
+    import logging
+
+    from distributed.comm import connect
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.security import Security
+
+    check_scheduler_address(address)
+    scheme, loc = parse_address(address, strict=False)
+    if scheme != "ucx":  # tcp, tls, ws, wss: a refused port or an unknown host fails at once
+        host, port = parse_host_port(loc)
+        try:
+            socket.create_connection((host, port), timeout=timeout).close()
+        except OSError as err:
+            why = f"unknown host {host!r}" if isinstance(err, socket.gaierror) else describe_os_error(err)
+            raise RunError(f"--scheduler {address}: cannot connect ({why}); start a Dask scheduler there "
+                           "(`dask scheduler`) or check the address") from None
+
+    async def probe() -> None:  # connect and the Dask handshake, within one deadline
+        comm = await asyncio.wait_for(connect(address, timeout=timeout, **Security().get_connection_args("client")),
+                                      timeout)
+        await comm.close()
+
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)
+    try:
+        asyncio.run(probe())
+    except (OSError, TimeoutError) as err:  # timeout (also a listener that is not a Dask scheduler), refused
+        why = _one_line(err) or "nothing answered the Dask handshake"
+        raise RunError(f"--scheduler {address}: no Dask scheduler answered within {timeout:g} s ({why}); start "
+                       "one (`dask scheduler`) or check the address") from None
+    except Exception as err:  # noqa: BLE001 - TLS settings, not a Dask scheduler, ...
+        raise RunError(f"--scheduler {address}: cannot talk to a Dask scheduler there ({type(err).__name__}: "
+                       f"{_one_line(err)})") from None
+    finally:
+        quiet.setLevel(level)
 
 
 @dataclass(frozen=True)
@@ -470,21 +565,37 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, engine: EngineOptions 
     Ctrl-C (SIGINT, when called from the main thread) or setting ``stop`` stops submitting, keeps
     what finished, abandons the runs in flight and returns with ``interrupted``. ``backend`` (from
     :func:`make_backend`) reuses already started workers, e.g. warm ones in a benchmark; it is then
-    left open unless runs had to be abandoned.
-    """
-    from tqdm import tqdm
+    left open unless runs had to be abandoned. (Local-pool workers die with the thread that first
+    submitted to the pool, see :func:`die_with_parent`: reuse a backend only while that thread lives.)
 
+    ``out_dir`` is locked (:func:`~testbed.campaign.store.locked`) for the whole call: a second process
+    running or resuming the same folder gets a ConfigError. Damaged run files are set aside and run again,
+    with a warning line each (``say``).
+    """
     say = say or (lambda text: print(text, file=sys.stderr))
     out = Path(out_dir)
-    (out / store.RUNS_DIR).mkdir(parents=True, exist_ok=True)
+    try:
+        (out / store.RUNS_DIR).mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        bad = out if not out.is_dir() else out / store.RUNS_DIR
+        raise ConfigError(str(bad), "not a folder; move it away") from None
+    with store.locked(out):
+        return _run_locked(campaign, out, engine, quiet, retry_errors, say, stop, backend)
+
+
+def _run_locked(campaign: Campaign, out: Path, engine: EngineOptions | None, quiet: bool, retry_errors: bool,
+                say: Callable[[str], None], stop: threading.Event | None, backend) -> Outcome:
+    from tqdm import tqdm
+
+    warn = lambda text: say(f"warning: {text}")  # noqa: E731
     runs = plan(campaign)
-    finished = store.finished_runs(out)
+    finished = store.finished_runs(out, clean=True, warn=warn)
     keep = {rid for rid, status in finished.items() if status == "ok" or not retry_errors}
     pending = _submit_order([r for r in runs if r.run_id not in keep])
     before = len(runs) - len(pending)
     failed = sum(1 for rid in keep if finished[rid] == "error")
     if not pending:
-        store.consolidate(out)
+        store.consolidate(out, clean=True, warn=warn)
         return Outcome(len(runs), before, 0, failed)
 
     stop = stop or threading.Event()
@@ -512,7 +623,7 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, engine: EngineOptions 
         abandon = (loop is not None and bool(loop.in_flight)) or stop.is_set() or broken is not None
         if backend is not None and (own_backend or abandon):
             backend.close(abandon=abandon)
-        store.consolidate(out)
+        store.consolidate(out, clean=True, warn=warn)
     ran, failed = (loop.ran, loop.failed) if loop is not None else (0, failed)
     return Outcome(len(runs), before, ran, failed, interrupted=stop.is_set(), broken=broken)
 

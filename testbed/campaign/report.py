@@ -15,6 +15,9 @@ Plots (matplotlib, Agg backend):
   one line per tracker (and per value of the other grid parameters); the x axis is logarithmic when the
   positive values span more than two decades (symmetric-log when 0 is among them);
 * ``plots/scores_by_tracker*.png`` when the campaign has no grid.
+
+A report reads only finished (whole) run files and removes nothing, so it may be written while the
+campaign runs; a damaged run file is left out with a warning line (``resume`` runs it again).
 """
 from __future__ import annotations
 
@@ -345,7 +348,7 @@ def write_report(out_dir: str | Path, campaign) -> Report:
     trackers = [t for t in campaign.trackers if t in set(df["tracker"])]
     scenarios = [s.name for s in campaign.scenarios if s.name in set(df["scenario"])]
     summary = summarize(df, grid_keys)
-    summary.to_csv(out / "summary.csv", index=False)
+    store.atomic_write_bytes(out / "summary.csv", summary.to_csv(index=False).encode())
     plots = out / "plots"
     plots.mkdir(exist_ok=True)
 

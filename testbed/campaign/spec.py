@@ -24,7 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..config import ConfigError, field, from_dict, non_negative, positive, to_dict
+from ..config import ConfigError, field, find_file, from_dict, positive, read_toml_file, to_dict
+from ..limits import at_most, check_campaign_size, check_folder_name, seed_field
 
 CAMPAIGN_DIR = Path(__file__).resolve().parent.parent.parent / "campaigns"
 
@@ -59,11 +60,13 @@ class CampaignFile:
                                        "file)", check=(lambda v: len(v) > 0, "a non-empty list"))
     trackers: tuple[str, ...] = field(doc="tracker names, see `testbed trackers`",
                                       check=(lambda v: len(v) > 0, "a non-empty list"))
-    seeds: int = field(doc="runs per (scenario, tracker, grid point): seed indices 0..seeds-1", **positive())
-    name: str = field("", doc="campaign name (default: the file name without .toml)")
+    seeds: int = field(doc="runs per (scenario, tracker, grid point): seed indices 0..seeds-1", **positive(),
+                       **at_most("campaign_seeds"))
+    name: str = field("", doc="campaign name, also its folder runs/campaigns/<name> (letters, digits, '.', '_', "
+                      "'-'; default: the file name without .toml)")
     description: str = field("", doc="one-line description")
     base_seed: int = field(0, doc="campaign seed: run seeds derive from (base_seed, scenario name, seed index)",
-                           **non_negative())
+                           **seed_field())
     overrides: dict[str, Any] = field({}, doc="dotted scenario keys set for every run, e.g. duration_s = 5.0")
     grid: dict[str, Any] = field({}, doc="dotted scenario keys -> list of values; runs cover the full product")
     record: RecordOptions = field(RecordOptions(), doc="what to record besides the scores")
@@ -266,7 +269,7 @@ def _load_sources(spec: "CampaignFile", base_dir: Path | None,
             raw = scenario_data[entry]
         else:
             path = Path(entry)
-            if base_dir is not None and not path.is_absolute() and (base_dir / path).is_file():
+            if base_dir is not None and not path.is_absolute() and _is_file(base_dir / path):
                 path = base_dir / path
             try:
                 raw = read_toml(path)
@@ -280,6 +283,14 @@ def _load_sources(spec: "CampaignFile", base_dir: Path | None,
             raise ConfigError(where, f"scenario name {scn.name!r} appears twice (names key the run ids)")
         sources.append(ScenarioSource(scn.name, entry, raw))
     return sources
+
+
+def _is_file(path: Path) -> bool:
+    """``path.is_file()``, False where the system refuses the path (too long, NUL): read_toml reports it."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
 
 
 def _check_trackers(trackers: tuple[str, ...]) -> None:
@@ -376,11 +387,12 @@ def parse_campaign(data: dict, source: str = "<dict>", base_dir: Path | None = N
     campaign started with, so a resumed campaign runs the same scenarios even if the files changed).
     """
     spec: CampaignFile = from_dict(CampaignFile, data)
-    name = spec.name or default_name or Path(source).stem
-    sources = _load_sources(spec, base_dir, scenario_data)
-    _check_trackers(spec.trackers)
+    name = _campaign_name(spec.name or default_name or Path(source).stem, given=bool(spec.name))
     overrides = _flatten(spec.overrides, "", False, "overrides")
     grid = _flatten(spec.grid, "", True, "grid")
+    check_campaign_size(spec.seeds, len(spec.scenarios), len(spec.trackers), {k: len(v) for k, v in grid.items()})
+    sources = _load_sources(spec, base_dir, scenario_data)
+    _check_trackers(spec.trackers)
     _check_keys(overrides, grid, spec.trackers)
     _check_overrides(sources, overrides, spec.trackers)
     _check_grid(sources, overrides, grid, spec.trackers)
@@ -392,23 +404,22 @@ def parse_campaign(data: dict, source: str = "<dict>", base_dir: Path | None = N
                     grid=tuple((k, tuple(v)) for k, v in grid.items()), record=spec.record, source=source)
 
 
-def read_campaign_toml(path: str | Path) -> tuple[Path, dict]:
-    """The TOML dict of a campaign file (a path, or the name of a shipped campaign)."""
-    import tomllib
-
-    path = Path(path)
-    if not path.is_file():
-        named = CAMPAIGN_DIR / f"{path}.toml"
-        if path.suffix == "" and named.is_file():
-            path = named
-        else:
-            shipped = ", ".join(sorted(p.stem for p in CAMPAIGN_DIR.glob("*.toml")))
-            raise ConfigError("", f"{path}: no such campaign file (shipped: {shipped})")
+def _campaign_name(name: str, given: bool) -> str:
+    """``name`` checked as a folder name (``given``: set by the file, else taken from the file name)."""
     try:
-        with open(path, "rb") as fh:
-            return path, tomllib.load(fh)
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError("", f"{path}: not valid TOML ({err})") from None
+        return check_folder_name(name, "name")
+    except ConfigError as err:
+        if given:
+            raise
+        raise ConfigError("name", f"{str(err).split(': ', 1)[-1]} (the name defaults to the file name; set "
+                          "name = \"...\" in the file)") from None
+
+
+def read_campaign_toml(path: str | Path) -> tuple[Path, dict]:
+    """The TOML dict of a campaign file (a path, or the name of a shipped campaign); a missing, unreadable,
+    non-UTF-8 or malformed file is a one-line ConfigError naming it."""
+    found = find_file(path, CAMPAIGN_DIR, "campaign")
+    return found, read_toml_file(found)
 
 
 def load_campaign(path: str | Path, scenario_data: dict[str, dict] | None = None,

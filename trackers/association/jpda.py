@@ -130,8 +130,10 @@ def _cluster(ts, ms, log_lik, gated, p, pdt, method, k, max_nodes):
     if p.on_overflow == "raise":
         raise JPDAOverflowError(f"JPDA cluster of {ts.size} tracks and {ms.size} measurements has more than "
                                 f"max_events={p.max_events} feasible joint events")
-    warnings.warn(f"JPDA cluster of {ts.size} tracks and {ms.size} measurements exceeds max_events="
-                  f"{p.max_events}; using per-track PDA for it", JPDAOverflowWarning, stacklevel=3)
+    warning = JPDAOverflowWarning(f"JPDA cluster of {ts.size} tracks and {ms.size} measurements exceeds "
+                                  f"max_events={p.max_events}; using per-track PDA for it")
+    warning.tracks, warning.measurements = int(ts.size), int(ms.size)  # for a caller's once-per-run summary
+    warnings.warn(warning, stacklevel=3)
     return pda(log_lik[np.ix_(ts, ms)], g, p, pdt[ts])
 
 

@@ -1,0 +1,32 @@
+"""``testbed reproduce NAME``: regenerate a paper's figures and numbers (PNG + markdown, ours beside the paper's).
+
+Each reproduction is a module of this package with one entry point::
+
+    run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = True) -> Path
+
+which writes ``out_dir/summary.md`` and its PNG figures and returns the summary's path. ``quick`` is the
+reduced run (fewer Monte Carlo runs and steps; for CI and a first look), ``progress`` shows tqdm bars.
+The full reports are committed in ``docs/results/reproduce/<NAME>/``.
+"""
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+from typing import Callable
+
+# name -> (module, one-line description); modules are imported on use.
+REPRODUCTIONS: dict[str, tuple[str, str]] = {
+    "seed-000": ("testbed.reproduce.seed000", "paper 000: one car in a convoy with mixed measurements; gating, "
+                 "PDAF and the windowed KS integral test"),
+    "seed-002": ("testbed.reproduce.seed002", "paper 002 (Powers & Pao): track-loss detection by KS tests on "
+                 "gated-measurement counts"),
+    "seed-003": ("testbed.reproduce.seed003", "paper 003: symmetric measurement equations (sum of powers, sum of "
+                 "products) with an EKF, 2 and 3 targets"),
+}
+
+
+def entry(name: str) -> Callable[..., Path]:
+    """The ``run`` function of reproduction ``name`` (KeyError naming the known ones if unknown)."""
+    if name not in REPRODUCTIONS:
+        raise KeyError(f"unknown reproduction {name!r}; known: {', '.join(REPRODUCTIONS)}")
+    return importlib.import_module(REPRODUCTIONS[name][0]).run
