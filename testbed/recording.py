@@ -269,12 +269,13 @@ class Recorder:
         d = xs.shape[1] // 2
         pos, vel, ppos = xs[:, :2], xs[:, d:d + 2], covs[:, :2, :2]
         ids = np.array([t.id for t in tracks], dtype=np.int64)
+        regime = np.array([t.regime for t in tracks], dtype=object).reshape(len(tracks))  # paper 002 KS regime
         conf = status == "confirmed"
         for name, sel, radius in (("confirmed", conf, 0.5), ("tentative", status == "tentative", 0.25),
                                   ("static", status == "static", 0.35)):
             rec.log(f"world/tracks/{name}", rr.Points3D(
                 np.column_stack([pos[sel], np.full(int(sel.sum()), 1.0)]), radii=radius,
-                labels=[f"T{i}" for i in ids[sel]], class_ids=ids[sel], show_labels=name == "confirmed"))
+                labels=[f"T{i} {r}" for i, r in zip(ids[sel], regime[sel])], class_ids=ids[sel], show_labels=name == "confirmed"))
         rec.log("world/tracks/velocity", rr.Arrows3D(origins=np.column_stack([pos[conf], np.ones(int(conf.sum()))]),
                                                      vectors=np.column_stack([vel[conf], np.zeros(int(conf.sum()))]),
                                                      class_ids=ids[conf]))

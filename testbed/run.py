@@ -406,7 +406,9 @@ def _log_tables(truth, vis, dets, tracks, kin, status, truth_t, det_t, trk_t) ->
                  track_id=np.array([tr.id for tr in tracks], dtype=np.int64),
                  status=np.asarray(status, dtype=object).reshape(t),
                  x=xs[:, 0], y=xs[:, 1], vx=xs[:, d], vy=xs[:, d + 1],
-                 score=np.array([tr.score for tr in tracks], dtype=np.float64), cov=covs.reshape(t, covs[0].size if t else 4 * d * d))
+                 score=np.array([tr.score for tr in tracks], dtype=np.float64),
+                 regime=np.array([tr.regime for tr in tracks], dtype=object).reshape(t),
+                 cov=covs.reshape(t, covs[0].size if t else 4 * d * d))
 
 
 def _write_tables(out: Path, tables: dict) -> None:

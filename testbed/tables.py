@@ -101,7 +101,8 @@ def detections_log() -> TableLog:
 
 def tracks_log() -> TableLog:
     return TableLog(dict(frame=np.int64, time=np.float64, track_id=np.int64, status=object, x=np.float64,
-                         y=np.float64, vx=np.float64, vy=np.float64, score=np.float64, cov=np.float64))
+                         y=np.float64, vx=np.float64, vy=np.float64, score=np.float64, regime=object,
+                         cov=np.float64))
 
 
 def diagnostics_log() -> TableLog:

@@ -106,7 +106,7 @@ def test_tables_have_the_documented_columns(recorded):
     assert list(det.columns) == ["frame", "time", "x", "y", "provenance", "n_points", "length", "width", "height"]
     assert set(det.provenance.unique()) <= {-1, 1, 2, 3}
     tracks = pd.read_parquet(out / "tracks.parquet")
-    assert list(tracks.columns) == ["frame", "time", "track_id", "status", "x", "y", "vx", "vy", "score", "cov"]
+    assert list(tracks.columns) == ["frame", "time", "track_id", "status", "x", "y", "vx", "vy", "score", "regime", "cov"]
     assert set(tracks.status.unique()) <= {"confirmed", "tentative", "static"}
     cov = np.stack(tracks["cov"].to_numpy()).reshape(-1, 4, 4)
     np.testing.assert_allclose(cov, np.swapaxes(cov, 1, 2), atol=1e-9)

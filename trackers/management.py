@@ -12,10 +12,14 @@ m-of-n (thesis §1.3.4, the alternative): confirm with >= m detections in the la
 tentative track that can no longer reach m; delete a confirmed one after coast_scans + 1 misses in a row.
 Duplicates [D]: a confirmed track whose prediction stays within `merge_d2` (Mahalanobis, combined S) of an
 older confirmed track while they share gated measurements for `merge_scans` scans is deleted.
+KS deletion (paper 002, optional): every track carries a regime from the KS track regime detector
+(trackers.trackloss.regime); `deletion = "ks"` deletes a confirmed track whose regime is track-lost instead of
+by the manager's rule, "manager+ks" by either; the default "manager" leaves deletion as above.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -23,8 +27,15 @@ import numpy as np
 
 from trackers.association.pda import pda_log_denominator
 from trackers.params import NON_NEGATIVE, OPEN_PROBABILITY, POSITIVE, ParamError, load, param
+from trackers.trackloss.regime import RegimeConfig
+
+
+@functools.lru_cache(maxsize=64)
+def _regime_config(n: int, alphas: tuple[float, ...], adaptive: bool, n_min: int, n_max: int) -> RegimeConfig:
+    return RegimeConfig(n=n, alphas=alphas, adaptive=adaptive, n_min=n_min, n_max=n_max)
 
 INITIATIONS = ("two_point", "single")
+DELETIONS = ("manager", "ks", "manager+ks")
 SCORE_MODES = ("gate", "exclusive")
 
 
@@ -54,14 +65,39 @@ class ManagementParams:
                             "predicted positions (0 disables pruning)", check=NON_NEGATIVE)
     merge_scans: int = param(5, "duplicate test: scans in a row before the younger track is deleted",
                              check=POSITIVE)
-    history_length: int = param(32, "scans of innovations, S, gated counts and gate volumes kept per track",
-                                check=POSITIVE)
+    history_length: int = param(32, "scans of innovations, S, gated counts and gate volumes kept per track "
+                                "(at least the KS regime window)", check=POSITIVE)
+    deletion: str = param("manager", "manager: the manager's own deletion (score drop or m-of-n misses); ks: a "
+                          "confirmed track is deleted when its KS regime is track-lost (paper 002), tentative ones "
+                          "by the manager; manager+ks: either", choices=DELETIONS)
+    regime_n: int = param(30, "KS regime detector window n [scans] (paper 002: 50 at its 1-D example; 30 = 3 s "
+                          "at 10 Hz [D]); the start value when adaptive", check=POSITIVE)
+    regime_alpha: float = param(0.05, "KS regime detector significance alpha (CI = 1 - alpha; paper 002: 0.05)",
+                                check=OPEN_PROBABILITY)
+    regime_adaptive: bool = param(False, "adapt the window n (paper 002 §V-F): grow it while both regimes are "
+                                  "accepted, shrink it while neither is, raise the CI to 99 % when that fails")
+    regime_n_min: int = param(5, "adaptive KS window: smallest n", check=POSITIVE)
+    regime_n_max: int = param(100, "adaptive KS window: largest n (scans of history kept per track)",
+                              check=POSITIVE)
+    regime_clutter_density: float | None = param(None, "clutter density lambda for the KS regime [1/m^2] "
+                                                 "(default: the associator's; paper 002 §VI-B: err high)",
+                                                 check=POSITIVE)
 
     def __post_init__(self) -> None:
         if self.alpha_fc + self.beta_tm >= 1:
             raise ParamError("beta_tm", f"alpha_fc + beta_tm must be < 1, got {self.alpha_fc} + {self.beta_tm}")
         if self.confirm_m > self.confirm_n:
             raise ParamError("confirm_m", f"must be <= confirm_n = {self.confirm_n}, got {self.confirm_m}")
+        if self.regime_adaptive and not self.regime_n_min <= self.regime_n <= self.regime_n_max:
+            raise ParamError("regime_n", f"must lie in [regime_n_min, regime_n_max] = [{self.regime_n_min}, "
+                             f"{self.regime_n_max}] when adaptive, got {self.regime_n}")
+
+    @property
+    def regime_config(self) -> RegimeConfig:
+        """The KS regime detector's configuration (CI ladder: regime_alpha, then 0.01 if smaller)."""
+        alphas = (self.regime_alpha,) + ((0.01,) if self.regime_alpha > 0.01 else ())
+        return _regime_config(self.regime_n, alphas, self.regime_adaptive, min(self.regime_n_min, self.regime_n),
+                              max(self.regime_n_max, self.regime_n))
 
     @property
     def confirm_threshold(self) -> float:

@@ -20,6 +20,8 @@ from trackers.initiation import pair_candidates, single_point, two_point
 from trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, score_decide,
                                  score_increment)
 from trackers.state import FilterState
+from trackers.trackloss.regime import (RegimeState, advance, alpha_of, assess_window, gamma_best_fast, initial_state,
+                                      window_from_history)
 
 PdInput = np.ndarray | float | Callable[[np.ndarray], np.ndarray] | None
 
@@ -27,7 +29,9 @@ PdInput = np.ndarray | float | Callable[[np.ndarray], np.ndarray] | None
 @dataclass(frozen=True, eq=False)
 class ScanRecord:
     """What one scan told a track: nu_c (m,) combined innovation; S (m, m); n_gated measurements in the gate;
-    gate_volume [m^m]; nis = nu_c^T S^-1 nu_c; detected (at least one gated measurement); pd used."""
+    gate_volume [m^m]; nis = nu_c^T S^-1 nu_c; detected (at least one gated measurement); pd used; d2 (M,) the
+    squared Mahalanobis distances of every measurement of the scan (gated or not; the KS regime detector
+    re-gates them, trackers.trackloss.regime)."""
 
     nu_c: np.ndarray
     S: np.ndarray
@@ -36,6 +40,7 @@ class ScanRecord:
     nis: float
     detected: bool
     pd: float
+    d2: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,7 +50,10 @@ class Track:
     hits: scans with at least one gated measurement (birth counts); misses_in_a_row: consecutive
     scans without one; candidate: a one-measurement track candidate waiting for a second measurement
     (two-point initiation; id -1, not associated, not reported); history: the last
-    `history_length` ScanRecords, oldest first; duplicate_scans: scans in a row spent on an older track."""
+    max(`history_length`, the regime window) ScanRecords, oldest first; duplicate_scans: scans in a row spent
+    on an older track; regime: the KS track regime detector's verdict of the last scan (paper 002): "unknown"
+    (history shorter than its window), "tracking", "track-lost" or "ambiguous"; regime_state: its window,
+    CI level and last statistics (trackers.trackloss.regime.RegimeState)."""
 
     id: int
     state: FilterState
@@ -58,6 +66,8 @@ class Track:
     candidate: bool = False
     history: tuple[ScanRecord, ...] = ()
     duplicate_scans: int = 0
+    regime: str = "unknown"
+    regime_state: RegimeState | None = None
 
     def history_array(self, name: str) -> np.ndarray:
         """One ScanRecord field over the history, oldest first: e.g. history_array("n_gated") (L,)."""
@@ -256,17 +266,48 @@ class Tracker:
         ids = np.array([tr.id for tr in live], dtype=np.int64).reshape(T)
         dup = duplicate_counts(pred.z_hat, pred.S, inp.gated, confirmed & was_confirmed, ids,
                                np.array([tr.duplicate_scans for tr in live], dtype=np.int64).reshape(T), mp.merge_d2)
+        keep = max(mp.history_length, mp.regime_config.longest)
+        histories = [(tr.history + (records[t],))[-keep:] for t, tr in enumerate(live)]
+        regimes = self._regimes(live, histories, diag)
+        lost = np.array([r.label == "track-lost" for r in regimes], dtype=bool).reshape(T)
+        if mp.deletion == "ks":  # paper 002: a confirmed track goes when its KS regime is track-lost
+            delete = np.where(confirmed, lost, delete)
+        elif mp.deletion == "manager+ks":
+            delete = delete | lost
         delete = delete | (dup >= mp.merge_scans)
         survivors, deleted = [], []
         for t, tr in enumerate(live):
             new = _evolve(tr, state=states[t], score=float(score[t]), max_score=float(max_score[t]),
                           confirmed=bool(confirmed[t]), age=tr.age + 1, hits=tr.hits + int(hit[t]),
-                          misses_in_a_row=int(misses[t]), duplicate_scans=int(dup[t]),
-                          history=(tr.history + (records[t],))[-mp.history_length:])
+                          misses_in_a_row=int(misses[t]), duplicate_scans=int(dup[t]), history=histories[t],
+                          regime=regimes[t].label, regime_state=regimes[t])
             (deleted if delete[t] else survivors).append(new)
         diag["score"] = score
         diag["w0"] = np.asarray(w0, dtype=np.float64)
         return survivors, deleted, diag
+
+    def _regimes(self, live, histories, diag: dict[str, np.ndarray]) -> list[RegimeState]:
+        """Each track's KS regime after this scan (paper 002 §V) from its history, with the manager's clutter
+        density for the regime (default: the associator's) and the per-scan P_D; gamma_best in one batch.
+        Adds the diagnostics ks_regime (1 tracking, 0 ambiguous, -1 track-lost), ks_D_T, ks_D_L, ks_d_n, ks_n
+        (NaN while unknown)."""
+        mp, T, nz = self.management, len(live), self.filter.measurement.ndim
+        cfg = mp.regime_config
+        lam = mp.regime_clutter_density or self.association.clutter_density
+        states = [tr.regime_state or initial_state(cfg) for tr in live]
+        ready = [t for t in range(T) if len(histories[t]) >= states[t].n]
+        windows = [window_from_history(histories[t], states[t].n) for t in ready]
+        gammas = np.atleast_1d(gamma_best_fast(lam * np.array([w[0].mean() for w in windows]), nz))
+        out = [advance(s, None, cfg) for s in states]
+        for i, t in enumerate(ready):
+            test = assess_window(*windows[i], lam, nz, alpha_of(states[t], cfg), gamma=float(gammas[i]))
+            out[t] = advance(states[t], test, cfg)
+        code = {"tracking": 1.0, "ambiguous": 0.0, "track-lost": -1.0}
+        for name, get in (("ks_regime", lambda r: code.get(r.label, np.nan)), ("ks_D_T", lambda r: r.last.D_T),
+                          ("ks_D_L", lambda r: r.last.D_L), ("ks_d_n", lambda r: r.last.d_n),
+                          ("ks_n", lambda r: r.last.n)):
+            diag[name] = np.array([get(r) if r.label != "unknown" else np.nan for r in out], dtype=np.float64)
+        return out
 
     def _windows(self, live, hit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """m-of-n windows: detected and known (T, n) flags of the last n scans, newest last. Scans before the
@@ -287,7 +328,8 @@ class Tracker:
         nis = np.einsum("tm,tm->t", nu_c, np.linalg.solve(inp.S, nu_c[..., None])[..., 0]) if T else np.zeros(0)
         n_gated = inp.gated.sum(axis=1)
         records = [ScanRecord(nu_c=nu_c[t], S=inp.S[t], n_gated=int(n_gated[t]), gate_volume=float(inp.gate_volume[t]),
-                              nis=float(nis[t]), detected=bool(hit[t]), pd=float(inp.pd[t])) for t in range(T)]
+                              nis=float(nis[t]), detected=bool(hit[t]), pd=float(inp.pd[t]), d2=inp.d2[t])
+                   for t in range(T)]
         diag = {"nis": nis, "n_gated": n_gated.astype(np.float64), "gate_volume": inp.gate_volume.astype(np.float64),
                 "pd": inp.pd.astype(np.float64)}
         for t, s in enumerate(states):
