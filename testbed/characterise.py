@@ -210,7 +210,7 @@ def _vehicle_rows(truth, scan, perc, occ, max_range_m: float, rows_v: dict, rows
                         ("detected", n_dets > 0), ("n_dets", n_dets), ("truck", truck)):
         rows_v[key] += list(values)
 
-    owners = _detection_owners(scan.source, perc.labels, len(dets))
+    owners = detection_owners(scan.source, perc.labels, len(dets))
     where = {int(i): k for k, i in enumerate(ids)}
     for j in range(len(dets)):
         k = where.get(int(dets.provenance[j]))
@@ -233,7 +233,7 @@ def _points_per_source(source: np.ndarray) -> dict[int, int]:
     return dict(zip(ids.tolist(), counts.tolist()))
 
 
-def _detection_owners(source: np.ndarray, labels: np.ndarray, m: int) -> np.ndarray:
+def detection_owners(source: np.ndarray, labels: np.ndarray, m: int) -> np.ndarray:
     """(m,) number of vehicles holding >= MIN_SHARE (and >= 5) of each detection's points."""
     out = np.zeros(m, np.int64)
     sel = (labels >= 0) & (source >= 0)
@@ -279,7 +279,7 @@ def merge_curve(scn: Scenario, gaps: tuple[float, ...] = GAPS_M, seed: int = 0) 
                     if not all(np.count_nonzero(s.source == i) >= cfg.cluster.min_points for i in (1, 2)):
                         continue
                     views += 1
-                    merged += int(np.any(_detection_owners(s.source, p.labels, len(p.detections)) >= 2))
+                    merged += int(np.any(detection_owners(s.source, p.labels, len(p.detections)) >= 2))
         out[float(gap)] = merged / views if views else float("nan")
     return out
 

@@ -323,7 +323,7 @@ class ConvoyTrack:
     beta0: np.ndarray
 
 
-def _weights(assoc: Association, nu: np.ndarray, S: np.ndarray) -> tuple[float, bool, float, float]:
+def pda_weights(assoc: Association, nu: np.ndarray, S: np.ndarray) -> tuple[float, bool, float, float]:
     """(d2, validated, beta_1, beta_0) of the one measurement: gate eq. (10), then PDAF eqs. (25)-(29).
     (The same weights as trackers.association.pda with clutter density m_k / V_k; written in the paper's b form
     here because one scalar step does not need the batched log-space machinery; tests check they agree.)"""
@@ -347,7 +347,7 @@ def track(run: ConvoyRun, scn: ConvoyScenario, assoc: Association) -> ConvoyTrac
         s_pred = flt.predict(s, scn.dt)  # paper 000 eqs. (4)-(5)
         z_hat, S = flt.predicted_measurement(s_pred)  # paper 000 eq. (6)
         nu = run.z[k] - z_hat  # paper 000 eq. (8), nu = z - z_hat [R]
-        d2s[k], valid[k], beta1, b0s[k] = _weights(assoc, nu, S)
+        d2s[k], valid[k], beta1, b0s[k] = pda_weights(assoc, nu, S)
         s = flt.update(s_pred, nu[None], np.array([beta1]), b0s[k]) if valid[k] else s_pred  # eqs. (20)-(21)
         xs[k + 1], Ps[k + 1], nus[k], Ss[k] = s.x, s.P, nu, S
     return ConvoyTrack(x=xs, P=Ps, nu=nus, S=Ss, d2=d2s, validated=valid, beta0=b0s)

@@ -228,7 +228,7 @@ def test_pdaf_weights_are_trackers_pda_with_the_sample_density(pd, pg, nu):
     """paper 000 eqs. (25)-(29) in b form equal trackers' PDA with lambda = m_k / V_k (eq. (27))."""
     S = np.array([[0.26, 0.01], [0.01, 0.25]])
     nu = np.array(nu)
-    d2, ok, beta1, beta0 = cp._weights(cp.Association(gate=pg < 1.0, gamma=9.0, pd=pd, pg=pg), nu, S)
+    d2, ok, beta1, beta0 = cp.pda_weights(cp.Association(gate=pg < 1.0, gamma=9.0, pd=pd, pg=pg), nu, S)
     lam = 1.0 / gate_volume(S[None], 9.0)[0]
     W, w0 = pda(log_gaussian(nu[None, None], S[None]), np.ones((1, 1), bool), AssociationParams(pd, pg, lam))
     assert ok and beta1 == pytest.approx(W[0, 0], rel=1e-12) and beta0 == pytest.approx(w0[0], rel=1e-12)

@@ -20,6 +20,9 @@ REPRODUCTIONS: dict[str, tuple[str, str]] = {
                  "PDAF and the windowed KS integral test"),
     "seed-002": ("testbed.reproduce.seed002", "paper 002 (Powers & Pao): track-loss detection by KS tests on "
                  "gated-measurement counts"),
+    "seed-000-highway": ("testbed.reproduce.seed000_highway", "paper 000 on the highway: one car of a close "
+                         "LiDAR-seen convoy (gaps 0.25-4 m, full and thesis pipelines); mixing fraction, gating and "
+                         "the KS integral test"),
     "seed-003": ("testbed.reproduce.seed003", "paper 003: symmetric measurement equations (sum of powers, sum of "
                  "products) with an EKF, 2 and 3 targets"),
 }

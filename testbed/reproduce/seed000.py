@@ -561,7 +561,7 @@ HIGHWAY = [
     "cars merge (the perception merge sweep in docs/perception.md: merge rate 0.04 at 0.25 m, 0.07 at 0.5 m, 0 "
     "from 1 m with the full pipeline; more with `sensor.pipeline = \"thesis\"` or `sensor.perception."
     "merge_fragments`). A `sensors.perception.Detections` row whose `flags` has the `MERGED` bit and whose points "
-    "belong to two vehicles (`testbed.characterise._detection_owners` >= 2; `provenance` is the plurality owner) is "
+    "belong to two vehicles (`testbed.characterise.detection_owners` >= 2; `provenance` is the plurality owner) is "
     "the paper's wrong measurement: its `z` sits between the cars, about (length + gap) / 2 = 2.6-3 m from each "
     "centre, i.e. 5-6 sigma for the 0.3-0.5 m centre error of the box fit. Those labels are for scoring only.",
     "- **Sensor, one measurement per frame**: the paper's sensor \"points where it expects the car\": take the "
