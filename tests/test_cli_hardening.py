@@ -170,7 +170,8 @@ def test_a_full_disk_under_rerun_ends_with_our_line(tmp_path):
         pytest.skip("no private tmpfs mount here")
     script = (f"mount -t tmpfs -o size=256k tmpfs {tmp_path} && cd {REPO} && {sys.executable} -m testbed.cli "
               f"{' '.join(_run(tmp_path / 'r', duration=1.0))}; echo rc=$?; ls -a {tmp_path}/r")
-    proc = subprocess.run(["unshare", "-rm", "sh", "-c", script], capture_output=True, text=True, timeout=120,
+    # generous timeout: on a fresh checkout this may be the first run that compiles the numba kernels (20-60 s)
+    proc = subprocess.run(["unshare", "-rm", "sh", "-c", script], capture_output=True, text=True, timeout=600,
                           env=_env(tmp_path))
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith(f"error: {tmp_path}/r/run.rrd: no space left on device"), proc.stderr
