@@ -51,6 +51,7 @@ METRICS = ("tracks_confirmed", "tracks_tentative", "tracks_static", "detections"
            "split_detections", "rejected_objects")
 TRUTH_CLASSES = ((0, "road", (90, 90, 90)), (1, "vehicle", (40, 200, 90)), (2, "static object", (160, 110, 60)))
 TRAJECTORY_POINTS = 300
+FLUSH_TIMEOUT_S = 120.0  # rerun 0.41's flush waits forever if its file writer died (full disk): bound the wait
 SERIES_FLUSH_FRAMES = 200  # per-track diagnostic series are buffered and sent in columns every N frames
 FOOTER_MAX_FRAMES = 1200
 """Recordings of up to this many frames end with an rrd footer (a manifest of every chunk, for random access).
@@ -339,6 +340,6 @@ class Recorder:
     def close(self) -> None:
         try:
             self._flush_series()
-            self.rec.flush()
+            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         finally:  # a failed flush (full disk) still releases the recording, so rerun logs its cause
             self.rec.disconnect()

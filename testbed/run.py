@@ -180,7 +180,7 @@ def _close_recording(recorder) -> None:
 
     try:
         recorder.close()
-    except RuntimeError as err:
+    except (RuntimeError, TimeoutError) as err:  # TimeoutError: the bounded flush gave up
         try:
             recorder.rec.disconnect()  # close() stopped at the flush; rerun logs its own line here
         except Exception:  # noqa: BLE001 - already failing
