@@ -300,24 +300,43 @@ def track_status(tracks: tuple, kin: tuple[np.ndarray, np.ndarray], moving: Movi
 
 
 def _sense(truth, static: np.ndarray, scn: Scenario, rngs: dict, watch: _Stopwatch, road: sensors.RoadMap | None):
-    """One frame's LiDAR scan, perception and detections (plus the scenario's added clutter)."""
-    scan = _scan(truth, static, scn.sensor.lidar, rngs["lidar"])
+    """One frame's LiDAR scan, perception and detections (plus the scenario's added clutter).
+
+    ``sensor.outages``: the named vehicles are left out of the ray-cast scene; while the whole sensor is off the
+    scan is cast (so the noise streams stay aligned with a run without the outage) and then emptied, and the
+    added clutter is drawn and dropped."""
+    off, hidden = scn.sensor.outage_at(truth.time)
+    scan = _scan(truth, static, scn.sensor.lidar, rngs["lidar"], hidden=hidden)
+    if off:
+        scan = empty_scan(scan)
     watch.lap("raycast")
     perc = sensors.perceive(scan, scn.sensor.perception, road)
     dets = perc.detections
     clutter = scn.sensor.clutter
     if clutter.density_per_m2 > 0:
-        dets = dets.concat(sensors.clutter_detections(rngs["clutter"], clutter.density_per_m2, truth.xy[0],
-                                                      clutter.radius_m))
+        extra = sensors.clutter_detections(rngs["clutter"], clutter.density_per_m2, truth.xy[0], clutter.radius_m)
+        dets = dets if off else dets.concat(extra)
     watch.lap("perception")
     return scan, perc, dets
 
 
-def _scan(truth, static: np.ndarray, cfg: sensors.LidarConfig, rng: np.random.Generator) -> sensors.Scan:
-    """One LiDAR turn from the ego car at the vehicles (ego left out) and roadside boxes within reach."""
+def empty_scan(scan: sensors.Scan) -> sensors.Scan:
+    """``scan`` with no points and a range image of inf (no ray returned): a sensor outage. The occlusion-aware
+    P_D of such a scan is nominal everywhere in range (nothing hides anything)."""
+    return sensors.Scan(points=np.zeros((0, 3)), source=np.zeros(0, dtype=np.int64), origin=scan.origin,
+                        ranges=np.full_like(scan.ranges, np.inf), ray=np.zeros(0, dtype=np.int64),
+                        azimuths=scan.azimuths, elevations=scan.elevations, pose=scan.pose)
+
+
+def _scan(truth, static: np.ndarray, cfg: sensors.LidarConfig, rng: np.random.Generator,
+          hidden: frozenset[str] = frozenset()) -> sensors.Scan:
+    """One LiDAR turn from the ego car at the vehicles (ego left out) and roadside boxes within reach; the
+    vehicles named in ``hidden`` are left out of the scene (a forced loss: no return, no shadow)."""
     reach = cfg.max_range_m + 10.0
     boxes, ids = truth.boxes()
     cars = boxes_near(boxes, truth.xy[0], reach)  # a car beyond the LiDAR's reach returns no point
+    if hidden:
+        cars &= np.array([n not in hidden for n in truth.names[1:]], dtype=bool)
     near = boxes_near(static, truth.xy[0], reach)
     scene_boxes = np.vstack([boxes[cars], static[near]])
     scene_ids = np.concatenate([ids[cars], np.full(int(near.sum()), -1, dtype=np.int64)])

@@ -221,6 +221,29 @@ class ClutterSpec:
 
 
 @dataclass(frozen=True)
+class OutageSpec:
+    """A forced sensor outage over [start_s, end_s): with ``vehicles = []`` the whole sensor returns nothing (no
+    points, a range image of inf); with names, those vehicles are taken out of the ray-cast scene (no return from
+    them, they hide nothing). The tracker is not told: its occlusion-aware P_D stays nominal (paper 002's forced
+    loss, P_D = 0 while the filter keeps its P_D)."""
+
+    start_s: float = field(doc="start of the outage [s]", **non_negative(), **at_most("duration_s"))
+    end_s: float = field(doc="end of the outage [s] (exclusive; at or beyond duration_s: to the end of the run)",
+                         **positive(), **at_most("duration_s"))
+    vehicles: tuple[str, ...] = field((), doc="names of the scripted vehicles (not the ego) taken out of the "
+                                      "scene; empty: the whole sensor is off")
+
+    def __post_init__(self) -> None:
+        if not self.start_s < self.end_s:
+            raise ConfigError("end_s", f"{self.end_s:g} s is not after start_s = {self.start_s:g} s; allowed: "
+                              "end_s > start_s")
+
+    def active(self, time: float) -> bool:
+        """Whether the outage covers time [s] (frames at start_s <= t < end_s, to 1 ns)."""
+        return self.start_s - 1e-9 <= time < self.end_s - 1e-9
+
+
+@dataclass(frozen=True)
 class SensorSpec:
     """The LiDAR and its perception stack. ``pipeline = "thesis"`` presets every perception key the file
     does not set to the thesis's plain pipeline (no map ROI, fixed 0.8 m height bound, no fragment
@@ -241,6 +264,16 @@ class SensorSpec:
                                       "about 6 s hidden with the default score management)",
                                       check=(lambda v: 0 <= v <= 1, "in [0, 1]"))
     clutter: ClutterSpec = field(ClutterSpec(), doc="added Poisson clutter")
+    outages: tuple[OutageSpec, ...] = field((), doc="forced sensor outages (default: none), e.g. "
+                                            "[{ start_s = 8.0, end_s = 20.0, vehicles = [\"right\"] }]: the "
+                                            "named cars vanish from the scan, or with vehicles = [] the whole "
+                                            "sensor (no points, no added clutter) while the tracker keeps its "
+                                            "nominal P_D (paper 002's forced loss; docs/trackloss.md)")
+
+    def outage_at(self, time: float) -> tuple[bool, frozenset[str]]:
+        """(whole sensor off, names of the vehicles out of the scene) at time [s]."""
+        on = [o for o in self.outages if o.active(time)]
+        return any(not o.vehicles for o in on), frozenset(n for o in on for n in o.vehicles)
 
 
 @dataclass(frozen=True)
@@ -385,6 +418,7 @@ def _validate(scn: Scenario) -> Scenario:
             key = "front_position_m" if where == "convoy" else "position_m"
             raise ConfigError(f"{where}.{key}", f"{v.position_m} m is off the road; allowed: 0..{scn.road.length_m}")
     _validate_traffic(scn.traffic, scn.road, lanes)
+    _validate_outages(scn)
     if scn.env is None:
         _check_overlaps(scn, paths)
     return scn
@@ -416,6 +450,17 @@ def _check_overlaps(scn: Scenario, paths: list[str]) -> None:
                               f"(lane {a.lane}, position_m {a.position_m:g}) at the start: every car would crash at "
                               f"frame 0; allowed: centres at least {room:g} m apart along the road (half their "
                               f"lengths{extra}), or lanes far enough apart")
+
+
+def _validate_outages(scn: Scenario) -> None:
+    """Vehicle names of ``sensor.outages`` against the scripted vehicles' truth names (ego left out)."""
+    names = [v.name or f"car{i}" for i, v in enumerate(scn.all_vehicles())][1:] if scn.env is None else []
+    for i, outage in enumerate(scn.sensor.outages):
+        for j, name in enumerate(outage.vehicles):
+            if name not in names:
+                allowed = ", ".join(names) if names else "none (an env scenario has no scripted vehicles)"
+                raise ConfigError(f"sensor.outages[{i}].vehicles[{j}]", f"{name!r} is not a scripted vehicle; "
+                                  f"allowed: {allowed}")
 
 
 def _validate_traffic(spec: TrafficSpec, road: RoadSpec, lanes: int) -> None:

@@ -23,6 +23,9 @@ REPRODUCTIONS: dict[str, tuple[str, str]] = {
     "seed-000-highway": ("testbed.reproduce.seed000_highway", "paper 000 on the highway: one car of a close "
                          "LiDAR-seen convoy (gaps 0.25-4 m, full and thesis pipelines); mixing fraction, gating and "
                          "the KS integral test"),
+    "seed-002-highway": ("testbed.reproduce.seed002_highway", "paper 002's KS track regime detector on the highway: "
+                         "delay after a forced loss and a sensor dropout, false alarms while tracking, per tracker, "
+                         "against the track score's deletion"),
     "seed-003": ("testbed.reproduce.seed003", "paper 003: symmetric measurement equations (sum of powers, sum of "
                  "products) with an EKF, 2 and 3 targets"),
 }
