@@ -27,12 +27,6 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"error: {self.prog}: {message} (see `{self.prog} --help`)\n")
 
 
-def _folder_name(name: str, key: str) -> str:
-    from .limits import check_folder_name
-
-    return check_folder_name(name, key)
-
-
 def _cmd_run(args: argparse.Namespace) -> int:
     from .outdir import RUN_FILES, Staging
     from .scenario import load_scenario
@@ -43,7 +37,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         overrides["seed"] = args.seed
     scn = load_scenario(args.scenario, overrides)
-    out = args.out if args.out is not None else str(Path("runs") / _folder_name(scn.name, "name"))
+    out = args.out if args.out is not None else str(Path("runs") / scn.name)  # the loader checked the name
     stage = Staging(out, RUN_FILES)  # refused up front (exit 2), before any simulation
     try:
         res = _run_with_progress(scn, stage.tmp, args)
@@ -160,7 +154,7 @@ def _cmd_perception(args: argparse.Namespace) -> int:
     settings_path = Path(args.write_settings) if args.write_settings else None
     if settings_path is not None and not settings_path.parent.is_dir():
         raise ConfigError("--write-settings", f"folder {settings_path.parent} does not exist")
-    out = args.out if args.out is not None else str(Path("runs") / "perception" / _folder_name(scn.name, "name"))
+    out = args.out if args.out is not None else str(Path("runs") / "perception" / scn.name)
     stage = Staging(out, REPORT_FILES)
     try:
         ch, abl, settings, md = _characterise(scn, data, stage.tmp, args)

@@ -237,7 +237,7 @@ def read_toml_file(path: Path) -> dict:
     try:
         return tomllib.loads(text.removeprefix("\ufeff"))
     except tomllib.TOMLDecodeError as err:
-        raise ConfigError("", f"{shown}: not valid TOML ({one_line_text(err)})") from None
+        raise ConfigError("", f"{shown}: not valid TOML ({one_line(err) or type(err).__name__})") from None
     except RecursionError:
         raise ConfigError("", f"{shown}: not valid TOML (arrays or tables nested too deeply)") from None
 
@@ -258,7 +258,9 @@ def _read_bytes(path: Path, shown: str) -> bytes:
         raise ConfigError("", f"{shown}: cannot read it ({what})") from None
 
 
-def one_line_text(err: BaseException) -> str:
-    """First line of ``str(err)`` (the exception's type name when empty)."""
-    lines = [ln.strip() for ln in str(err).splitlines() if ln.strip()]
-    return lines[0] if lines else type(err).__name__
+def one_line(err: BaseException | str) -> str:
+    """The first non-empty line of ``str(err)``, stripped ('' when there is none)."""
+    for line in str(err).splitlines():
+        if line.strip():
+            return line.strip()
+    return ""

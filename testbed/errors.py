@@ -15,19 +15,11 @@ import sys
 import traceback
 from typing import Any, Callable
 
-from .config import ConfigError
+from .config import ConfigError, one_line  # noqa: F401 - one_line is part of this module's API
 
 
 class RunError(RuntimeError):
     """A run-time failure with a message already fit for the user (exit 1)."""
-
-
-def one_line(err: BaseException) -> str:
-    """``str(err)``'s first non-empty line ('' when there is none)."""
-    for line in str(err).splitlines():
-        if line.strip():
-            return line.strip()
-    return ""
 
 
 def describe_os_error(err: OSError) -> str:

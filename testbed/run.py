@@ -152,15 +152,15 @@ def _keep_partial(err: BaseException, scn: Scenario, state: _Progress, recorder,
         try:
             _close_recording(recorder)
         except (Exception, KeyboardInterrupt) as close_err:  # noqa: BLE001 - err is the one to report
-            err.add_note(f"the recording could not be closed ({_one_line(close_err)})")
+            err.add_note(f"the recording could not be closed ({_short_cause(close_err)})")
     if out is not None and not state.tables_written:
         try:
             _write_tables(out, tables)
         except (Exception, KeyboardInterrupt) as write_err:  # noqa: BLE001
-            err.add_note(f"the tables could not be written ({_one_line(write_err)})")
+            err.add_note(f"the tables could not be written ({_short_cause(write_err)})")
 
 
-def _one_line(err: BaseException) -> str:
+def _short_cause(err: BaseException) -> str:
     """A short cause: ``no space left on device`` for an OSError, else ``Type: message``."""
     from .errors import one_line
 

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from ..config import ConfigError
+from ..config import ConfigError, one_line
 from ..errors import RunError, describe_os_error
 from . import store
 from .spec import Campaign, RunSpec, for_tracker, plan
@@ -149,11 +149,6 @@ def _where(err: BaseException) -> str:
     return f"{Path(f.filename).name}:{f.lineno} in {f.name}"
 
 
-def _one_line(err: BaseException) -> str:
-    text = str(err).strip()
-    return text.splitlines()[0] if text else ""
-
-
 def _scalar(value: Any) -> float | str:
     """A summary value as a results cell: numbers (and booleans) as float64, None as NaN, else text."""
     import numbers
@@ -201,11 +196,11 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
         ok = (frames >= 0) & (frames < n_frames)
         series[frames[ok]] = values[ok]
     except Exception as err:  # noqa: BLE001 - recorded, the campaign goes on
-        row.update(status="error", error_type=type(err).__name__, error=_one_line(err), error_where=_where(err))
+        row.update(status="error", error_type=type(err).__name__, error=one_line(err), error_where=_where(err))
     if caught:
         seen: dict[str, int] = {}
         for w in caught:
-            key = f"{w.category.__name__}: {_one_line(w.message)}"
+            key = f"{w.category.__name__}: {one_line(w.message)}"
             seen[key] = seen.get(key, 0) + 1
         row["warnings"] = "; ".join(f"{k} (x{n})" if n > 1 else k for k, n in list(seen.items())[:5])
     row["n_frames"] = n_frames
@@ -266,7 +261,7 @@ class _LocalPool:
         try:
             return self.pool.submit(execute_run, task)
         except cf.process.BrokenProcessPool as err:
-            raise InfrastructureError(f"a worker process died ({_one_line(err) or 'BrokenProcessPool'})") from None
+            raise InfrastructureError(f"a worker process died ({one_line(err) or 'BrokenProcessPool'})") from None
 
     def wait(self, futures, timeout):
         done, _ = cf.wait(futures, timeout=timeout, return_when=cf.FIRST_COMPLETED)
@@ -276,7 +271,7 @@ class _LocalPool:
         try:
             return fut.result()
         except cf.process.BrokenProcessPool as err:
-            raise InfrastructureError(f"a worker process died ({_one_line(err) or 'BrokenProcessPool'})") from None
+            raise InfrastructureError(f"a worker process died ({one_line(err) or 'BrokenProcessPool'})") from None
 
     def close(self, abandon: bool) -> None:
         if abandon:
@@ -330,7 +325,7 @@ class _Dask:
             try:
                 self.client = Client(scheduler, timeout="30s")
             except (OSError, TimeoutError) as err:
-                raise InfrastructureError(f"Dask scheduler {scheduler}: {type(err).__name__}: {_one_line(err)}") \
+                raise InfrastructureError(f"Dask scheduler {scheduler}: {type(err).__name__}: {one_line(err)}") \
                     from None
             self.description = f"Dask scheduler {scheduler}"
 
@@ -360,7 +355,7 @@ class _Dask:
         except KilledWorker:
             raise  # attributable to this run: recorded as its error
         except Exception as err:  # noqa: BLE001 - cancelled, lost connection, ...
-            raise InfrastructureError(f"Dask: {type(err).__name__}: {_one_line(err)}") from None
+            raise InfrastructureError(f"Dask: {type(err).__name__}: {one_line(err)}") from None
 
     def close(self, abandon: bool) -> None:
         try:
@@ -392,7 +387,7 @@ def check_scheduler_address(address: str) -> None:
         if not host or not 0 < port < 65536:
             raise ValueError(f"{'no host' if not host else f'port {port} is not in 1..65535'}")
     except (ValueError, TypeError) as err:
-        raise ConfigError("--scheduler", f"{address!r} is not a Dask scheduler address ({_one_line(err)}); "
+        raise ConfigError("--scheduler", f"{address!r} is not a Dask scheduler address ({one_line(err)}); "
                           f"expected {SCHEDULER_FORMS}") from None
 
 
@@ -428,12 +423,12 @@ def check_scheduler(address: str, timeout: float = SCHEDULER_TIMEOUT_S) -> None:
     try:
         asyncio.run(probe())
     except (OSError, TimeoutError) as err:  # timeout (also a listener that is not a Dask scheduler), refused
-        why = _one_line(err) or "nothing answered the Dask handshake"
+        why = one_line(err) or "nothing answered the Dask handshake"
         raise RunError(f"--scheduler {address}: no Dask scheduler answered within {timeout:g} s ({why}); start "
                        "one (`dask scheduler`) or check the address") from None
     except Exception as err:  # noqa: BLE001 - TLS settings, not a Dask scheduler, ...
         raise RunError(f"--scheduler {address}: cannot talk to a Dask scheduler there ({type(err).__name__}: "
-                       f"{_one_line(err)})") from None
+                       f"{one_line(err)})") from None
     finally:
         quiet.setLevel(level)
 
@@ -635,7 +630,7 @@ def _error_row(campaign: Campaign, run: RunSpec, err: BaseException) -> dict[str
                                scenario=run.scenario, tracker=run.tracker)
     row.update(run.columns)
     row.update(grid_index=".".join(map(str, run.grid_index)), seed_index=run.seed_index, seed=run.seed,
-               status="error", error_type=type(err).__name__, error=_one_line(err), error_where="", warnings="",
+               status="error", error_type=type(err).__name__, error=one_line(err), error_where="", warnings="",
                n_frames=0, dt_s=float("nan"), recorded=False)
     row[store.SERIES_COLUMN] = np.zeros(0)
     row.update({f"v_{k}": "" for k in store.versions()})

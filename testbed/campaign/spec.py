@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..config import ConfigError, field, find_file, from_dict, positive, read_toml_file, to_dict
+from ..config import ConfigError, field, find_file, from_dict, one_line, positive, read_toml_file, to_dict
 from ..limits import at_most, check_campaign_size, check_folder_name, seed_field
 
 CAMPAIGN_DIR = Path(__file__).resolve().parent.parent.parent / "campaigns"
@@ -236,11 +236,6 @@ def _scenario(data: dict, overrides: dict[str, Any], tracker: str):
     return parse_scenario(apply_overrides(data, {**for_tracker(overrides, tracker), "tracker.name": tracker}))
 
 
-def _one_line(err: Exception) -> str:
-    text = str(err).splitlines()[0] if str(err) else type(err).__name__
-    return text
-
-
 def column_values(values: tuple) -> tuple:
     """Values of one grid key as stored in its results column: numbers as float64 when any is a float
     (int64 when all are integers), strings and booleans as they are; anything else (tables, lists, mixed
@@ -300,7 +295,7 @@ def _check_trackers(trackers: tuple[str, ...]) -> None:
         try:
             parse_tracker_name(tracker)
         except ValueError as err:
-            raise ConfigError(f"trackers[{i}]", _one_line(err)) from None
+            raise ConfigError(f"trackers[{i}]", one_line(err) or type(err).__name__) from None
         if tracker in trackers[:i]:
             raise ConfigError(f"trackers[{i}]", f"tracker {tracker!r} appears twice")
 
