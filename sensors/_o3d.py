@@ -12,6 +12,8 @@ def open3d() -> ModuleType:
     try:
         import open3d as o3d
     except ImportError as exc:  # e.g. the GPU `open3d` wheel without the system libusb-1.0
+        if isinstance(exc.__cause__, KeyboardInterrupt):  # Ctrl-C or SIGTERM during its (pybind11) init
+            raise exc.__cause__ from None
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         hint = (
             " (the `open3d` wheel needs the system library libusb-1.0; install `open3d-cpu==0.20.0` instead)"

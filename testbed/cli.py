@@ -1,8 +1,9 @@
 """``testbed`` command line: run scenarios, view recordings, check files, list scenarios and trackers.
 
 Exit codes (every command): 0 success; 1 run-time failure (what was finished is kept); 2 bad input
-(malformed file or option, unusable output folder), nothing run; 130 Ctrl-C. An error is ONE line on
-stderr (``error: ...``); ``--debug`` (before or after the command) adds its traceback.
+(malformed file or option, unusable output folder), nothing run; 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (what
+was finished is kept). An error is ONE line on stderr (``error: ...``); ``--debug`` (before or after the
+command) adds its traceback.
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from pathlib import Path
 
 from .config import ConfigError
 from .check import cmd_check
-from .errors import describe_os_error, exit_code, guarded, one_line
+from .errors import describe_os_error, exit_code, guarded, interruption, interruption_cause, one_line, signum_of
 from .view import WEB_VIEWER_PORT, cmd_view, port_arg
 
 
@@ -37,10 +38,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         overrides["seed"] = args.seed
     scn = load_scenario(args.scenario, overrides)
+    policy = _policy(args.policy, scn) if args.policy is not None else None
     out = args.out if args.out is not None else str(Path("runs") / scn.name)  # the loader checked the name
     stage = Staging(out, RUN_FILES)  # refused up front (exit 2), before any simulation
     try:
-        res = _run_with_progress(scn, stage.tmp, args)
+        res = _run_with_progress(scn, stage.tmp, args, policy)
     except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - kept, marked INCOMPLETE, one line
         return _failed(err, stage, args.debug)
     _commit(stage)
@@ -48,14 +50,25 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_with_progress(scn, out: Path, args: argparse.Namespace):
+def _policy(text: str, scn):
+    """The ego policy named by ``--policy`` (the user typed it: code never comes from a scenario file)."""
+    from .envsource import load_policy
+
+    if scn.env is None:
+        raise ConfigError("--policy", f"scenario {scn.name} has no [env] table; --policy drives the ego of a "
+                                      "highway-env environment (e.g. scenarios/merge.toml)")
+    return load_policy(text)
+
+
+def _run_with_progress(scn, out: Path, args: argparse.Namespace, policy=None):
     from tqdm import tqdm
 
     from .run import run_scenario
 
     with tqdm(total=scn.n_frames, desc=f"{scn.name} [{scn.tracker.name}]", unit="frame",
               disable=args.quiet or None, leave=False) as bar:
-        return run_scenario(scn, out_dir=out, record=not args.no_record, on_frame=lambda i, n: bar.update(1))
+        return run_scenario(scn, out_dir=out, record=not args.no_record, on_frame=lambda i, n: bar.update(1),
+                            policy=policy)
 
 
 def _failed(err: BaseException, stage, debug: bool) -> int:
@@ -63,7 +76,7 @@ def _failed(err: BaseException, stage, debug: bool) -> int:
     in the output folder, print one line saying what happened and where it is, return the exit code."""
     interrupted = isinstance(err, KeyboardInterrupt)
     written = stage.written()
-    head = "interrupted (Ctrl-C)" if interrupted else stage.shown_text(_headline(err))
+    head = interruption_cause(signum_of(err)) if interrupted else stage.shown_text(_headline(err))
     notes = [stage.shown_text(n) for n in getattr(err, "__notes__", [])]
     if written:
         where = stage.abandon("; ".join([head, *notes]))
@@ -78,7 +91,8 @@ def _failed(err: BaseException, stage, debug: bool) -> int:
     if debug:
         traceback.print_exception(err, file=sys.stderr)
     detail = "; ".join([*notes, kept])
-    print(f"interrupted: {detail}" if interrupted else f"error: {head} ({detail})", file=sys.stderr)
+    print(f"{interruption(signum_of(err))}: {detail}" if interrupted else f"error: {head} ({detail})",
+          file=sys.stderr)
     return exit_code(err)
 
 
@@ -144,16 +158,15 @@ def _parse_sets(items: list[str]) -> dict:
 
 def _cmd_perception(args: argparse.Namespace) -> int:
     from .outdir import REPORT_FILES, Staging
-    from .perception_report import write_settings
+    from .perception_report import check_settings_path, write_settings
     from .scenario import apply_overrides, parse_scenario, read_toml
 
     base = apply_overrides(read_toml(args.scenario), _parse_sets(args.set or []))  # what --write-settings keeps
     run = {"seed": args.seed, "duration_s": args.duration}
     data = apply_overrides(base, {k: v for k, v in run.items() if v is not None})
     scn = parse_scenario(data)
-    settings_path = Path(args.write_settings) if args.write_settings else None
-    if settings_path is not None and not settings_path.parent.is_dir():
-        raise ConfigError("--write-settings", f"folder {settings_path.parent} does not exist")
+    # a folder, or a file this command did not write, is refused before the characterisation
+    settings_path = check_settings_path(args.write_settings) if args.write_settings is not None else None
     out = args.out if args.out is not None else str(Path("runs") / "perception" / scn.name)
     stage = Staging(out, REPORT_FILES)
     try:
@@ -174,6 +187,8 @@ def _cmd_perception(args: argparse.Namespace) -> int:
         try:
             write_settings(base, settings, settings_path, source=str(args.scenario))
         except ConfigError as err:
+            if err.path == "--write-settings":
+                raise
             raise ConfigError("--write-settings", str(err)) from None
         print(f"wrote {settings_path} ({', '.join(f'{k} = {v}' for k, v in settings.items())})")
     return 0
@@ -248,6 +263,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override any scenario key by its dotted path, e.g. --set duration_s=5 "
                         "--set sensor.clutter.density_per_m2=0.01 (repeatable)")
     r.add_argument("--out", help="output folder (default runs/<scenario>)")
+    r.add_argument("--policy", metavar="MODULE:FUNCTION", help="your own ego policy for a scenario with [env]: "
+                   "f(observation, info) -> action, from an importable module or a file (path/to/file.py:f); "
+                   "replaces the file's env.policy (a scenario file itself names no code)")
     r.add_argument("--no-record", action="store_true", help="skip the rerun recording")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_run)
@@ -260,7 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--out", help="report folder (default runs/perception/<scenario>)")
     c.add_argument("--write-settings", metavar="FILE", help="write a copy of the scenario (with its --set keys, "
                    "not --seed or --duration) with the measured P_D, clutter density and sigma_w as its tracker "
-                   "settings")
+                   "settings; an existing FILE is replaced only if this option wrote it")
     c.add_argument("--no-ablation", action="store_true", help="skip the tracker runs that count the false tracks "
                    "each static-object method removes")
     c.add_argument("--no-merge-sweep", action="store_true", help="skip the synthetic two-car merge-vs-gap sweep")
@@ -322,9 +340,21 @@ def _one_line_warnings(debug: bool):
         warnings.showwarning = previous
 
 
+def replace_unencodable_output() -> None:
+    """Print a character the terminal's encoding cannot show (``PYTHONIOENCODING=ascii``) as ``\\xa7``, not
+    fail with UnicodeEncodeError: stdout and stderr, when they are text streams."""
+    for stream in (sys.stdout, sys.stderr):
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is not None:
+            with contextlib.suppress(ValueError, OSError):  # closed, or not reconfigurable: left as it is
+                reconfigure(errors="backslashreplace")
+
+
 def main(argv: list[str] | None = None) -> int:
-    """``testbed ...``: every error one line on stderr and exit code 1 (run time), 2 (input) or 130 (Ctrl-C);
-    ``--debug`` adds the traceback."""
+    """``testbed ...``: every error one line on stderr and exit code 1 (run time), 2 (input), or 128 + the signal
+    for Ctrl-C (130), SIGTERM (143) and SIGHUP (129), which keep the finished work like Ctrl-C (see
+    :mod:`testbed.errors`); ``--debug`` adds the traceback."""
+    replace_unencodable_output()
     os.environ.setdefault("RERUN_ANALYTICS", "0")  # before rerun is imported (rerun 0.41 ignores it, see view)
     try:
         args = build_parser().parse_args(argv)

@@ -18,9 +18,15 @@ The ego is the env's controlled vehicle. Its action each frame comes from ``env.
   changes) and ignores actions. A ``TimeToCollision`` observation (u-turn, two-way) is switched to
   ``Kinematics``: it needs the env's own vehicle class, and the observation is unused. Most envs' egos
   have no car following of their own: an ``idle`` ego rear-ends slower traffic, the ``idm`` one does not.
-* ``"module:function"``: a user's callable ``function(observation, info) -> action``. ``info`` is the
-  env's info dict plus ``time_s`` (time of the frame the action starts from [s]) and ``frame``. The
-  action may be a meta-action name (``"LANE_LEFT"``), an index or a list of numbers.
+
+A scenario file names only these built-in policies: it is data and never names code (README, "What a
+scenario file can do"). A user's own policy, a callable ``policy(observation, info) -> action``, comes
+through the Python API (``run_scenario(scn, policy=f)``, ``EnvSimulation(scn, policy=f)``) or the
+command-line option the user types, ``testbed run SCENARIO --policy module:function`` or
+``--policy path/to/file.py:function`` (:func:`load_policy`; the current directory is never put on
+``sys.path``). ``info`` is the env's info dict plus ``time_s`` (time of the frame the action starts from
+[s]) and ``frame``. The action may be a meta-action name (``"LANE_LEFT"``), an index or a list of numbers;
+one that is not an action of the env stops the run with a RunError (exit 1) naming the time.
 
 ``env.actions`` (``[[env.actions]] at_s / action / hold_s``) are scripted actions: from ``at_s`` for
 ``hold_s`` seconds (at least one frame) they replace the policy's action. With ``idle`` between them
@@ -35,10 +41,10 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import importlib.util
 import itertools
 import math
 import os
-import sys
 import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable, Iterator
@@ -46,6 +52,8 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator
 import numpy as np
 
 from .config import ConfigError, field, non_negative
+from .envcheck import check_env_config
+from .errors import RunError, one_line
 
 if TYPE_CHECKING:
     from .scenario import Scenario
@@ -93,8 +101,11 @@ class EnvSpec:
     config: dict[str, Any] = field({}, doc="env config, merged key by key over the env's defaults (a nested "
                                        "table naming another `type` replaces the default's); the frequencies "
                                        "come from rate_hz and physics_substeps, duration defaults to duration_s + 1")
-    policy: str = field("idle", doc="ego policy: idle (keep lane and speed), idm (highway-env's IDM driver, "
-                                    "actions ignored) or 'module:function' called as f(observation, info) -> action")
+    policy: str = field("idle", doc="ego policy: idle (keep lane and speed) or idm (highway-env's IDM driver, "
+                                    "actions ignored); a user's own policy comes from `testbed run --policy` or "
+                                    "the Python API, never from a file",
+                        check=(lambda v: v in POLICIES, "idle or idm: a scenario file names no code (a user's own "
+                               "policy comes from `testbed run --policy module:function` or the Python API)"))
     actions: tuple[ScriptedAction, ...] = field((), doc="scripted ego actions, replacing the policy's")
     on_end: str = field("stop", doc="when the env terminates or truncates early: stop the run there (a warning) "
                                     "or continue stepping", choices=ON_END)
@@ -113,8 +124,7 @@ class EnvSpec:
             if key not in defaults:
                 raise ConfigError(f"config.{key}", f"unknown key for {self.id}; allowed: "
                                                    f"{', '.join(sorted(k for k in defaults if k not in RESERVED))}")
-        if self.policy not in POLICIES:
-            load_policy(self.policy)
+        check_env_config(self.config, defaults)
         if self.policy == "idm" and self.actions:
             raise ConfigError("actions", "policy 'idm' ignores actions; use policy 'idle' or a callable")
         times = [a.at_s for a in self.actions]
@@ -145,29 +155,46 @@ def env_class(env_id: str) -> type:
     return load_env_creator(gym.spec(env_id).entry_point)
 
 
-def load_policy(path: str) -> Callable[[Any, dict], Any]:
-    """The callable named ``"module:function"`` (importable from the current directory or installed)."""
-    module_name, sep, attr = path.partition(":")
-    if not sep or not module_name or not attr:
-        raise ConfigError("policy", f"{path!r} is not a policy; allowed: {', '.join(POLICIES)} or 'module:function'")
-    added = os.getcwd() not in sys.path
-    if added:
-        sys.path.insert(0, os.getcwd())
+Policy = Callable[[Any, dict], Any]
+
+
+def load_policy(path: str) -> Policy:
+    """The callable named by a command-line option the user typed: ``"module:function"`` (an installed or
+    already importable module) or ``"path/to/file.py:function"`` (that file, loaded as a module).
+
+    Never called on a scenario file's contents, and never puts the current directory on ``sys.path``.
+    ConfigError at ``--policy`` (one line) when it cannot be loaded or is not callable."""
+    target, sep, attr = path.rpartition(":")
+    if not sep or not target or not attr:
+        raise ConfigError("--policy", f"{path!r}: expected module:function or path/to/file.py:function")
     try:
-        obj: Any = importlib.import_module(module_name)
-    except Exception as err:  # noqa: BLE001 - any import failure is a config error
-        msg = str(err).splitlines()[0] if str(err) else ""
-        raise ConfigError("policy", f"cannot import {module_name!r} ({type(err).__name__}: {msg})") from None
-    finally:
-        if added:
-            sys.path.remove(os.getcwd())
+        obj: Any = _policy_module(target)
+    except ConfigError:
+        raise
+    except Exception as err:  # noqa: BLE001 - any import failure is the option's error
+        raise ConfigError("--policy", f"cannot import {target!r} ({type(err).__name__}: {one_line(err)})") from None
     for part in attr.split("."):
         if not hasattr(obj, part):
-            raise ConfigError("policy", f"{module_name!r} has no attribute {attr!r}")
+            raise ConfigError("--policy", f"{target!r} has no attribute {attr!r}")
         obj = getattr(obj, part)
     if not callable(obj):
-        raise ConfigError("policy", f"{path!r} is not callable")
+        raise ConfigError("--policy", f"{path!r} is not callable")
     return obj
+
+
+def _policy_module(target: str) -> Any:
+    """The module of a ``--policy``: a ``.py`` file path, else an importable module name."""
+    if not target.endswith(".py"):
+        return importlib.import_module(target)
+    if not os.path.isfile(target):
+        raise ConfigError("--policy", f"{target}: no such file")
+    name = "roadtrack_user_policy_" + os.path.splitext(os.path.basename(target))[0].replace("-", "_")
+    spec = importlib.util.spec_from_file_location(name, target)
+    if spec is None or spec.loader is None:
+        raise ConfigError("--policy", f"{target}: cannot be loaded as a Python module")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -393,15 +420,15 @@ class EnvSimulation:
     reused: envs add vehicles (merge ramp, intersection spawns) and remove them (intersection exits).
     """
 
-    def __init__(self, scenario: Scenario):
+    def __init__(self, scenario: Scenario, policy: Policy | None = None):
         self.scenario = scenario
         self.spec = scenario.env
         self.env, self._obs, self._info, self._classes = make_env(scenario)
         u = self.env.unwrapped
         try:
-            if self.spec.policy == "idm":
+            if self.spec.policy == "idm" and policy is None:
                 install_idm_ego(u)
-            self._policy = load_policy(self.spec.policy) if self.spec.policy not in POLICIES else None
+            self._policy = policy
             self._script = scripted_actions(scenario, u.action_type)
         except Exception:
             self.close()
@@ -448,9 +475,11 @@ class EnvSimulation:
         t = k * self.scenario.dt
         raw = self._policy(obs, {**info, "time_s": t, "frame": k})
         try:
-            return to_action(action_type, raw, "env.policy", self.spec.id)
-        except ConfigError as err:
-            raise ConfigError("env.policy", f"{str(err).split(': ', 1)[1]} (returned at t = {t:.1f} s)") from None
+            return to_action(action_type, raw, "policy", self.spec.id)
+        except ConfigError as err:  # the run has started: a run-time failure (exit 1), not bad input
+            name = getattr(self._policy, "__qualname__", type(self._policy).__name__)
+            raise RunError(f"the ego policy {name} returned {str(err).split(': ', 1)[1]} (at t = {t:.1f} s)") \
+                from None
 
     def _end_reason(self, terminated: bool) -> str:
         u = self.env.unwrapped
@@ -514,10 +543,14 @@ def check_env_scenario(scn: Scenario) -> None:
         sim.close()
 
 
-def make_simulation(scn: Scenario) -> Any:
-    """The traffic source of ``scn``: :class:`EnvSimulation` with ``[env]``, else our scripted ``Simulation``."""
+def make_simulation(scn: Scenario, policy: Policy | None = None) -> Any:
+    """The traffic source of ``scn``: :class:`EnvSimulation` with ``[env]`` (its ego driven by ``policy`` when
+    given), else our scripted ``Simulation``; a ``policy`` without ``[env]`` is a ConfigError."""
     if scn.env is not None:
-        return EnvSimulation(scn)
+        return EnvSimulation(scn, policy)
+    if policy is not None:
+        raise ConfigError("--policy", f"scenario {scn.name} has no [env] table; an ego policy drives a highway-env "
+                                      "environment's ego (see scenarios/merge.toml)")
     from .simulation import Simulation
 
     return Simulation(scn)

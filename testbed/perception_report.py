@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
 
 from .characterise import RANGE_BINS, VIEW_BINS, VISIBLE_BINS, Characterisation
+from .config import ConfigError
+from .jsonio import json_text
+from .safe_io import refuse_link, save_figure, write_text
 
 _THESIS_KEYS = (("cars_seen", "cars seen", "d"), ("cars_tracked", "tracked", "d"), ("false_tracks", "false", "d"),
                 ("tp_pct", "TP %", ".1f"), ("fp_pct", "FP %", ".1f"), ("breakup_pct", "break-up %", ".1f"))
@@ -45,7 +50,7 @@ def _plots(ch: Characterisation, out: Path) -> list[str]:
               title="P_D vs occlusion (labels: vehicle-frames)")
     ax[1].grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out / "pd.png", dpi=110)
+    save_figure(fig, out / "pd.png", dpi=110)
     plt.close(fig)
     names.append("pd.png")
 
@@ -65,7 +70,7 @@ def _plots(ch: Characterisation, out: Path) -> list[str]:
         ax[1].set_title("centre error vs view angle")
         ax[0].legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / "centre_error.png", dpi=110)
+        save_figure(fig, out / "centre_error.png", dpi=110)
         plt.close(fig)
         names.append("centre_error.png")
 
@@ -82,7 +87,7 @@ def _plots(ch: Characterisation, out: Path) -> list[str]:
     ax[1].set(xlabel="clutter detections per frame", ylabel="frames", title=f"clutter (mean {c.mean():.2f} / frame)"
               if len(c) else "clutter")
     fig.tight_layout()
-    fig.savefig(out / "merge_clutter.png", dpi=110)
+    save_figure(fig, out / "merge_clutter.png", dpi=110)
     plt.close(fig)
     names.append("merge_clutter.png")
     return names
@@ -189,12 +194,10 @@ def write_report(ch: Characterisation, out: Path, ablation: dict[str, dict] | No
                   "`testbed perception --write-settings FILE` writes these into a copy of the scenario:", ""]
         lines += [f"- `{k} = {v}`" for k, v in settings.items()] + [""]
     md = out / "report.md"
-    md.write_text("\n".join(lines))
-    (out / "summary.json").write_text(json.dumps(dict(summary=s, merge_curve={str(k): v for k, v in
-                                                                             ch.merge_curve.items()},
-                                                      rejected=ch.rejected, ablation=ablation or {},
-                                                      pd_by_range=pd_rows,
-                                                      settings=settings or {}), indent=2, default=float) + "\n")
+    write_text(md, "\n".join(lines))
+    doc = dict(summary=s, merge_curve={str(k): v for k, v in ch.merge_curve.items()}, rejected=ch.rejected,
+               ablation=ablation or {}, pd_by_range=pd_rows, settings=settings or {})
+    write_text(out / "summary.json", json_text(doc, indent=2, default=float) + "\n")
     return md
 
 
@@ -249,14 +252,62 @@ def _emit_table(table: dict, path: list[str], lines: list[str]) -> None:
                 _emit_table(item, path + [k], lines)
 
 
+SETTINGS_MARK = "# written by testbed perception --write-settings"  # the first line of a settings file
+_LEGACY_MARK = "with the tracker settings measured by `testbed perception` ("  # its first line before the mark
+
+
+def written_settings(path: Path) -> bool:
+    """Whether the regular file ``path`` starts with the first line of a file :func:`write_settings` wrote."""
+    with open(path, "rb") as f:
+        first = f.read(4096).split(b"\n", 1)[0].decode("utf-8", "replace")
+    return first.startswith(SETTINGS_MARK) or (first.startswith("# ") and _LEGACY_MARK in first)
+
+
+def check_settings_path(text: str) -> Path:
+    """The ``--write-settings`` file ``text``, checked before any work: a new file in an existing folder, or
+    a settings file this command wrote earlier (replaced); never a folder or another file (ConfigError)."""
+    key = "--write-settings"
+    if not text.strip():
+        raise ConfigError(key, "is empty; give a file path, e.g. measured.toml")
+    path = Path(text).expanduser()
+    if path.is_dir() or text.endswith(("/", os.sep)):
+        what = "is a folder" if path.is_dir() else "ends with '/' (a folder)"
+        raise ConfigError(key, f"{text} {what}; give a file path, e.g. {Path(text) / 'measured.toml'}")
+    if not path.parent.is_dir():
+        raise ConfigError(key, f"folder {path.parent} does not exist")
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise ConfigError(key, f"cannot write in folder {path.parent} (permission denied); choose another file")
+    refuse_link(path, key, text)  # never written through (safe_io), so refused before any work
+    if not path.exists():
+        return path
+    if not stat.S_ISREG(path.stat().st_mode):
+        raise ConfigError(key, f"{text} is not a regular file; choose another file")
+    try:
+        ours = written_settings(path)
+    except OSError as err:
+        raise ConfigError(key, f"{text}: cannot read it ({os.strerror(err.errno).lower() if err.errno else err}); "
+                          "choose another file") from None
+    if not ours:
+        raise ConfigError(key, f"{text} exists and was not written by `testbed perception --write-settings`; it "
+                          "is left unchanged: choose another file, or remove it first")
+    return path
+
+
+def _comment(text: str) -> str:
+    """``text`` fit for a TOML comment: control characters (a newline would end it) escaped."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def write_settings(scenario_data: dict, settings: dict[str, float], path: Path, source: str) -> None:
-    """Write ``scenario_data`` with the dotted ``settings`` applied to ``path`` (a new scenario file)."""
+    """Write ``scenario_data`` with the dotted ``settings`` applied to ``path`` (a new scenario file, or one
+    this function wrote earlier: :func:`check_settings_path`), atomically, its first line :data:`SETTINGS_MARK`."""
     from .outdir import write_atomic
     from .scenario import apply_overrides, parse_scenario
 
+    path = check_settings_path(str(path))  # again: the file may have appeared during the characterisation
     data = apply_overrides(scenario_data, settings)
     parse_scenario(data)  # never write a file that does not load
-    head = (f"# {source} with the tracker settings measured by `testbed perception` "
+    head = (f"{SETTINGS_MARK}: {_comment(source)} with the tracker settings it measured "
             f"({', '.join(f'{k} = {v}' for k, v in settings.items())}).\n")
     text = head + dumps_toml(data)
-    write_atomic(Path(path), lambda tmp: tmp.write_text(text))  # never a half-written scenario file
+    write_atomic(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))  # never a half-written scenario file

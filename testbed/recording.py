@@ -35,6 +35,9 @@ Timelines: ``frame`` (sequence) and ``sim_time`` (duration, seconds).
 """
 from __future__ import annotations
 
+import os
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +45,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 import sensors
+
+from .safe_io import refuse_link
 
 GROUND_LABEL = sensors.GROUND
 
@@ -51,7 +56,12 @@ METRICS = ("tracks_confirmed", "tracks_tentative", "tracks_static", "detections"
            "split_detections", "rejected_objects")
 TRUTH_CLASSES = ((0, "road", (90, 90, 90)), (1, "vehicle", (40, 200, 90)), (2, "static object", (160, 110, 60)))
 TRAJECTORY_POINTS = 300
-FLUSH_TIMEOUT_S = 120.0  # rerun 0.41's flush waits forever if its file writer died (full disk): bound the wait
+CLOSE_STALL_S = 30.0
+"""Seconds :meth:`Recorder.close` waits for rerun to flush and release the file while the file does not grow.
+rerun 0.41 can block forever in ``flush()`` and ``disconnect()`` once its file writer died on a full disk (an
+upstream race, seen in CI): the recording is then given up on, so a run ends with its one line within this
+bound. A slow disk that is still being written is waited for."""
+CLOSE_POLL_S = 0.5  # how often close() looks at the file's size
 SERIES_FLUSH_FRAMES = 200  # per-track diagnostic series are buffered and sent in columns every N frames
 FOOTER_MAX_FRAMES = 1200
 """Recordings of up to this many frames end with an rrd footer (a manifest of every chunk, for random access).
@@ -128,6 +138,7 @@ class Recorder:
         self.max_range_m = max_range_m
         self.lidar_every = lidar_every
         self.ground_decimation = ground_decimation
+        refuse_link(self.path)  # rerun opens it following links: a planted one is refused, never written through
         self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
         self.rec.save(str(self.path), write_footer=write_footer)  # see FOOTER_MAX_FRAMES
         self.blueprint_sent = False
@@ -338,8 +349,47 @@ class Recorder:
         self.series_frames = 0
 
     def close(self) -> None:
+        """Send the buffered series, flush the recording to its file and release it; rerun's errors are raised
+        (a RuntimeError when its file writer failed). rerun works in a helper (daemon) thread: if the file does
+        not grow for :data:`CLOSE_STALL_S` seconds before it is done, the recording is given up on with a
+        TimeoutError and rerun's exit-time flush is switched off (it would wait on this recording forever), so
+        the process can still exit."""
+        failure: list[BaseException] = []
+        done = threading.Event()  # not Thread.join: a join interrupted by a signal marks the thread as ended
         try:
-            self._flush_series()
-            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
-        finally:  # a failed flush (full disk) still releases the recording, so rerun logs its cause
-            self.rec.disconnect()
+            threading.Thread(target=self._finish, args=(failure, done), name="rerun-close", daemon=True).start()
+            _wait_while_growing(done, self.path, CLOSE_STALL_S)
+        finally:
+            if not done.is_set():  # stuck, or the wait was interrupted (Ctrl-C, SIGTERM): never wait at exit
+                rr.unregister_shutdown()
+        if not done.is_set():
+            raise TimeoutError(f"no progress for {CLOSE_STALL_S:g} s, given up")
+        if failure:
+            raise failure[0]
+
+    def _finish(self, failure: list[BaseException], done: threading.Event) -> None:
+        """Flush and release the recording (in close's helper thread); an exception is put in ``failure``."""
+        try:
+            try:
+                self._flush_series()
+                self.rec.flush()
+            finally:  # a failed flush (full disk) still releases the recording, so rerun logs its cause
+                self.rec.disconnect()
+        except BaseException as err:  # noqa: BLE001 - raised again by close() in the caller's thread
+            failure.append(err)
+        finally:
+            done.set()
+
+
+def _wait_while_growing(done: threading.Event, path: Path, stall_s: float) -> None:
+    """Wait until ``done`` is set, giving up once the file ``path`` has not grown for ``stall_s`` seconds."""
+    size, since = -1, time.monotonic()
+    while not done.wait(CLOSE_POLL_S):
+        try:
+            now_size = os.stat(path).st_size
+        except OSError:
+            now_size = -1
+        if now_size != size:
+            size, since = now_size, time.monotonic()
+        elif time.monotonic() - since >= stall_s:
+            return

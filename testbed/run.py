@@ -7,7 +7,6 @@ does not change the LiDAR noise.
 from __future__ import annotations
 
 import errno
-import json
 import os
 import time
 import warnings
@@ -20,6 +19,7 @@ import numpy as np
 import sensors
 
 from .config import to_dict
+from .jsonio import json_text
 from .mot_metrics import mot_metrics, visible_truth
 from .moving import MovingTest
 from .outdir import write_atomic
@@ -59,17 +59,19 @@ def rng_streams(seed: int) -> dict[str, np.random.Generator]:
 
 def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool = True,
                  tracker_name: str | None = None,
-                 on_frame: Callable[[int, int], None] | None = None) -> RunResult:
+                 on_frame: Callable[[int, int], None] | None = None, policy: Callable | None = None) -> RunResult:
     """Run ``scn``; with ``out_dir`` write scores.json, the parquet tables and (``record``) run.rrd, each file
     atomically (complete or absent).
 
     On any exception, Ctrl-C included, the recording is closed and the tables of the frames done are written
     before it propagates, with a note saying where the run stopped. JPDA overflow warnings (one per oversize
-    cluster) are counted and given once at the end of the run."""
+    cluster) are counted and given once at the end of the run. ``policy``: the ego's policy
+    ``f(observation, info) -> action`` for a scenario with ``[env]`` (testbed/envsource.py), replacing the
+    file's built-in one."""
     name = tracker_name or scn.tracker.name
     tracker = scn.tracker.build(name)
     rngs = rng_streams(scn.seed)
-    sim, static, road = sensing_setup(scn, rngs)
+    sim, static, road = sensing_setup(scn, rngs, policy)
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
@@ -174,17 +176,14 @@ LOW_SPACE_BYTES = 1 << 20
 
 
 def _close_recording(recorder) -> None:
-    """Close the recording. rerun's file writer stopping early (it has logged why; ours is then the last line)
-    is raised as an OSError ENOSPC naming the file when its disk is (nearly) full, else as a RunError."""
+    """Close the recording, within a bound (:data:`testbed.recording.CLOSE_STALL_S` without progress). rerun's
+    file writer stopping early (it has logged why; ours is then the last line) or rerun not finishing is raised
+    as an OSError ENOSPC naming the file when its disk is (nearly) full, else as a RunError."""
     from .errors import RunError, one_line
 
     try:
-        recorder.close()
-    except (RuntimeError, TimeoutError) as err:  # TimeoutError: the bounded flush gave up
-        try:
-            recorder.rec.disconnect()  # close() stopped at the flush; rerun logs its own line here
-        except Exception:  # noqa: BLE001 - already failing
-            pass
+        recorder.close()  # it also releases the recording when the flush failed (not when rerun is stuck)
+    except (RuntimeError, TimeoutError) as err:  # TimeoutError: rerun blocked, given up on
         path = Path(recorder.path)
         try:
             st = os.statvfs(path.parent)
@@ -250,12 +249,13 @@ class _Stopwatch:
         self.tic = now
 
 
-def sensing_setup(scn: Scenario, rngs: dict[str, np.random.Generator]):
-    """The traffic source of ``scn`` (a highway-env environment with ``[env]``, else our scripted traffic), its
-    roadside boxes (K, 7) drawn from ``rngs["roadside"]`` and the perception's road map."""
+def sensing_setup(scn: Scenario, rngs: dict[str, np.random.Generator], policy: Callable | None = None):
+    """The traffic source of ``scn`` (a highway-env environment with ``[env]``, its ego driven by ``policy`` when
+    given, else our scripted traffic), its roadside boxes (K, 7) drawn from ``rngs["roadside"]`` and the
+    perception's road map."""
     from .envsource import make_simulation
 
-    sim = make_simulation(scn)
+    sim = make_simulation(scn, policy)
     static = roadside_objects(sim.network, scn.roadside, rngs["roadside"])
     return sim, static, road_map(sim.network)
 
@@ -443,8 +443,8 @@ def write_scores(res: RunResult, tracker_name: str) -> None:
                frames=res.n_frames, scores=res.scores.to_dict(), mot_metrics=res.metrics,
                timings_ms_per_frame=res.timings_ms,
                config=to_dict(res.scenario))
-    text = json.dumps(doc, indent=2, default=float) + "\n"
-    write_atomic(out / "scores.json", lambda tmp: tmp.write_text(text))
+    text = json_text(doc, indent=2, default=float) + "\n"  # a score with nothing to measure is null
+    write_atomic(out / "scores.json", lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
 def write_outputs(res: RunResult, tracker_name: str) -> None:

@@ -21,7 +21,7 @@ HIGHWAY = {"id": "highway-v0", "config": {"vehicles_count": 5, "initial_lane_id"
 
 
 def left_at_one_second(observation, info):
-    """A user policy (named "tests.test_envsource:left_at_one_second" in the tests): one lane change left."""
+    """A user policy (given through the Python API or `--policy`): one lane change left."""
     assert np.isfinite(info["time_s"]) and info["frame"] >= 0
     return "LANE_LEFT" if info["frame"] == 10 else "IDLE"
 
@@ -30,8 +30,8 @@ def _scenario(env: dict, duration_s: float = 4.0, seed: int = 1, **extra) -> obj
     return parse_scenario({"name": "t", "seed": seed, "duration_s": duration_s, "env": env, **extra})
 
 
-def _ego_y(scn) -> np.ndarray:
-    return np.array([f.xy[0, 1] for f in EnvSimulation(scn).frames()])
+def _ego_y(scn, policy=None) -> np.ndarray:
+    return np.array([f.xy[0, 1] for f in EnvSimulation(scn, policy).frames()])
 
 
 @pytest.mark.parametrize("name", ["merge", "roundabout"])
@@ -103,12 +103,25 @@ def test_scripted_lane_change_moves_the_ego_one_lane_left():
     assert left[-1] == pytest.approx(4.0, abs=0.1)  # lane 1 centre, 3 s later
 
 
-def test_callable_policy_from_a_module(monkeypatch):
-    monkeypatch.chdir(REPO)  # "tests.test_envsource" is importable from the repository root
-    scn = _scenario({**HIGHWAY, "policy": "tests.test_envsource:left_at_one_second"})
-    y = _ego_y(scn)
+def test_callable_policy_from_the_python_api():
+    y = _ego_y(_scenario(HIGHWAY), policy=left_at_one_second)
     np.testing.assert_allclose(y[:11], 8.0, atol=0.05)
     assert y[-1] == pytest.approx(4.0, abs=0.1)
+
+
+def test_load_policy_from_a_file_path_or_a_module_name():
+    """`--policy path/to/file.py:function` loads that file; `module:function` an importable module."""
+    from testbed.envsource import load_policy
+
+    f = load_policy(str(REPO / "tests" / "test_envsource.py") + ":left_at_one_second")
+    assert f(None, {"time_s": 1.0, "frame": 10}) == "LANE_LEFT"
+    assert load_policy("testbed.envsource:idle_action").__name__ == "idle_action"
+    for bad, words in (("nope", "expected module:function"), ("no_such_module_x:f", "cannot import 'no_such_module_x'"),
+                       ("testbed.envsource:no_such_fn", "has no attribute 'no_such_fn'"),
+                       ("missing_file.py:f", "missing_file.py: no such file")):
+        with pytest.raises(ConfigError) as info:
+            load_policy(bad)
+        assert str(info.value).startswith("--policy: ") and words in str(info.value), str(info.value)
 
 
 def test_idle_on_continuous_actions_keeps_the_lane():
@@ -176,9 +189,8 @@ def _merge_data() -> dict:
 @pytest.mark.parametrize("override, key, words", [
     ({"env.id": "merge-v9"}, "env.id", "allowed: exit-v0,"),
     ({"env.id": "lane-keeping-v0"}, "env.id", "takes no render_mode"),
-    ({"env.policy": "drive"}, "env.policy", "allowed: idle, idm or 'module:function'"),
-    ({"env.policy": "no_such_module_x:fn"}, "env.policy", "cannot import 'no_such_module_x'"),
-    ({"env.policy": "testbed.envsource:no_such_fn"}, "env.policy", "has no attribute 'no_such_fn'"),
+    ({"env.policy": "drive"}, "env.policy", "must be idle or idm: a scenario file names no code"),
+    ({"env.policy": "testbed.envsource:idle_action"}, "env.policy", "must be idle or idm"),
     ({"env.policy": "idle", "env.actions": [{"at_s": 1.0, "action": "JUMP"}]}, "env.actions[0].action",
      "'JUMP' is not an action of merge-v0; allowed: LANE_LEFT, IDLE, LANE_RIGHT, FASTER, SLOWER, 0..4"),
     ({"env.policy": "idle", "env.actions": [{"at_s": 1.0, "action": [0.5, 0.1]}]}, "env.actions[0].action",
@@ -186,7 +198,8 @@ def _merge_data() -> dict:
     ({"env.actions": [{"at_s": 1.0, "action": 1}]}, "env.actions", "policy 'idm' ignores actions"),
     ({"env.config.lanez": 3}, "env.config.lanez", "unknown key for merge-v0; allowed:"),
     ({"env.config.policy_frequency": 1}, "env.config.policy_frequency", "is set from rate_hz"),
-    ({"env.config.other_vehicles_type": "nowhere.Car"}, "env.config", "merge-v0 cannot be built from it"),
+    ({"env.config.other_vehicles_type": "nowhere.Car"}, "env.config.other_vehicles_type",
+     "'nowhere.Car' is not one of highway-env's vehicle classes"),
     ({"env.on_end": "pause"}, "env.on_end", "allowed: stop, continue"),
     ({"vehicles": [{"lane": 0}]}, "vehicles", "not used with env"),
     ({"road.kind": "curved"}, "road", "not used with env"),

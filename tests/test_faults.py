@@ -1,5 +1,7 @@
-"""Fault test (issue 9): SIGKILL of a campaign's parent process alone leaves no process of its tree alive
+"""Fault tests. Issue 9: SIGKILL of a campaign's parent process alone leaves no process of its tree alive
 and no one holding its stdout/stderr, on the local pool and on a Dask LocalCluster; resume then finishes.
+Issue 16: a recording rerun cannot finish (its file writer died on a full disk) is given up on within a
+bound, and the process still exits.
 
 The campaign is tiny (cut_in_out shortened to 0.5 s, GNN, 6 seeds) and run through
 ``python -m testbed.campaign.cli`` in its own session. Once a run has finished (the workers are up and busy)
@@ -12,6 +14,7 @@ from __future__ import annotations
 
 import io
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -154,3 +157,61 @@ def test_sigkilled_parent_leaves_no_pool_worker_or_resource_tracker(tmp_path):
 def test_sigkilled_parent_leaves_no_dask_local_worker(tmp_path):
     out = _kill_parent_and_check_tree(tmp_path, ["--dask-local", "2"], workers=2)
     _resume(out)
+
+
+# --- a recording rerun cannot finish ------------------------------------------------------------------------
+
+STUCK = """\
+import sys, time
+import numpy as np
+import rerun as rr
+from testbed import recording
+
+recording.CLOSE_STALL_S = {stall}
+rec = recording.Recorder("{path}", "stuck")
+rng = np.random.default_rng(0)
+for i in range(40):  # ~1 MB of points for a 256 kB disk, closed at once: rerun's writer dies during the close
+    rec.rec.set_time("frame", sequence=i)
+    rec.rec.log("points", rr.Points3D(rng.normal(size=(2000, 3))))
+t0 = time.monotonic()
+try:
+    rec.close()
+    print("closed")
+except (RuntimeError, TimeoutError) as err:
+    print(f"{{type(err).__name__}}: {{err}}")
+print(f"close {{time.monotonic() - t0:.2f}} s", flush=True)
+print(f"exit at {{time.time():.3f}}", flush=True)
+"""
+
+
+@pytest.mark.skipif(shutil.which("unshare") is None, reason="needs unshare")
+def test_a_recording_rerun_cannot_finish_is_given_up_and_the_process_exits(tmp_path):
+    """rerun 0.41 blocks forever in flush()/disconnect() when its file writer dies on a full disk while the
+    recording is closed (a 256 kB tmpfs in a private mount namespace, filled by the last frames): close()
+    gives up within CLOSE_STALL_S (3 s here) of no progress, and the process still exits (rerun's own
+    exit-time flush would wait on the stuck recording forever)."""
+    probe = subprocess.run(["unshare", "-rm", "sh", "-c", f"mount -t tmpfs -o size=1m tmpfs {tmp_path}"],
+                           capture_output=True)
+    if probe.returncode != 0:
+        pytest.skip("no private tmpfs mount here")
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    script = tmp_path / "stuck.py"
+    script.write_text(STUCK.format(stall=3.0, path=disk / "run.rrd"))
+    child = subprocess.Popen(["unshare", "-rm", "sh", "-c", f"mount -t tmpfs -o size=256k tmpfs {disk} && "
+                              f"exec {sys.executable} {script}"], cwd=REPO, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, start_new_session=True,
+                             env=dict(os.environ, RERUN_ANALYTICS="0", PYTHONPATH=str(REPO)))
+    try:
+        out, err = child.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(child.pid, signal.SIGKILL)
+        out, err = child.communicate()
+        pytest.fail(f"the process did not end within 120 s: {out} {err[-2000:]}")
+    ended = time.time()
+    assert child.returncode == 0, err
+    lines = out.splitlines()
+    # rerun stuck (every time here), or, should it not be, its own error at once
+    assert lines[0] == "TimeoutError: no progress for 3 s, given up" or lines[0].startswith("RuntimeError: "), out
+    assert float(lines[1].split()[1]) < 3.0 + 2.0, out  # the stall bound and one poll, and some slack
+    assert ended - float(lines[2].split()[2]) < 10.0, out  # interpreter exit is not held by the stuck thread

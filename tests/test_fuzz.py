@@ -39,7 +39,8 @@ BUDGET = float(os.environ.get("ROADTRACK_FUZZ_EXAMPLES", "1"))
 
 HOSTILE = [0, -1, 1, 2, 7, 2**31, 2**32, 2**63 - 1, -2**63, 10**9, 10**12, 1e308, -1e308, 1e-300, 1e-9, 0.5,
            -0.5, 1e9, float("nan"), float("inf"), -float("inf"), "", "x", "../../escaped", "/tmp", ".", "caf\u00e9",
-           "a" * 300, "\u0000", True, False, [], [1, 2], ["a"], [[1]], {}, {"a": 1}, {"x": {"y": []}}]
+           "a" * 300, "\u0000", True, False, [], [1, 2], ["a"], [[1]], {}, {"a": 1}, {"x": {"y": []}},
+           "builtins:exec", "os:system", "this:s", "os.system", "highway_env.utils.class_from_path"]  # names of code
 JUNK_KEYS = ["", "x", "a.b.c", "name.x", "vehicles.99.speed", "vehicles.-1", "sensor..lidar", "seed.seed",
              "tracker.management.nope", "__class__", "sensor.lidar.n_beams.x"]
 

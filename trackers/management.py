@@ -39,6 +39,11 @@ DELETIONS = ("manager", "ks", "manager+ks")
 SCORE_MODES = ("gate", "exclusive")
 
 
+WINDOW_MAX = 3000
+"""Largest history, m-of-n or KS window [scans] (5 min at 10 Hz): every track keeps that many scan records
+and the KS test sorts a window per track and scan."""
+
+
 @dataclass(frozen=True)
 class ManagementParams:
     """Initiation, confirmation, deletion and duplicate pruning. Defaults: highway traffic at 10 Hz, §7.2 [D]."""
@@ -59,26 +64,27 @@ class ManagementParams:
     initial_score_pd: bool = param(False, "add ln P_D to the initial score")
     score_mode: str = param("gate", "gate: every measurement in the track's gate counts (§7.2); exclusive: "
                             "weighted by the probability that no other track claims it [D]", choices=SCORE_MODES)
-    confirm_m: int = param(3, "m_of_n: detections needed ...", check=POSITIVE)
-    confirm_n: int = param(5, "m_of_n: ... in the last n scans", check=POSITIVE)
+    confirm_m: int = param(3, "m_of_n: detections needed ...", check=POSITIVE, bounds=(1, WINDOW_MAX))
+    confirm_n: int = param(5, "m_of_n: ... in the last n scans", check=POSITIVE, bounds=(1, WINDOW_MAX))
     merge_d2: float = param(4.0, "duplicate test: squared Mahalanobis distance between two confirmed tracks' "
                             "predicted positions (0 disables pruning)", check=NON_NEGATIVE)
     merge_scans: int = param(5, "duplicate test: scans in a row before the younger track is deleted",
                              check=POSITIVE)
     history_length: int = param(32, "scans of innovations, S, gated counts and gate volumes kept per track "
-                                "(at least the KS regime window)", check=POSITIVE)
+                                "(at least the KS regime window)", check=POSITIVE, bounds=(1, WINDOW_MAX))
     deletion: str = param("manager", "manager: the manager's own deletion (score drop or m-of-n misses); ks: a "
                           "confirmed track is deleted when its KS regime is track-lost (paper 002), tentative ones "
                           "by the manager; manager+ks: either", choices=DELETIONS)
     regime_n: int = param(30, "KS regime detector window n [scans] (paper 002: 50 at its 1-D example; 30 = 3 s "
-                          "at 10 Hz [D]); the start value when adaptive", check=POSITIVE)
+                          "at 10 Hz [D]); the start value when adaptive", check=POSITIVE,
+                          bounds=(1, WINDOW_MAX))
     regime_alpha: float = param(0.05, "KS regime detector significance alpha (CI = 1 - alpha; paper 002: 0.05)",
                                 check=OPEN_PROBABILITY)
     regime_adaptive: bool = param(False, "adapt the window n (paper 002 §V-F): grow it while both regimes are "
                                   "accepted, shrink it while neither is, raise the CI to 99 % when that fails")
-    regime_n_min: int = param(5, "adaptive KS window: smallest n", check=POSITIVE)
+    regime_n_min: int = param(5, "adaptive KS window: smallest n", check=POSITIVE, bounds=(1, WINDOW_MAX))
     regime_n_max: int = param(100, "adaptive KS window: largest n (scans of history kept per track)",
-                              check=POSITIVE)
+                              check=POSITIVE, bounds=(1, WINDOW_MAX))
     regime_clutter_density: float | None = param(None, "clutter density lambda for the KS regime [1/m^2] "
                                                  "(default: the associator's; paper 002 §VI-B: err high)",
                                                  check=POSITIVE)

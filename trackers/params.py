@@ -4,6 +4,12 @@ Each role's parameters are a frozen dataclass whose fields are made with `param(
 `load(cls, data, path)` builds one from a plain dict strictly: an unknown key, a wrong type or a value
 outside `choices` / `check` raises `ParamError` naming the dotted key (e.g. "filter.sigma_v: expected a
 number, got '2'"), in the same one-line format as the testbed's scenario errors.
+
+Every number is also bounded, so that no accepted value overflows or exhausts memory: a float (also inside a
+list) is 0 or of magnitude in [FLOAT_MIN, FLOAT_MAX], an integer in [-INT_MAX, INT_MAX], unless its field
+names tighter `bounds`. Squared, cubed or inverted, such values stay far inside float64 (a covariance of
+FLOAT_MAX^2 * 10^4 steps is 1e16); the bounds are checked against every filter, associator and manager in
+tests/test_tracker_param_bounds.py, and explained in docs/limits.md.
 """
 
 from __future__ import annotations
@@ -23,15 +29,27 @@ class ParamError(ValueError):
         super().__init__(f"{path}: {message}" if path else message)
 
 
+FLOAT_MAX = 1e6
+"""Largest magnitude of a float parameter: 1000 km, 1000 km/s, 10^6 nats or per m^2 (defaults are <= 40)."""
+FLOAT_MIN = 1e-9
+"""Smallest non-zero magnitude of a float parameter (a 1 nm noise std; densities of 1e-9 per m^2)."""
+INT_MAX = 1_000_000
+"""Largest magnitude of an integer parameter (10^6 scans is 28 h at 10 Hz)."""
+
+
 def param(default: Any, doc: str, *, choices: tuple | None = None,
-          check: tuple[Callable[[Any], bool], str] | None = None) -> Any:
-    """A dataclass field with a default, a one-line doc, optional allowed `choices` and a `check`
-    (predicate, text) such as (lambda v: v > 0, "> 0")."""
+          check: tuple[Callable[[Any], bool], str] | None = None,
+          bounds: tuple[float, float] | None = None) -> Any:
+    """A dataclass field with a default, a one-line doc, optional allowed `choices`, a `check`
+    (predicate, text) such as (lambda v: v > 0, "> 0") and `bounds` (least, largest) that replace the
+    default magnitude bounds of the module docstring (for parameters that size memory or work)."""
     meta: dict[str, Any] = {"doc": doc}
     if choices is not None:
         meta["choices"] = choices
     if check is not None:
         meta["check"] = check
+    if bounds is not None:
+        meta["bounds"] = bounds
     if isinstance(default, (list, dict)):
         return dataclasses.field(default_factory=lambda: default, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -105,6 +123,7 @@ def load(cls: type, data: dict, path: str) -> Any:
             raise ParamError(key, f"{v!r} is not allowed; allowed: {', '.join(map(str, meta['choices']))}")
         if "check" in meta and v is not None and not meta["check"][0](v):
             raise ParamError(key, f"{v!r} is not allowed; must be {meta['check'][1]}")
+        check_bounds(v, meta.get("bounds"), key)
         kwargs[name] = v
     try:
         return cls(**kwargs)
@@ -112,6 +131,26 @@ def load(cls: type, data: dict, path: str) -> Any:
         raise ParamError(f"{path}.{err.path}", str(err).split(": ", 1)[-1]) from None
     except ValueError as err:
         raise ParamError(path, str(err).splitlines()[0]) from None
+
+
+def check_bounds(value: Any, bounds: tuple[float, float] | None, key: str) -> None:
+    """ParamError at `key` when a number in `value` (a number or a nested list) is outside `bounds`, or, without
+    them, outside the default magnitude bounds (module docstring)."""
+    if isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            check_bounds(v, bounds, f"{key}[{i}]")
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return
+    if bounds is not None:
+        if not bounds[0] <= value <= bounds[1]:
+            raise ParamError(key, f"{value!r} is not allowed; must be in [{bounds[0]:g}, {bounds[1]:g}]")
+    elif isinstance(value, int):
+        if abs(value) > INT_MAX:
+            raise ParamError(key, f"{value!r} is not allowed; integers must be within +-{INT_MAX:g}")
+    elif value != 0 and not FLOAT_MIN <= abs(value) <= FLOAT_MAX:
+        raise ParamError(key, f"{value!r} is not allowed; numbers must be 0 or of magnitude {FLOAT_MIN:g} to "
+                              f"{FLOAT_MAX:g}")
 
 
 def defaults(cls: type) -> Any:

@@ -6,7 +6,8 @@
 Exit codes: 0 done (runs that failed inside the scenario or tracker are recorded, not fatal);
 1 the engine failed (a worker died, the scheduler is unreachable, the disk is full): finished runs are
 kept, resume; 2 bad input (malformed campaign file or --scheduler address, not a campaign directory or a
-damaged one, a folder in use by another campaign process): nothing written; 130 Ctrl-C. The sub-command
+damaged one, a folder in use by another campaign process): nothing written; 130 Ctrl-C, 143 SIGTERM, 129
+SIGHUP (finished runs are kept, resume). The sub-command
 functions raise ConfigError / RunError / OSError and leave the one-line message and the exit code to
 :func:`testbed.errors.guarded` (``testbed``'s and this module's :func:`main`).
 
@@ -15,8 +16,14 @@ Only the standard library is imported at module level: spawned workers re-import
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from pathlib import Path
+
+
+POOL_MAX = 256
+"""Most worker processes or threads per worker an option may ask for (a pool of 10^6 would exhaust the
+machine before the first run; 256 is well above the cores of any one machine these runs use)."""
 
 
 def _positive_int(text: str) -> int:
@@ -26,6 +33,8 @@ def _positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    if value > POOL_MAX:
+        raise argparse.ArgumentTypeError(f"expected at most {POOL_MAX}, got {value}")
     return value
 
 
@@ -71,7 +80,7 @@ def _reach(engine) -> None:
 
 
 def _execute(campaign, out: Path, engine, args: argparse.Namespace, retry_errors: bool = False) -> int:
-    from ..errors import RunError, describe_os_error
+    from ..errors import RunError, describe_os_error, interruption, signal_exit_code
     from .engine import run_campaign
 
     try:
@@ -81,10 +90,11 @@ def _execute(campaign, out: Path, engine, args: argparse.Namespace, retry_errors
                        f"resume {out}") from None
     done = outcome.before + outcome.ran
     failed = f" ({outcome.failed} failed: see the error column)" if outcome.failed else ""
-    if outcome.interrupted:
-        print(f"interrupted: {done} of {outcome.total} runs finished{failed} and kept in {out}/\n"
+    if outcome.interrupted:  # Ctrl-C, SIGTERM or SIGHUP: one line, exit 128 + the signal
+        signum = outcome.signum or signal.SIGINT
+        print(f"{interruption(signum)}: {done} of {outcome.total} runs finished{failed} and kept in {out}/; "
               f"resume with: testbed campaign resume {out}", file=sys.stderr)
-        return 130
+        return signal_exit_code(signum)
     if outcome.broken:
         print(f"error: {outcome.broken}; {done} of {outcome.total} runs finished and kept in {out}/; "
               f"resume with: testbed campaign resume {out}", file=sys.stderr)
@@ -101,6 +111,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .spec import load_campaign
 
     campaign = load_campaign(args.file)
+    if args.out is not None and not args.out.strip():  # not silently the default folder
+        from ..config import ConfigError
+
+        raise ConfigError("--out", "is empty; give a folder path")
     out = Path(args.out) if args.out else Path("runs") / "campaigns" / campaign.name
     engine = _engine(args)
     _reach(engine)

@@ -108,11 +108,12 @@ def dask_setup(worker) -> None:
 
 
 def init_worker(threads: int | None, counter=None, parent_pid: int | None = None) -> None:
-    """Local-pool worker start-up: thread limits (before open3d loads), no rerun analytics, Ctrl-C left
-    to the parent (which stops the campaign and terminates the workers), and, with ``counter`` (a shared
-    int), pinning of the k-th worker to its own block of ``threads`` cores: open3d's ray-casting scene
-    build runs on a TBB thread pool that ignores OMP_NUM_THREADS but follows the CPU affinity; death with
-    the parent (pid ``parent_pid``)."""
+    """Local-pool worker start-up: thread limits (before open3d loads), no rerun analytics, Ctrl-C and SIGHUP
+    (a terminal's, sent to its whole process group) left to the parent (which stops the campaign and
+    terminates the workers; SIGTERM keeps its default action: the pool ends its workers with it), and, with
+    ``counter`` (a shared int), pinning of the k-th worker to its own block of ``threads`` cores: open3d's
+    ray-casting scene build runs on a TBB thread pool that ignores OMP_NUM_THREADS but follows the CPU
+    affinity; death with the parent (pid ``parent_pid``)."""
     if threads is not None:
         for var in THREAD_VARS:
             os.environ.setdefault(var, str(threads))
@@ -123,6 +124,8 @@ def init_worker(threads: int | None, counter=None, parent_pid: int | None = None
         pin_process(_core_block(k, threads))
     os.environ.setdefault("RERUN_ANALYTICS", "0")
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "SIGHUP"):
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
     die_with_parent(parent_pid)
 
 
@@ -246,9 +249,26 @@ class _InProcess:
         pass
 
 
+def start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (unless it runs) with SIGHUP blocked: it ignores SIGINT and
+    SIGTERM by itself, but a terminal's hangup, sent to the whole process group, would kill it, and the
+    campaign's clean-up then printed a traceback per semaphore of the pool (which leaked)."""
+    from multiprocessing import resource_tracker
+
+    if not hasattr(signal, "SIGHUP") or not hasattr(signal, "pthread_sigmask"):
+        resource_tracker.ensure_running()
+        return
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})  # inherited by the tracker, for good
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+
+
 class _LocalPool:
     def __init__(self, workers: int, threads: int | None, pin: bool = True):
         ctx = multiprocessing.get_context("spawn")
+        start_resource_tracker()  # before the pool's first semaphore registers with it
         pin = pin and threads is not None and workers * threads <= usable_cores() and hasattr(os, "sched_setaffinity")
         counter = ctx.Value("i", 0) if pin else None
         self.slots = workers
@@ -474,8 +494,9 @@ def make_backend(opts: EngineOptions):
 @dataclass(frozen=True)
 class Outcome:
     """total: runs in the plan; before: finished before this call; ran: finished now; failed: runs
-    with status error (all of them, old and new); interrupted: stopped by Ctrl-C; broken: why the
-    backend failed (None if it did not)."""
+    with status error (all of them, old and new); interrupted: stopped (a signal or ``stop``); signum: the
+    signal that stopped it (SIGINT: Ctrl-C, SIGTERM, SIGHUP; None if ``stop`` was set by the caller or
+    it was not stopped); broken: why the backend failed (None if it did not)."""
 
     total: int
     before: int
@@ -483,6 +504,7 @@ class Outcome:
     failed: int
     interrupted: bool = False
     broken: str | None = None
+    signum: int | None = None
 
     @property
     def complete(self) -> bool:
@@ -495,16 +517,39 @@ def _submit_order(runs: list[RunSpec]) -> list[RunSpec]:
     return sorted(runs, key=lambda r: (r.seed_index, r.run_index))
 
 
-def _install_sigint(stop: threading.Event):
-    """From the main thread: Ctrl-C sets ``stop`` (a second one interrupts the clean-up). Returns the old handler."""
-    if threading.current_thread() is not threading.main_thread():
-        return None
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 
-    def on_sigint(signum, frame):
-        stop.set()
-        signal.signal(signal.SIGINT, signal.default_int_handler)
 
-    return signal.signal(signal.SIGINT, on_sigint) or signal.default_int_handler
+class _StopOnSignals:
+    """From the main thread: Ctrl-C (SIGINT), SIGTERM and SIGHUP set ``stop`` and keep the first one's number
+    in ``signum``; that signal then gets its previous handler back, so a second one interrupts the clean-up
+    (KeyboardInterrupt, or :class:`~testbed.errors.Terminated` under ``testbed``). An ignored SIGTERM or SIGHUP
+    (``nohup``) stays ignored. :meth:`restore` puts every previous handler back."""
+
+    def __init__(self, stop: threading.Event):
+        self.stop = stop
+        self.signum: int | None = None
+        self.previous: dict[int, Any] = {}
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for sig in (getattr(signal, name) for name in STOP_SIGNALS if hasattr(signal, name)):
+            if sig == signal.SIGINT or signal.getsignal(sig) is not signal.SIG_IGN:
+                self.previous[sig] = signal.signal(sig, self._on_signal)
+
+    def _on_signal(self, signum: int, frame) -> None:
+        if self.signum is None:
+            self.signum = signum
+        self.stop.set()
+        signal.signal(signum, self._handler(signum))
+
+    def _handler(self, sig: int):
+        old = self.previous.get(sig)
+        return old if old is not None else signal.SIG_DFL
+
+    def restore(self) -> None:
+        for sig in self.previous:
+            signal.signal(sig, self._handler(sig))
+        self.previous = {}
 
 
 class _Loop:
@@ -557,8 +602,9 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, engine: EngineOptions 
     """Run every run of ``campaign`` that ``out_dir`` does not hold yet (with ``retry_errors`` also
     those that failed), writing each as it finishes, then rebuild ``results.parquet``.
 
-    Ctrl-C (SIGINT, when called from the main thread) or setting ``stop`` stops submitting, keeps
-    what finished, abandons the runs in flight and returns with ``interrupted``. ``backend`` (from
+    Ctrl-C (SIGINT), SIGTERM or SIGHUP (when called from the main thread) or setting ``stop`` stops
+    submitting, keeps what finished, abandons the runs in flight and returns with ``interrupted`` (and the
+    signal in ``signum``). ``backend`` (from
     :func:`make_backend`) reuses already started workers, e.g. warm ones in a benchmark; it is then
     left open unless runs had to be abandoned. (Local-pool workers die with the thread that first
     submitted to the pool, see :func:`die_with_parent`: reuse a backend only while that thread lives.)
@@ -594,7 +640,7 @@ def _run_locked(campaign: Campaign, out: Path, engine: EngineOptions | None, qui
         return Outcome(len(runs), before, 0, failed)
 
     stop = stop or threading.Event()
-    old_handler = _install_sigint(stop)
+    signals = _StopOnSignals(stop)
     own_backend = backend is None
     broken: str | None = None
     loop = None
@@ -611,16 +657,17 @@ def _run_locked(campaign: Campaign, out: Path, engine: EngineOptions | None, qui
     except InfrastructureError as err:
         broken = str(err)
     finally:
-        if loop is not None:
-            loop.bar.close()
-        if old_handler is not None:
-            signal.signal(signal.SIGINT, old_handler)
-        abandon = (loop is not None and bool(loop.in_flight)) or stop.is_set() or broken is not None
-        if backend is not None and (own_backend or abandon):
-            backend.close(abandon=abandon)
-        store.consolidate(out, clean=True, warn=warn)
+        try:
+            if loop is not None:
+                loop.bar.close()
+            abandon = (loop is not None and bool(loop.in_flight)) or stop.is_set() or broken is not None
+            if backend is not None and (own_backend or abandon):
+                backend.close(abandon=abandon)
+            store.consolidate(out, clean=True, warn=warn)
+        finally:  # a stop signal during the clean-up only sets stop (a second one of a kind interrupts it)
+            signals.restore()
     ran, failed = (loop.ran, loop.failed) if loop is not None else (0, failed)
-    return Outcome(len(runs), before, ran, failed, interrupted=stop.is_set(), broken=broken)
+    return Outcome(len(runs), before, ran, failed, interrupted=stop.is_set(), broken=broken, signum=signals.signum)
 
 
 def _error_row(campaign: Campaign, run: RunSpec, err: BaseException) -> dict[str, Any]:

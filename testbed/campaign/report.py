@@ -17,7 +17,8 @@ Plots (matplotlib, Agg backend):
 * ``plots/scores_by_tracker*.png`` when the campaign has no grid.
 
 A report reads only finished (whole) run files and removes nothing, so it may be written while the
-campaign runs; a damaged run file is left out with a warning line (``resume`` runs it again).
+campaign runs; a damaged run file is left out with a warning line (``resume`` runs it again). A symbolic
+link in the folder is refused in one line before anything is written (:func:`store.refuse_links`).
 """
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import safe_io
 from . import store
 
 BOUNDS = {"tp_pct": (0.0, 100.0), "fp_pct": (0.0, math.inf), "breakup_pct": (0.0, 100.0),
@@ -210,7 +212,7 @@ def _save(fig, axes, used: int, title: str, path: Path) -> None:
         ax.set_visible(False)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    safe_io.save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -336,6 +338,7 @@ def write_report(out_dir: str | Path, campaign) -> Report:
     matplotlib.use("Agg")
     out = Path(out_dir)
     rep = Report(path=out / "report.md")
+    store.refuse_links(out)  # before anything is written
     df = store.load_results(out)
     if df.empty:
         return rep
@@ -349,8 +352,7 @@ def write_report(out_dir: str | Path, campaign) -> Report:
     scenarios = [s.name for s in campaign.scenarios if s.name in set(df["scenario"])]
     summary = summarize(df, grid_keys)
     store.atomic_write_bytes(out / "summary.csv", summary.to_csv(index=False).encode())
-    plots = out / "plots"
-    plots.mkdir(exist_ok=True)
+    plots = safe_io.make_folder(out / store.PLOTS_DIR)
 
     md = [f"# Campaign `{campaign.name}`", ""]
     if campaign.description:

@@ -15,6 +15,10 @@ Layout of ``DIR``::
     report.md, plots/, summary.csv   written by `testbed campaign report DIR`
     campaign.lock          locked (``flock``) by the one process that runs or resumes the campaign
 
+No file of the folder is written through a symbolic link: a link at any name the campaign writes (the lock,
+a run file, a temporary, a recording, a report file) is refused in one line naming it, before any run
+(:func:`refuse_links`), and every writer opens its files with ``O_NOFOLLOW`` (:mod:`testbed.safe_io`).
+
 A killed campaign (Ctrl-C, SIGKILL, power loss) loses at most the runs that were in flight: it never
 leaves a half-written run file that counts as finished, and never writes a run twice.
 
@@ -36,6 +40,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+from .. import safe_io
 from ..config import ConfigError
 
 CAMPAIGN_FILE = "campaign.toml"
@@ -43,6 +48,7 @@ SCENARIOS_FILE = "scenarios.json"
 META_FILE = "meta.json"
 RUNS_DIR = "runs"
 RECORDINGS_DIR = "recordings"
+PLOTS_DIR = "plots"
 RESULTS_FILE = "results.parquet"
 LOCK_FILE = "campaign.lock"
 DAMAGED_SUFFIX = ".damaged"
@@ -56,47 +62,17 @@ def timing_columns(columns) -> list[str]:
     return [c for c in columns if c in TIMING_COLUMNS or c.startswith("ms_")]
 
 
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that a crash leaves either the old file or the new one, whole."""
-    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:  # e.g. a full disk: no half-written temp file left behind
-        tmp.unlink(missing_ok=True)
-        raise
-    _fsync_dir(path.parent)
+    """Write ``data`` to ``path`` so that a crash leaves either the old file or the new one, whole; a symbolic
+    link at ``path`` (or at its temporary's name) is refused, never written through."""
+    safe_io.write_bytes(path, data, fsync=True)
 
 
 def _write_table_atomic(table, path: Path) -> None:
     import pyarrow.parquet as pq
 
-    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
-    try:
-        pq.write_table(table, tmp)
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:  # e.g. a full disk: no half-written temp file left behind
-        tmp.unlink(missing_ok=True)
-        raise
-    _fsync_dir(path.parent)
+    with safe_io.atomic_path(path, fsync=True) as tmp, safe_io.open_write(tmp) as fh:
+        pq.write_table(table, fh)
 
 
 _DISTRIBUTIONS = {"roadtrack": ("roadtrack",), "numpy": ("numpy",), "highway_env": ("highway-env",),
@@ -129,6 +105,8 @@ def create(out_dir: str | Path, campaign_path: str | Path, campaign) -> Path:
     unusable ``out_dir`` (a file, not creatable, holding other files) is a ConfigError; if writing fails
     half-way, the folder is removed again when this call created it."""
     out = Path(out_dir)
+    if out.is_symlink():  # never write the campaign into the folder a link points to
+        raise ConfigError("", f"{safe_io.link_error(out)}: choose another --out")
     if is_campaign_dir(out):
         raise ConfigError("", f"{out} already holds a campaign: continue it with `testbed campaign resume {out}` "
                           "or choose another --out")
@@ -143,11 +121,13 @@ def create(out_dir: str | Path, campaign_path: str | Path, campaign) -> Path:
         raise ConfigError("", f"{out}: cannot create the results folder ({_strerror(err)}): choose another "
                           "--out") from None
     try:
-        atomic_write_bytes(out / SCENARIOS_FILE, (json.dumps(
+        from ..jsonio import json_text
+
+        atomic_write_bytes(out / SCENARIOS_FILE, (json_text(
             {s.entry: s.data for s in campaign.scenarios}, indent=1, default=str) + "\n").encode())
         meta = dict(name=campaign.name, source=str(Path(campaign_path).resolve()), n_runs=campaign.n_runs,
                     created=time.strftime("%Y-%m-%dT%H:%M:%S%z"), versions=versions())
-        atomic_write_bytes(out / META_FILE, (json.dumps(meta, indent=1) + "\n").encode())
+        atomic_write_bytes(out / META_FILE, (json_text(meta, indent=1) + "\n").encode())
         # the campaign file last: a directory with campaign.toml is a complete, resumable campaign
         atomic_write_bytes(out / CAMPAIGN_FILE, Path(campaign_path).read_bytes())
     except BaseException:
@@ -262,40 +242,42 @@ def open_campaign(out_dir: str | Path):
 # ------------------------------------------------------------------------------------------ the lock
 
 
-def _lock_holder(path: Path) -> str:
-    """The pid written in a held lock file ('unknown' if its holder has not written it yet)."""
-    for _ in range(20):
-        try:
-            text = path.read_text().strip()
-        except OSError:
-            text = ""
-        if text.isdigit():
-            return text
-        time.sleep(0.05)
-    return "unknown"
-
-
 @contextlib.contextmanager
 def locked(out_dir: str | Path) -> Iterator[None]:
     """Hold ``DIR/campaign.lock`` (``flock``, exclusive) while running or resuming a campaign; a second
     process gets a ConfigError. The kernel releases the lock when the process ends, even by SIGKILL, so
-    a lock is never stale; the file itself stays (its content, the holder's pid, is only for messages)."""
-    import fcntl
-
+    a lock is never stale; the file itself stays (its content, the holder's pid, is only for messages).
+    A symbolic link at the lock or anywhere the campaign writes is refused (:func:`refuse_links`)."""
     out = Path(out_dir)
     path = out / LOCK_FILE
-    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    fd = safe_io.try_lock(path)
+    if fd is None:
+        raise ConfigError("", f"{out} is in use by another campaign process (pid {safe_io.lock_holder(path)}); "
+                          "wait for it or stop it")
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise ConfigError("", f"{out} is in use by another campaign process (pid {_lock_holder(path)}); "
-                              "wait for it or stop it") from None
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
+        refuse_links(out)
         yield
     finally:
-        os.close(fd)  # releases the lock
+        safe_io.unlock(fd)
+
+
+def _entries(folder: Path) -> list[os.DirEntry]:
+    try:
+        return sorted(os.scandir(folder), key=lambda e: e.name)
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+
+
+def refuse_links(out_dir: str | Path) -> None:
+    """ConfigError naming the first symbolic link among the names a campaign writes: the entries of ``DIR``,
+    ``runs/``, ``plots/``, ``recordings/`` and each ``recordings/<run_id>/``. Checked up front, so a planted
+    link stops the command before any run (the writers refuse links too)."""
+    out = Path(out_dir)
+    recordings = [Path(e.path) for e in _entries(out / RECORDINGS_DIR) if e.is_dir(follow_symlinks=False)]
+    for folder in [out, out / RUNS_DIR, out / PLOTS_DIR, out / RECORDINGS_DIR, *recordings]:
+        for entry in _entries(folder):
+            if entry.is_symlink():
+                raise safe_io.link_error(entry.path)
 
 
 # ------------------------------------------------------------------------------------------ run files

@@ -29,6 +29,7 @@ from scipy.stats import ncx2
 
 from testbed.convoy_points import (Association, ConvoyScenario, measurement_error, position_error, simulate,
                                    track)
+from testbed.safe_io import save_figure, write_text
 from trackers.gating import gate_probability
 from trackers.trackloss import ks_integral as ksi
 
@@ -354,7 +355,7 @@ def fig_gating(res: Results, path: Path) -> None:
     ax.xaxis.set_major_formatter(ScalarFormatter())
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
 
 
@@ -371,7 +372,7 @@ def fig_rmse(r: RmseResult, path: Path, number: int) -> None:
            title=f"paper 000 Fig. {number}: cars {r.separation:g} m apart ({_runs(r.n_runs)})")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
 
 
@@ -394,7 +395,7 @@ def fig_ks(res: Results, path: Path, metric: str) -> None:
            ylabel=ylabel, title=title)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
 
 
@@ -409,7 +410,7 @@ def fig_gap(res: Results, path: Path) -> None:
            title="gated vs ungated over separation (paper 000 §V-B)")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
 
 
@@ -614,5 +615,5 @@ def write_report(res: Results, out_dir: Path, quick: bool, seconds: float | None
               "## Reconstructions, choices and the paper's inconsistencies", "", *notes(res), "",
               "## The highway version (described, not built)", "", *HIGHWAY, ""]
     path = out_dir / "summary.md"
-    path.write_text("\n".join(lines))
+    write_text(path, "\n".join(lines))
     return path

@@ -38,6 +38,7 @@ from sensors.perception import MERGED
 from testbed.characterise import detection_owners
 from testbed.convoy_points import Association, pda_weights
 from testbed.run import _scan, rng_streams, sensing_setup
+from testbed.safe_io import save_figure, write_text
 from testbed.scenario import Scenario, load_scenario
 from trackers.filters.kalman import KalmanFilter
 from trackers.models import ConstantVelocity, PositionMeasurement
@@ -474,7 +475,7 @@ def fig_gated_out(res: Results, path: Path) -> None:
         _gap_axis(ax, gaps)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
 
 
@@ -503,7 +504,7 @@ def fig_rmse(res: Results, path: Path) -> None:
     _gap_axis(ax, gaps)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
 
 
@@ -542,7 +543,7 @@ def fig_ks(res: Results, path: Path) -> None:
         ax.legend(fontsize=7, loc="upper right")
     axes[-1, 0].set_xlabel(f"time [s] of the window's last measurement (window n = {res.settings.window})")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
 
 
@@ -754,5 +755,5 @@ def write_report(res: Results, out_dir: Path, quick: bool, seconds: float | None
               "## KS integral test (eq. (32)) on the innovation norms", "", *_ks_lines(res), "",
               "![D_n](fig_ks_smallest_gap.png)", "", "## Choices and what the numbers say", "", *notes(res), ""]
     path = out_dir / "summary.md"
-    path.write_text("\n".join(lines))
+    write_text(path, "\n".join(lines))
     return path

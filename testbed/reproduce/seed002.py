@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from testbed.forced_loss import ForcedLoss, LossRun, covered, paper_1d, plane_2d, simulate, steady_state
+from testbed.safe_io import save_figure, write_text
 from trackers.trackloss.ks import asymptotic_critical_value, critical_value
 from trackers.trackloss.regime import (RegimeConfig, RegimeSeries, assess_window, delta_f, gamma_best,
                                        gate_probability, lost_cdf, tracking_cdf, unit_ball_volume)
@@ -128,7 +129,7 @@ def figure_cdfs(path: Path) -> None:
     ax.set(xlabel="gated measurements m", ylabel="cdf", title="regime cdfs, P_D = 1, P_G = 0.8931, lambda V = 0.2")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -146,7 +147,7 @@ def figure_delta_f(path: Path) -> None:
     ax.set(xlabel="gamma", ylabel="Delta_F", title="Delta_F vs gamma (dots: gamma_best)")
     ax.legend(fontsize=7, loc="center right")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -162,7 +163,7 @@ def figure_s(path: Path, run: LossRun) -> None:
     ax.set(xlabel="scan", ylabel="S(k)", title="innovation variance before and after the loss (run 0)")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -191,7 +192,7 @@ def figure_regimes(path: Path, res: dict, run: LossRun, k0: int, k1: int) -> Non
     axes[3].axvline(L + 1, color="k", ls="--", lw=1)
     axes[3].set(ylabel="adaptive n", xlabel="scan")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -220,7 +221,7 @@ def figure_windows(path: Path, run: LossRun, panels: list[tuple[int, int, float,
     for ax, (k, n, lam, title) in zip(axes[0], panels):
         _window_panel(ax, run, k, n, lam, title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -489,7 +490,7 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
         _figures(out_dir, runs[0], res[0], runs2[0], res2[0], s)
         bar.update()
     path = out_dir / "summary.md"
-    path.write_text(_summary(closed_forms(), res, res2, s, seed, quick))
+    write_text(path, _summary(closed_forms(), res, res2, s, seed, quick))
     return path
 
 
@@ -512,5 +513,5 @@ def _figures(out: Path, run0: LossRun, res0: dict, run2: LossRun, res2: dict, s:
     _verdict_panel(ax, res2["series"], 0, len(run2.root_det), L2, "plane (n_z = 2), TRD n = 50, run 0")
     ax.set_xlabel("scan")
     fig.tight_layout()
-    fig.savefig(out / "fig8_plane.png", dpi=110)
+    save_figure(fig, out / "fig8_plane.png", dpi=110)
     plt.close(fig)

@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from testbed.safe_io import save_figure, write_text
 from testbed.scenario import OutageSpec, Scenario, load_scenario
 
 if TYPE_CHECKING:
@@ -461,7 +462,7 @@ def figure_delays(path: Path, s: Settings, res: dict) -> None:
         _delay_panel(axrow[1], f"{case.scenario}: sensor dropout {case.t0_s:g}-{case.t0_s + case.dropout_s:g} s "
                      "(every track on a car)", s.trackers, drop, xmax, back=10.0 * case.dropout_s)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -509,7 +510,7 @@ def figure_regime(path: Path, case: Case, scn: Scenario, runs: dict[tuple[str, s
     axes[2].legend(handles=handles, fontsize=7, loc="upper right", ncol=4)
     axes[2].set_xlabel("time [s]")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -728,5 +729,5 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
                     bar.update()
     figure_delays(out_dir / "fig1_delays.png", s, res)
     path = out_dir / "summary.md"
-    path.write_text(_summary(s, res, seeds, scns, quick, seed, overflows))
+    write_text(path, _summary(s, res, seeds, scns, quick, seed, overflows))
     return path

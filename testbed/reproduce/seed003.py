@@ -23,6 +23,7 @@ import numpy as np
 
 from sensors.symmetric import FORMS, SymmetricSensor, monte_carlo_moments
 from testbed import sme_targets as st
+from testbed.safe_io import save_figure, write_text
 from trackers.sme import symmetric_noise_covariance, symmetric_noise_mean
 
 FILTERS = ("kf", "products", "powers")
@@ -195,7 +196,7 @@ def figure_single_run(path: Path, scn: st.LineTargets, mc: MonteCarlo, run: int)
     axes[0][0].set_ylabel("position [m]")
     axes[0][0].legend(fontsize=8, loc="upper left")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -215,7 +216,7 @@ def figure_rmse(path: Path, scn: st.LineTargets, mc: MonteCarlo, targets: tuple[
     axes[0][0].set_ylabel("RMSE [m]")
     axes[0][0].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -432,5 +433,5 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
            "- `rmse_two_targets.png`: N = 2 (ours).", ""]
     md += NOTES
     path = out / "summary.md"
-    path.write_text("\n".join(md))
+    write_text(path, "\n".join(md))
     return path

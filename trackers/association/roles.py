@@ -60,10 +60,11 @@ class JPDAParams(AssociatorParams):
 
     method: str = param("ehm", "exact 'ehm' (hypothesis net), exact 'enumerate' (joint events; the test oracle) "
                         "or approximate 'k_best' (Murty)", choices=METHODS)
-    k: int = param(DEFAULT_K, "k_best: joint events kept per cluster", check=POSITIVE)
+    k: int = param(DEFAULT_K, "k_best: joint events kept per cluster", check=POSITIVE, bounds=(1, 10_000))
     max_nodes: int = param(DEFAULT_MAX_NODES, "ehm: cap on the edges of one net layer (above it an error)",
-                           check=POSITIVE)
-    max_events: int = param(50_000, "enumerate: cap on the feasible joint events of one cluster", check=POSITIVE)
+                           check=POSITIVE, bounds=(1, 2**24))  # 2^24 edges: about 1 GB of net arrays
+    max_events: int = param(50_000, "enumerate: cap on the feasible joint events of one cluster", check=POSITIVE,
+                            bounds=(1, 10_000_000))  # 10^7 events x the cluster's measurements, int64
     on_overflow: str = param("pda", "enumerate, above the cap: per-track PDA for that cluster (with a warning) or "
                              "an error", choices=OVERFLOW_MODES)
 
