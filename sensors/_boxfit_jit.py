@@ -177,6 +177,28 @@ def _complete(lo, hi, g_lo, g_hi, size, size_std):
 
 
 @njit(cache=True)
+def _complete_seen(lo, hi, g_lo, g_hi, s_lo, s_hi, size, size_std, min_size):
+    """_complete along the axis of a class whose length varies widely (trucks, 7.5-18.75 m): when both ends
+    are bounded (g_lo, g_hi finite: one faces the sensor, the other is reached along a seen side) each
+    lies half its ray spacing s_lo, s_hi beyond the points (uniform within one spacing: var s^2 / 12), but
+    the size is at least min_size (less means the side is hidden: the class's shortest, std size_std); an
+    end nothing bounds takes the class's size as _complete does."""
+    if math.isinf(g_lo) or math.isinf(g_hi):
+        return _complete(lo, hi, g_lo, g_hi, size, size_std)
+    e_lo, e_hi = min(0.5 * s_lo, g_lo), min(0.5 * s_hi, g_hi)
+    short = min_size - (hi - lo + e_lo + e_hi)
+    if short <= 0.0:
+        return lo - e_lo, hi + e_hi, math.sqrt((s_lo * s_lo + s_hi * s_hi) / 12.0), 0.0
+    if g_lo > 0.0 and g_hi > 0.0:  # seen from beside: the hidden length goes to both ends
+        e_lo, e_hi = e_lo + 0.5 * short, e_hi + 0.5 * short
+    elif g_lo > 0.0:
+        e_lo += short
+    else:
+        e_hi += short
+    return lo - e_lo, hi + e_hi, size_std, 0.0
+
+
+@njit(cache=True)
 def _shape(u, v, ext, z, has_z, top, footprint, p):
     """boxfit._shape as a SHAPE_CODES index."""
     u_lo, u_hi, v_lo, v_hi = ext[0], ext[1], ext[2], ext[3]
@@ -317,23 +339,22 @@ def _long_axis_frame(lx, ly, rx, ry, prior, has_hint, hint, window, n_inner, ref
 
 
 @njit(cache=True)
-def _edge_gaps(us, vs, ext, end, side, cut, p):
+def _edge_gaps(us, vs, ext, end, side, cut, daz, tilt, max_range):
     """(4,) how far each edge (u0, u1, v0, v1) of the points' box may lie from the real one: 0 facing the
-    sensor, the ray spacing along a seen face, inf where nothing bounds it or an occluder cuts it."""
-    daz = math.radians(p[P_AZ_STEP]) * p[P_GAP_FACTOR]
-    tilt = math.tan(math.radians(p[P_GAP_TOL]))
+    sensor, the ray spacing along a seen face (azimuth step daz [rad], heading tolerance tan tilt), inf
+    where nothing bounds it or an occluder cuts it."""
     gaps = np.full(4, np.inf)
     for i in range(2):
         if i == end:
             gaps[i] = 0.0
         elif side >= 0:
             h = abs(vs - ext[side])
-            gaps[i] = _spacing((ext[i] - us) ** 2 + h * h, h, daz, tilt, p[P_MAX_RANGE])
+            gaps[i] = _spacing((ext[i] - us) ** 2 + h * h, h, daz, tilt, max_range)
         if 2 + i == side:
             gaps[2 + i] = 0.0
         elif end >= 0:
             h = abs(us - ext[end])
-            gaps[2 + i] = _spacing((ext[2 + i] - vs) ** 2 + h * h, h, daz, tilt, p[P_MAX_RANGE])
+            gaps[2 + i] = _spacing((ext[2 + i] - vs) ** 2 + h * h, h, daz, tilt, max_range)
     for i in range(4):
         if cut[i]:
             gaps[i] = np.inf
@@ -341,9 +362,22 @@ def _edge_gaps(us, vs, ext, end, side, cut, p):
 
 
 @njit(cache=True)
+def _seen_faces(u, v, ext, end, side, tol, min_face):
+    """Faces seen (boxfit._faces): of the end (0/1) and side (2/3) facing the sensor (-1: none), those whose
+    points span at least min_face [m]."""
+    faces = 0
+    if end >= 0:
+        faces += _ptp_where(v, np.abs(u - ext[end]) <= tol) >= min_face
+    if side >= 0:
+        faces += _ptp_where(u, np.abs(v - ext[side]) <= tol) >= min_face
+    return faces
+
+
+@njit(cache=True)
 def fit(xy, sensor, top, prior, has_hint, hint, open0, open1, z, has_z, window, n_inner, refine, free, p):
-    """boxfit.fit_vehicle_box on validated inputs: xy (n >= 1, 2), sensor (2,), prior (4,) the size prior's
-    (length, width, length std, width std); z (n,) when has_z. Returns the FIELDS tuple."""
+    """boxfit.fit_vehicle_box on validated inputs: xy (n >= 1, 2), sensor (2,), prior (5,) the size prior's
+    (length, width, length std, width std, min length; 0: the length is the prior's where the points allow);
+    z (n,) when has_z. Returns the FIELDS tuple."""
     n = xy.shape[0]
     ox, oy = 0.0, 0.0
     for i in range(n):
@@ -361,14 +395,9 @@ def fit(xy, sensor, top, prior, has_hint, hint, open0, open1, z, has_z, window, 
     ext = np.array([u0, u1, v0, v1])
     shape = _shape(u, v, ext, z, has_z, top, not (open0 or open1), p)
 
-    # seen faces (boxfit._faces)
     end = 0 if us < u0 else 1 if us > u1 else -1
     side = 2 if vs < v0 else 3 if vs > v1 else -1
-    faces = 0
-    if end >= 0:
-        faces += _ptp_where(v, np.abs(u - ext[end]) <= tol) >= p[P_MIN_FACE]
-    if side >= 0:
-        faces += _ptp_where(u, np.abs(v - ext[side]) <= tol) >= p[P_MIN_FACE]
+    faces = _seen_faces(u, v, ext, end, side, tol, p[P_MIN_FACE])
     if open0 or open1:
         cut = _open_edges(u, v, us, vs, ext, end, side, open0, open1, p)
     else:
@@ -377,12 +406,19 @@ def fit(xy, sensor, top, prior, has_hint, hint, open0, open1, z, has_z, window, 
         end = -1
     if side >= 0 and cut[side]:
         side = -1
-    gaps = _edge_gaps(us, vs, ext, end, side, cut, p)  # boxfit._gaps
+    daz = math.radians(p[P_AZ_STEP])
+    gaps = _edge_gaps(us, vs, ext, end, side, cut, daz * p[P_GAP_FACTOR], math.tan(math.radians(p[P_GAP_TOL])),
+                      p[P_MAX_RANGE])  # boxfit._gaps
     if shape == 0:
         size_l, size_w, std_l, std_w = prior[0], prior[1], prior[2], prior[3]
     else:  # not completed: the box of the points, only the sampling gaps as uncertainty
         size_l = size_w = std_l = std_w = 0.0
-    cu0, cu1, sd_u, sp_u = _complete(u0, u1, gaps[0], gaps[1], size_l, std_l)
+    if shape == 0 and prior[4] > 0.0:  # a class of widely varying length (trucks): the length from what is seen
+        spacing = _edge_gaps(us, vs, ext, end, side, cut, daz, 0.0, np.inf)  # the ray spacing itself
+        cu0, cu1, sd_u, sp_u = _complete_seen(u0, u1, gaps[0], gaps[1], spacing[0], spacing[1], size_l, std_l,
+                                              prior[4])
+    else:
+        cu0, cu1, sd_u, sp_u = _complete(u0, u1, gaps[0], gaps[1], size_l, std_l)
     cv0, cv1, sd_v, sp_v = _complete(v0, v1, gaps[2], gaps[3], size_w, std_w)
     mu, mv = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
     du, dv = 0.5 * (cu0 + cu1) - mu, 0.5 * (cv0 + cv1) - mv  # completion offset, box frame

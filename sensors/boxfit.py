@@ -40,7 +40,11 @@ fit_vehicle_box: the centre of the whole vehicle of which a LiDAR sees one or tw
      ends with room, equally when both have it. So a car seen end-on is extended from its rear face away
      from the sensor to the prior length; a fully seen side keeps its length; a half-hidden car is
      extended from its true edge past the occluded one. Priors by the cluster's top (SizePrior): car
-     4.6 x 1.8, truck (top >= 2.5 m) 15.4 x 2.5.
+     4.6 x 1.8, truck (top >= 2.5 m) 15.4 x 2.5. A class with SizePrior.min_length_m (trucks, 7.5-18.75 m)
+     takes its length from what is seen instead: when both ends are bounded each lies half its ray
+     spacing d^2 dazimuth / h beyond the points (var spacing^2 / 12), at least min_length_m (less: the
+     side is hidden); the prior's length only for an end that nothing bounds (an end seen alone).
+     side_continuation finds the points of a side seen at a grazing angle that the clustering left out.
   4. Shape (shape_class): clusters that are not vehicle-shaped are not completed (thin_long and post
      from the footprint, skipped when an end is occluded; panel needs the heights `z`).
   5. Covariance R (2, 2) world [m^2], per box axis (along, across) then rotated by the heading:
@@ -145,18 +149,25 @@ class SizePrior:
     width_m: float
     length_std_m: float
     width_std_m: float
+    # > 0: the class's length varies too much for one prior (trucks): where a seen side bounds the far end the
+    # length is the seen one (at least this), the prior's only for an end seen alone; 0: the prior's wherever
+    # the points allow it (cars)
+    min_length_m: float = 0.0
 
     def __post_init__(self) -> None:
         _checks.positive(f"SizePrior.min_top_m ({self.name})", self.min_top_m, allow_zero=True)
         for name in ("length_m", "width_m", "length_std_m", "width_std_m"):
             _checks.positive(f"SizePrior.{name} ({self.name})", getattr(self, name))
+        _checks.positive(f"SizePrior.min_length_m ({self.name})", self.min_length_m, allow_zero=True)
 
 
 CAR = SizePrior("car", 0.0, 4.6, 1.8, 0.4, 0.15)  # scenario cars 4.2-5.0 x 1.75-2.0, highway-env 5.0 x 2.0
 # scenario trucks: 12-18.75 (uniform) x 2.45-2.55, 3.4-4 m high. The class starts at a 2.5 m top: cars are at
 # most 1.7 m high, and the HDL-32E's highest beam (+10.67 deg from 1.9 m) sees a truck's top only up to
 # 1.9 + 0.19 d m at d m, 2.8 m at 4.8 m.
-TRUCK = SizePrior("truck", 2.5, 15.4, 2.5, 1.95, 0.05)
+# Trucks are 7.5 m (a two-axle rigid truck) to 18.75 m long: the 15.4 m prior (mean of the shipped 12-18.75 m) is
+# used only when no side is seen (a truck right ahead in the sensor's lane: its length is not observable there).
+TRUCK = SizePrior("truck", 2.5, 15.4, 2.5, 1.95, 0.05, min_length_m=7.5)
 
 
 @dataclass(frozen=True)
@@ -179,6 +190,7 @@ class BoxFitConfig:
     max_range_m: float = 70.0  # the sensor's maximum range: no points beyond, so no bound from them there
     gap_factor: float = 1.5  # an edge reached along a face may lie this many ray spacings beyond its last point
     gap_heading_tol_deg: float = 1.5  # heading error allowed for in that spacing (it matters at grazing views)
+    side_min_z_m: float = 1.8  # side_continuation: points at least this high above the road (no car reaches it)
     # covariance
     range_noise_m: float = 0.02
     floor_std_m: float = 0.05  # model error of a box footprint (rounded corners, ground cut, fit noise)
@@ -202,7 +214,7 @@ class BoxFitConfig:
             raise ValueError(f"BoxFitConfig.priors: expected a non-empty tuple of SizePrior, got {self.priors!r}")
         for name in ("step_deg", "coarse_step_deg", "d0_m", "hint_window_deg", "face_tol_m", "min_face_m",
                      "open_nbr_deg", "azimuth_step_deg", "max_range_m", "gap_factor", "gap_heading_tol_deg",
-                     "heading_std_deg", "free_heading_std_deg", "thin_width_m", "thin_length_m", "thin_max_top_m",
+                     "side_min_z_m", "heading_std_deg", "free_heading_std_deg", "thin_width_m", "thin_length_m", "thin_max_top_m",
                      "post_size_m", "panel_gap_m", "panel_min_top_m", "panel_max_top_m", "panel_bin_m"):
             _checks.positive(f"BoxFitConfig.{name}", getattr(self, name))
         for name in ("range_noise_m", "floor_std_m", "post_min_top_m", "panel_max_cover"):
@@ -342,7 +354,8 @@ def _fit_compiled(xy: np.ndarray, sensor: np.ndarray, top_m: float, prior: SizeP
     """fit_vehicle_box's steps by the compiled kernel (sensors/_boxfit_jit.py) on validated inputs."""
     window, n_inner, refine, free = _grids(cfg.step_deg, cfg.coarse_step_deg, cfg.hint_window_deg)
     r = _boxfit_jit.fit(np.ascontiguousarray(xy), sensor, top_m,
-                        np.array([prior.length_m, prior.width_m, prior.length_std_m, prior.width_std_m]),
+                        np.array([prior.length_m, prior.width_m, prior.length_std_m, prior.width_std_m,
+                                  prior.min_length_m]),
                         hint is not None, 0.0 if hint is None else float(hint), bool(open_ends[0]),
                         bool(open_ends[1]), _NO_Z if z is None else z, z is not None, window, n_inner, refine,
                         free, _params(cfg))
@@ -374,6 +387,57 @@ def _grids(step_deg: float, coarse_deg: float, window_deg: float) -> tuple[np.nd
     for g in grids:
         g.setflags(write=False)
     return grids[0], len(inner), grids[1], grids[2]
+
+
+def side_continuation(fit: BoxFit, xy: np.ndarray, z: np.ndarray, sensor_xy: np.ndarray, *,
+                      max_length_m: float, cfg: BoxFitConfig = BoxFitConfig()) -> np.ndarray:
+    """Indices into xy (m, 2) [m] of the points that continue the side of `fit` the sensor sees beyond the
+    end of its points: a truck's side seen at a grazing angle returns one azimuth column every 1-3 m, which
+    the clustering leaves as noise or 5-point fragments, so the cluster ends 1 m behind its front face.
+
+    A point qualifies when it lies within face_tol_m of the seen side's line, is at least side_min_z_m
+    above the road (z (m,) [m]: no car returns from there) and is reached from the cluster's end (away from
+    the sensor) by steps of at most the ray spacing there (gap_factor * |d|^2 * dazimuth / h, as the box fit's
+    gaps without the heading tolerance, at least face_tol_m). The chain stops where that fails; when it would make the box longer than
+    max_length_m [m] it is cut at its widest step (the next vehicle in the lane). Empty when the sensor
+    sees no side of the box (it is in line with the side) or fit is not a vehicle.
+    """
+    c, s = math.cos(fit.heading), math.sin(fit.heading)
+    rel = xy - fit.seen_centre
+    u, v = rel @ np.array([c, s]), rel @ np.array([-s, c])
+    rs = sensor_xy - fit.seen_centre
+    us, vs = c * rs[0] + s * rs[1], -s * rs[0] + c * rs[1]
+    half_l, half_w = fit.seen_length / 2, fit.seen_width / 2
+    if fit.shape != "vehicle" or abs(vs) <= half_w:
+        return np.zeros(0, np.int64)
+    v_side = math.copysign(half_w, vs)
+    h = abs(vs - v_side)
+    near = np.flatnonzero((np.abs(v - v_side) <= cfg.face_tol_m) & (z >= cfg.side_min_z_m))
+    daz = math.radians(cfg.azimuth_step_deg) * cfg.gap_factor
+    out = []
+    for sign in (1.0, -1.0):
+        end = sign * half_l
+        if sign * (us - end) > 0:  # the end facing the sensor: nothing of this vehicle lies beyond it
+            continue
+        t = sign * (u[near] - end)
+        cand = near[t > 0]
+        t = t[t > 0]
+        order = np.argsort(t, kind="stable")
+        cand, t = cand[order], t[order]
+        last, n = 0.0, 0
+        for tk in t:
+            d = math.hypot(end + sign * last - us, v_side - vs)
+            link = max(d * d * daz / h, cfg.face_tol_m)
+            if tk - last > link:
+                break
+            last, n = tk, n + 1
+        cand, t = cand[:n], t[:n]
+        if n and fit.seen_length + t[-1] > max_length_m:
+            steps = np.diff(np.r_[0.0, t])
+            keep = int(np.argmax(steps))  # points before the widest step
+            cand = cand[:keep][fit.seen_length + t[:keep] <= max_length_m]
+        out.append(cand)
+    return np.sort(np.concatenate(out)) if out else np.zeros(0, np.int64)
 
 
 def open_ends_from_ranges(ranges: np.ndarray, ray: np.ndarray, *, margin_m: float = 0.5,

@@ -69,11 +69,13 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from sensors import _checks, _perception_jit
 from sensors.boxfit import (
     SHAPES,
+    BoxFit,
     BoxFitConfig,
     _fit_vehicle_box,
     lshape_rectangle,
     min_area_rectangle,
     shape_class,
+    side_continuation,
 )
 from sensors.clustering import ClusterConfig, cluster
 from sensors.ground import GroundConfig, segment_ground
@@ -625,13 +627,14 @@ def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: Perce
     road_z = cfg.ground.ground_z_m
     boxfit = _boxfit_for(scan, cfg)
     reason, shape_centre = _screen(scan, st, cfg)
-    fits = _fit_all(scan, st, np.flatnonzero(reason == ""), road is not None, cfg, boxfit)
+    pool = _side_pool(pts, is_ground, cfg, boxfit)
+    fits = _fit_all(scan, st, np.flatnonzero(reason == ""), road is not None, cfg, boxfit, pool)
     if cfg.merge_fragments and len(fits) > 1:
         objects, flags, reason, fits, shape_centre, merged = _merge_boxes(
             pts, objects, flags, reason, fits, shape_centre, st, cfg)
         if merged:
             st = _stats(pts, objects, road_z, scan.origin[:2], road)
-            fits.update(_fit_all(scan, st, np.asarray(merged, np.int64), road is not None, cfg, boxfit))
+            fits.update(_fit_all(scan, st, np.asarray(merged, np.int64), road is not None, cfg, boxfit, pool))
 
     k_all = len(objects)
     centre = st.centroid.copy()
@@ -843,20 +846,27 @@ class _Fit:
 
 
 def _fit_all(scan: Scan, st: _Stats, keys: np.ndarray, hinted: bool, cfg: PerceptionConfig,
-             boxfit: BoxFitConfig) -> dict[int, _Fit]:
-    """The fits of objects `keys` (K,); with a map (hinted) the lane heading at the centroid is the prior."""
+             boxfit: BoxFitConfig, pool: np.ndarray | None = None) -> dict[int, _Fit]:
+    """The fits of objects `keys` (K,); with a map (hinted) the lane heading at the centroid is the prior;
+    pool: the points a truck's seen side may continue into (_side_pool)."""
     ends = _open_ends(scan, st, keys) if cfg.fit == "vehicle_box" else [None] * len(keys)
-    return {int(k): _fit(scan, _members(st, k), st.top[k], float(st.axis[k]) if hinted else None, e, cfg, boxfit)
-            for k, e in zip(keys, ends)}
+    return {int(k): _fit(scan, _members(st, k), st.top[k], float(st.axis[k]) if hinted else None, e, cfg, boxfit,
+                         pool) for k, e in zip(keys, ends)}
+
+
+def _side_pool(pts: np.ndarray, is_ground: np.ndarray, cfg: PerceptionConfig, boxfit: BoxFitConfig) -> np.ndarray:
+    """Indices of the non-ground points between boxfit.side_min_z_m and max_height_m above the road (those a
+    truck's side seen at a grazing angle returns, mostly left as noise or fragments by the clustering)."""
+    z = pts[:, 2] - cfg.ground.ground_z_m
+    return np.flatnonzero(~is_ground & (z >= boxfit.side_min_z_m) & (z <= cfg.max_height_m))
 
 
 def _fit(scan: Scan, idx: np.ndarray, top: float, hint: float | None, open_ends: tuple[bool, bool] | None,
-         cfg: PerceptionConfig, boxfit: BoxFitConfig) -> _Fit:
+         cfg: PerceptionConfig, boxfit: BoxFitConfig, pool: np.ndarray | None = None) -> _Fit:
     """The measurement of one object by cfg.fit."""
     xy = scan.points[idx, :2]
     if cfg.fit == "vehicle_box":
-        f = _fit_vehicle_box(xy, scan.origin[:2], top_m=float(top), heading_hint=hint, open_ends=open_ends,
-                             cfg=boxfit, z=scan.points[idx, 2] - cfg.ground.ground_z_m)  # checked inputs
+        f = _vehicle_box(scan, idx, top, hint, open_ends, cfg, boxfit, pool)
         return _Fit(f.centre, f.heading, f.length, f.width, f.seen_length, f.seen_width, f.completed, f.R, f.shape)
     centre, length, width = REPRESENTATIVES[cfg.fit](xy)
     completed = False
@@ -865,6 +875,27 @@ def _fit(scan: Scan, idx: np.ndarray, top: float, hint: float | None, open_ends:
         completed = True
     return _Fit(centre, _principal_angle(xy), length, width, length, width, completed,
                 DEFAULT_STD_M**2 * np.eye(2), "vehicle")
+
+
+def _vehicle_box(scan: Scan, idx: np.ndarray, top: float, hint: float | None, open_ends: tuple[bool, bool] | None,
+                 cfg: PerceptionConfig, boxfit: BoxFitConfig, pool: np.ndarray | None) -> BoxFit:
+    """boxfit.fit_vehicle_box of the points idx; for a class whose length is grown from the seen side
+    (SizePrior.min_length_m > 0: trucks) whose azimuth ends are not occluded, refitted with the points of
+    `pool` that continue its seen side (boxfit.side_continuation: the clustering leaves a side seen at a
+    grazing angle as noise and fragments)."""
+    pts, road_z = scan.points, cfg.ground.ground_z_m
+    f = _fit_vehicle_box(pts[idx, :2], scan.origin[:2], top_m=float(top), heading_hint=hint, open_ends=open_ends,
+                         cfg=boxfit, z=pts[idx, 2] - road_z)  # checked inputs
+    if pool is None or len(pool) == 0 or boxfit.prior(top).min_length_m <= 0 or (open_ends and any(open_ends)):
+        return f
+    more = pool[side_continuation(f, pts[pool, :2], pts[pool, 2] - road_z, scan.origin[:2],
+                                  max_length_m=cfg.max_truck_length_m, cfg=boxfit)]
+    more = np.setdiff1d(more, idx)
+    if len(more) == 0:
+        return f
+    both = _canonical(pts, np.concatenate([idx, more]))
+    return _fit_vehicle_box(pts[both, :2], scan.origin[:2], top_m=float(top), heading_hint=hint,
+                            open_ends=open_ends, cfg=boxfit, z=pts[both, 2] - road_z)
 
 
 def _open_ends(scan: Scan, st: _Stats, keys: np.ndarray, margin_m: float = 0.5,

@@ -119,12 +119,18 @@ def _frames(scn, tracker, sim, static, road, rngs, recorder, tables, watch, stat
     moving = MovingTest(scn.moving_test)
     tracks: tuple = ()
     next_id = 1
+    trucks: dict[int, bool] = {}
     for truth in sim.frames():
         watch.lap("simulation")
         scan, perc, dets = _sense(truth, static, scn, rngs, watch, road)
-        pd = pd_input(scan) if pd_input is not None else None
+        live = np.array([trucks.get(t.id, False) for t in tracks if not t.candidate], dtype=bool)
+        pd = pd_input(scan, live) if pd_input is not None else None
         result = overflows.call(tracker.step, tracks, dets.z, scn.dt if truth.frame > 0 else 0.0, next_id, pd=pd)
         tracks, next_id = result.tracks, result.next_id
+        if pd_input is not None:
+            alive = {t.id for t in tracks}
+            trucks = {k: v for k, v in truck_tracks(result.info.ids, result.info.W, dets.extent[:, 0], trucks).items()
+                      if k in alive}
         reported = tuple(t for t in tracks if not t.candidate)  # candidates await a second measurement
         kin = tracker.kinematics(reported)
         status = track_status(reported, kin, moving, truth.time)
@@ -265,6 +271,26 @@ def road_map(network) -> sensors.RoadMap:
     return sensors.RoadMap(*lane_centres(network))
 
 
+TRUCK_BOX_M = (15.4, 2.5, 3.5)
+"""(length, width, height) [m] of the truck box of the occlusion-aware P_D: the box fit's truck prior
+(sensors/boxfit.py); the rear face of a 12-18.75 m truck lies within the 2 m margin of its entry."""
+
+
+TRUCK_MIN_LENGTH_M = 7.0
+"""A detection longer than this [m] is a truck's (the box fit's truck boxes are at least 7.5 m long)."""
+
+
+def truck_tracks(ids: np.ndarray, W: np.ndarray, lengths: np.ndarray, known: dict[int, bool]) -> dict[int, bool]:
+    """``known`` (track id -> truck) updated from one step: a track whose association weight W (T, M) on one
+    detection exceeds 1/2 takes that detection's class (``lengths`` (M,) [m] > :data:`TRUCK_MIN_LENGTH_M`)."""
+    out = dict(known)
+    if W.size:
+        best = np.argmax(W, axis=1)
+        for t in np.flatnonzero(W[np.arange(len(ids)), best] > 0.5):
+            out[int(ids[t])] = bool(lengths[best[t]] > TRUCK_MIN_LENGTH_M)
+    return out
+
+
 def occlusion_pd(scn: Scenario, pd: float, road: sensors.RoadMap):
     """The tracker's per-track P_D input, per scan: ``occlusion_pd(...)(scan)`` is a function of the predicted
     positions (T, 2) -> (T,).
@@ -273,15 +299,26 @@ def occlusion_pd(scn: Scenario, pd: float, road: sensors.RoadMap):
     the position (heading along the road) in view, near 0 (at least ``sensor.occlusion_pd_floor``) in the
     shadow of a nearer object or where no beam reaches a car (sensors/occlusion.py): a hidden car's track
     coasts without losing score. Beyond the range: the nominal ``pd``, so a track leaving the sensor's reach
-    loses score and is deleted as without this input (a P_D of 0 there would keep it forever)."""
+    loses score and is deleted as without this input (a P_D of 0 there would keep it forever).
+
+    ``for_scan(scan, trucks)``: ``trucks`` (T,) bool marks the tracks whose last associated detection was
+    truck-long (:func:`truck_tracks`); their P_D is that of a truck-sized box (:data:`TRUCK_BOX_M`). With the
+    car box a truck's own rear face, 6-9 m before its centre and so nearer than a car box's entry, "blocked"
+    the view of it: a truck 20 m behind, hit by 1000 points a scan, got P_D 0 and its track was never updated.
+    (A truck box for every track would not do: the car just ahead of a hidden car then lies at the box's
+    entry and no longer hides it.)"""
     lidar = scn.sensor.lidar
     cfg = sensors.OcclusionConfig.from_lidar(lidar, pd_nominal=pd, min_points=scn.sensor.perception.cluster.min_points)
     floor = min(scn.sensor.occlusion_pd_floor, pd)
 
-    def for_scan(scan: sensors.Scan):
+    def for_scan(scan: sensors.Scan, trucks: np.ndarray | None = None):
         def pd_of(z_hat: np.ndarray) -> np.ndarray:
             xy = z_hat[:, :2]
-            occ = sensors.detection_probability(scan, xy, cfg, heading=road.heading_at(xy) if len(xy) else None)
+            heading = road.heading_at(xy) if len(xy) else None
+            occ = sensors.detection_probability(scan, xy, cfg, heading=heading)
+            if trucks is not None and trucks.any():
+                occ[trucks] = sensors.detection_probability(scan, xy[trucks], cfg, size_m=TRUCK_BOX_M,
+                                                            heading=None if heading is None else heading[trucks])
             beyond = np.hypot(xy[:, 0] - scan.origin[0], xy[:, 1] - scan.origin[1]) > lidar.max_range_m
             return np.where(beyond, pd, np.maximum(occ, floor))
 

@@ -47,7 +47,7 @@ def test_listings():
     assert proc.returncode == 0
     names = [line.split()[0] for line in proc.stdout.splitlines()]
     assert names == sorted(["convoy", "cut_in_out", "interchange", "straight_curve", "u_turn", "highway_benchmark",
-                            "merge", "roundabout"])
+                            "merge", "roundabout", "dense_motorway"])
     assert "merge-v0" in proc.stdout and "motorway" in proc.stdout
     assert "INVALID" not in proc.stdout
     proc = _cli("trackers")

@@ -266,8 +266,9 @@ def _random_scene(rng, truck: bool):
 @pytest.mark.parametrize("truck", [False, True])
 def test_covariance_is_calibrated_on_ray_cast_vehicles(truck):
     """Normalised squared centre errors e' R^-1 e, chi-square(2) if R were exact (mean 2). Measured with a
-    hint: cars mean 1.4-1.5, trucks 2.0-2.1 (4 seeds); mean centre error cars 0.10 m (centroid 1.2 m),
-    trucks 0.14-0.16 m (centroid 2.7-2.9 m)."""
+    hint: cars mean 1.4-1.5, trucks 0.8-1.05 (4 seeds; 1.8-2.1 before issue 17 grew a truck's length from
+    its seen side: its along-axis error halved, 0.05 m, under R's 0.05 m floor); mean centre error cars
+    0.10 m (centroid 1.2 m), trucks 0.07-0.09 m (centroid 2.7-2.9 m)."""
     rng = np.random.default_rng(17 if truck else 11)
     nees = {True: [], False: []}
     errors, centroid_errors = [], []
@@ -296,7 +297,7 @@ def test_covariance_is_calibrated_on_ray_cast_vehicles(truck):
         assert np.mean(values > 13.8) < 0.03  # chi-square(2) 99.9 % point: no heavy tail
     # with a road hint (the pipeline's default) the mean too; without one, a truck side cut short by an
     # occluder can be taken for its rear (1 in 160 views), which the mean does not forgive
-    assert 1.0 < np.mean(nees[True]) < 3.0
+    assert (0.6 if truck else 1.0) < np.mean(nees[True]) < 3.0
     assert np.mean(errors) < np.mean(centroid_errors) / 5
 
 

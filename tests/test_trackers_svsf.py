@@ -136,7 +136,7 @@ def test_gc_svsf_update_matches_ncv_closed_form():
     K_l,jj = E_y,j / max(|e_j| / Ts, psi_y) / Ts; P* by (4.37); PDA combination (4.16)-(4.17)."""
     rng = np.random.default_rng(4)
     g, psi_z, psi_y = 0.1, 4.0, 7.0
-    flt = GeneralisedSVSF(*cv(), gamma=g, gamma_y=g, psi_z=(psi_z, psi_z), psi_y=psi_y)
+    flt = GeneralisedSVSF(*cv(), gamma=g, gamma_y=g, psi_z=(psi_z, psi_z), psi_y=psi_y, covariance="joseph")
     sp = predicted(flt, rng)
     e_prev = sp.e_post
     nu, beta, beta0 = pda_inputs(rng)
@@ -158,7 +158,7 @@ def test_svsf_artificial_update_matches_closed_form():
     """Standard SVSF with the artificial velocity measurement of [17] (thesis §4.5.1): H_bar = I, R_bar, and
     K = diag(E o sat(e, psi)) diag(e)^-1 (2.30) on z_bar = [z; (z - z_prev)/tau]; Joseph P* (2.31)."""
     rng = np.random.default_rng(5)
-    flt = make_filter("svsf", sigma_v=SV, sigma_w=SW, gamma=0.2, psi=5.0, psi_v=4.0)
+    flt = make_filter("svsf", sigma_v=SV, sigma_w=SW, gamma=0.2, psi=5.0, psi_v=4.0, covariance="joseph")
     s0 = flt.initial_state(np.array([0.0, 0.0, 10.0, 2.0]), np.diag([9.0, 9.0, 4.0, 4.0]))
     s1 = flt.update(flt.predict(s0, DT), np.array([[1.0, -2.0]]), np.ones(1), 0.0)  # first update: positions only
     np.testing.assert_array_equal(s1.x[2:], s0.x[2:])
@@ -366,9 +366,10 @@ def s21(eps):
 
 def s21_filters():
     return {"kf": make_filter("kf", sigma_v=S21_SV, sigma_w=S21_SW),
-            "svsf": make_filter("svsf", sigma_v=S21_SV, sigma_w=S21_SW),
+            "svsf": make_filter("svsf", sigma_v=S21_SV, sigma_w=S21_SW, covariance="joseph"),  # (2.31) as printed
             # the literal ch. 2 form: sign(e / psi) of (2.10) (psi -> 0) and C^+ of (2.10)/(2.30)
-            "literal": make_filter("svsf", sigma_v=S21_SV, sigma_w=S21_SW, psi=1e-6, unmeasured="pinv")}
+            "literal": make_filter("svsf", sigma_v=S21_SV, sigma_w=S21_SW, psi=1e-6, unmeasured="pinv",
+                                   covariance="joseph")}
 
 
 def s21_results(n_runs, seed):

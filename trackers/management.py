@@ -8,10 +8,23 @@ Score L of a track = log likelihood ratio 'real target' vs 'clutter', updated ad
     delete tentative:     L <= T_d = ln(beta_TM / (1 - alpha_FC))
     delete confirmed:     max_score - L >= delta_del; by default (coast_scans + 1/2) |ln(1 - P_D P_G)|,
                           so a confirmed track coasts through `coast_scans` missed scans in a row.
+    tentative grace [D]:  a tentative track is judged against T_d + (tentative_misses - 1) ln(1 - P_D P_G), so a
+                          two-point initiation survives one missed scan; its score uses the nominal P_D (a
+                          caller's P_D of ~0 in a sensor shadow never keeps a tentative track alive).
 m-of-n (thesis §1.3.4, the alternative): confirm with >= m detections in the last n scans; delete a
 tentative track that can no longer reach m; delete a confirmed one after coast_scans + 1 misses in a row.
-Duplicates [D]: a confirmed track whose prediction stays within `merge_d2` (Mahalanobis, combined S) of an
-older confirmed track while they share gated measurements for `merge_scans` scans is deleted.
+Life bounds [D] (whatever the manager and the P_D; as Stone Soup's CovarianceBasedDeleter and
+UpdateTimeDeleter): a track whose position standard deviation (square root of the largest eigenvalue of its
+position covariance after the scan) exceeds `max_position_std_m`, or that has gone `max_unseen_s` without a
+gated measurement, is deleted: a track the sensor cannot see (P_D ~ 0, so no score loss) coasts until what is
+known about it is no longer worth a track.
+Initiation [D]: a measurement starts a track unless it lies in the gate of a track that is well localised
+(gate standard deviation, sqrt of the largest eigenvalue of S, at most `claim_std_m`): the huge gate of a
+coasting track does not block new tracks.
+Duplicates [D]: two confirmed tracks sharing a gated measurement whose predicted positions lie within
+`merge_d2` of each other, in the squared Mahalanobis distance under the smaller of their two S (the better
+localised one's), are a duplicate pair; the worse of the two (more scans since its last detection, then the
+larger |S|, then the younger label) is deleted after `merge_scans` such scans in a row.
 KS deletion (paper 002, optional): every track carries a regime from the KS track regime detector
 (trackers.trackloss.regime); `deletion = "ks"` deletes a confirmed track whose regime is track-lost instead of
 by the manager's rule, "manager+ks" by either; the default "manager" leaves deletion as above.
@@ -67,9 +80,24 @@ class ManagementParams:
     confirm_m: int = param(3, "m_of_n: detections needed ...", check=POSITIVE, bounds=(1, WINDOW_MAX))
     confirm_n: int = param(5, "m_of_n: ... in the last n scans", check=POSITIVE, bounds=(1, WINDOW_MAX))
     merge_d2: float = param(4.0, "duplicate test: squared Mahalanobis distance between two confirmed tracks' "
-                            "predicted positions (0 disables pruning)", check=NON_NEGATIVE)
-    merge_scans: int = param(5, "duplicate test: scans in a row before the younger track is deleted",
-                             check=POSITIVE)
+                            "predicted positions under the smaller of their S (0 disables pruning)",
+                            check=NON_NEGATIVE)
+    merge_scans: int = param(5, "duplicate test: scans in a row before the worse track of a pair (less recently "
+                             "detected, then less well localised, then younger) is deleted", check=POSITIVE)
+    max_position_std_m: float | None = param(7.5, "delete a track whose position std (sqrt of the largest "
+                                             "eigenvalue of its position covariance) exceeds this [m]; default: "
+                                             "two 3.75 m lanes, beyond which it cannot tell three lanes apart "
+                                             "[D]; None: no bound", check=POSITIVE)
+    max_unseen_s: float | None = param(5.0, "delete a track without a gated measurement for longer than this [s], "
+                                       "whatever its P_D; default: a car passing a 15 m truck at 3 m/s relative "
+                                       "speed [D]; None: no bound", check=POSITIVE)
+    claim_std_m: float | None = param(2.0, "a measurement in the gate of a track whose gate std (sqrt of the "
+                                      "largest eigenvalue of S) is at most this [m] starts no new track; larger "
+                                      "gates do not block initiation; default: about half a lane [D]; None: every "
+                                      "gate blocks (the thesis's rule)", check=POSITIVE)
+    tentative_misses: int = param(2, "missed scans in a row a tentative track may take below the SPRT deletion "
+                                  "threshold: it is judged against T_d + (tentative_misses - 1) ln(1 - P_D P_G) "
+                                  "(1: the plain SPRT) [D]", check=POSITIVE, bounds=(1, WINDOW_MAX))
     history_length: int = param(32, "scans of innovations, S, gated counts and gate volumes kept per track "
                                 "(at least the KS regime window)", check=POSITIVE, bounds=(1, WINDOW_MAX))
     deletion: str = param("manager", "manager: the manager's own deletion (score drop or m-of-n misses); ks: a "
@@ -135,13 +163,20 @@ def score_increment(log_lik: np.ndarray, gated: np.ndarray, pd: np.ndarray | flo
 
 
 def score_decide(score: np.ndarray, max_score: np.ndarray, confirmed: np.ndarray, mp: ManagementParams,
-                 drop: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                 drop: float | np.ndarray, miss_loss: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """SPRT confirmation and deletion: (confirmed_after (T,) bool, delete (T,) bool). Confirmation is checked
-    first, so a track confirmed in this scan is judged by the confirmed-track rule; drop: deletion drop (T,)."""
+    first, so a track confirmed in this scan is judged by the confirmed-track rule; drop: deletion drop (T,);
+    miss_loss = -ln(1 - P_D P_G) >= 0, the score one missed scan costs (the tentative grace)."""
     confirmed = np.asarray(confirmed, dtype=bool) | (score >= mp.confirm_threshold)  # §7.2 confirm
+    tentative_floor = mp.delete_threshold - (mp.tentative_misses - 1) * miss_loss  # [D] tentative grace
     delete = np.where(confirmed, max_score - score >= drop,  # §7.2 delete confirmed on score drop
-                      score <= mp.delete_threshold)  # §7.2 delete tentative
+                      score <= tentative_floor)  # §7.2 delete tentative
     return confirmed, delete
+
+
+def miss_loss(pd: float, pg: float) -> float:
+    """-ln(1 - P_D P_G): the score a missed scan costs (inf when P_D P_G = 1)."""
+    return -math.log1p(-pd * pg) if pd * pg < 1 else math.inf
 
 
 def m_of_n_decide(detected: np.ndarray, misses_in_a_row: np.ndarray, confirmed: np.ndarray,
@@ -157,25 +192,38 @@ def m_of_n_decide(detected: np.ndarray, misses_in_a_row: np.ndarray, confirmed: 
 
 
 def duplicate_counts(z_hat: np.ndarray, S: np.ndarray, gated: np.ndarray, confirmed: np.ndarray,
-                     ids: np.ndarray, counts: np.ndarray, merge_d2: float) -> np.ndarray:
-    """Scans in a row (T,) each confirmed track has sat on an older confirmed track: its predicted measurement
-    within `merge_d2` of the older one's under S_t + S_s, sharing at least one gated measurement."""
+                     ids: np.ndarray, counts: np.ndarray, merge_d2: float, misses: np.ndarray) -> np.ndarray:
+    """Scans in a row (T,) each confirmed track has been the worse of a duplicate pair (module docstring): two
+    confirmed tracks sharing a gated measurement, predicted measurements z_hat (T, m) within `merge_d2` under the
+    smaller (by determinant) of their S (T, m, m). The worse one has more misses (T,) in a row, then the larger
+    |S|, then the larger (younger) id."""
     out = np.zeros(len(ids), dtype=np.int64)
     conf = np.flatnonzero(confirmed)
     if merge_d2 <= 0 or conf.size < 2:
         return out
     g = gated[conf]
     share = (g.astype(np.int64) @ g.T.astype(np.int64)) > 0  # (C, C) share a gated measurement
-    older = ids[conf][None, :] < ids[conf][:, None]  # [t, s]: s is older than t
-    cand = np.argwhere(share & older)
+    cand = np.argwhere(np.triu(share, k=1))
     if cand.size == 0:
         return out
-    t, s_ = conf[cand[:, 0]], conf[cand[:, 1]]
-    d = z_hat[s_] - z_hat[t]
-    d2 = np.einsum("ki,ki->k", d, np.linalg.solve(S[s_] + S[t], d[..., None])[..., 0])
-    on = np.unique(t[d2 <= merge_d2])
+    a, b = conf[cand[:, 0]], conf[cand[:, 1]]
+    logdet = np.linalg.slogdet(S)[1]
+    tight = np.where(logdet[a] <= logdet[b], a, b)  # the better localised of each pair
+    d = z_hat[a] - z_hat[b]
+    d2 = np.einsum("ki,ki->k", d, np.linalg.solve(S[tight], d[..., None])[..., 0])
+    rank = np.stack([misses, logdet, ids.astype(np.float64)], axis=1)  # larger is worse, lexicographically
+    a_worse = np.array([tuple(rank[i]) > tuple(rank[j]) for i, j in zip(a, b)], dtype=bool)
+    worse = np.where(a_worse, a, b)
+    on = np.unique(worse[d2 <= merge_d2])
     out[on] = counts[on] + 1
     return out
+
+
+def position_std(P_pos: np.ndarray) -> np.ndarray:
+    """sqrt of the largest eigenvalue (T,) of position covariances P_pos (T, d, d) [m]."""
+    if len(P_pos) == 0:
+        return np.zeros(0)
+    return np.sqrt(np.maximum(np.linalg.eigvalsh(P_pos)[:, -1], 0.0))
 
 
 MANAGERS = ("score", "m_of_n")

@@ -17,8 +17,8 @@ from trackers.association.roles import AssociationInput, AssociatorKind, Associa
 from trackers.filters.base import Filter, batch_predict, batch_predicted_measurements, batch_update
 from trackers.gating import gate, gate_probability, mahalanobis2_and_log_gaussian
 from trackers.initiation import pair_candidates, single_point, two_point
-from trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, score_decide,
-                                 score_increment)
+from trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
+                                 position_std, score_decide, score_increment)
 from trackers.state import FilterState
 from trackers.trackloss.regime import (RegimeState, advance, alpha_of, assess_window, gamma_best_fast, initial_state,
                                       window_from_history)
@@ -48,7 +48,7 @@ class Track:
     """id: label (new one per initiation); state: filter state after the last update; score, max_score:
     track LLR score and its running maximum; confirmed; age: scans since birth (1 at birth);
     hits: scans with at least one gated measurement (birth counts); misses_in_a_row: consecutive
-    scans without one; candidate: a one-measurement track candidate waiting for a second measurement
+    scans without one; unseen_s: time since the last scan with one [s]; candidate: a one-measurement track candidate waiting for a second measurement
     (two-point initiation; id -1, not associated, not reported); history: the last
     max(`history_length`, the regime window) ScanRecords, oldest first; duplicate_scans: scans in a row spent
     on an older track; regime: the KS track regime detector's verdict of the last scan (paper 002): "unknown"
@@ -64,6 +64,7 @@ class Track:
     hits: int
     misses_in_a_row: int
     candidate: bool = False
+    unseen_s: float = 0.0
     history: tuple[ScanRecord, ...] = ()
     duplicate_scans: int = 0
     regime: str = "unknown"
@@ -191,10 +192,10 @@ class Tracker:
         inp = self._gate(pred, Z, self._pd(pd, pred))
         W, w0, extra = self._associate(inp)
         states = batch_update(self.filter, pred.states, inp.nu, W, w0)
-        survivors, deleted, diag = self._manage(live, states, inp, W, w0, pred)
+        survivors, deleted, diag = self._manage(live, states, inp, W, w0, pred, dt)
         for k, v in extra.items():
             diag[k] = np.asarray(v, dtype=np.float64)
-        births, next_id = self._initiate(candidates, Z, inp, dt, next_id)
+        births, next_id = self._initiate(candidates, live, Z, inp, dt, next_id, pred)
         info = StepInfo(ids=np.array([tr.id for tr in live], dtype=np.int64).reshape(len(live)), z_hat=pred.z_hat,
                         S=pred.S, gated=inp.gated, W=W, w0=w0, layers=pred.layers, diagnostics=diag)
         return StepResult(tracks=tuple(survivors + births), next_id=int(next_id), deleted=tuple(deleted), info=info)
@@ -240,32 +241,42 @@ class Tracker:
         return W, w0, (out[2] if len(out) > 2 else {})
 
     def _score(self, live, inp: AssociationInput, W: np.ndarray) -> np.ndarray:
+        """Scores after this scan. A tentative track's increment uses the nominal P_D [D]: a caller's P_D of ~0
+        (a sensor shadow) keeps a confirmed track's score, never a tentative one alive."""
         score = np.array([tr.score for tr in live], dtype=np.float64).reshape(len(live))
+        confirmed = np.array([tr.confirmed for tr in live], dtype=bool).reshape(len(live))
+        pd = np.where(confirmed, inp.pd, np.maximum(inp.pd, self.association.pd))
         lam = self.association.clutter_density
         if self.management.score_mode == "gate":
-            return score + score_increment(inp.log_lik, inp.gated, inp.pd, inp.pg, lam)  # §7.2 / (1.35)
+            return score + score_increment(inp.log_lik, inp.gated, pd, inp.pg, lam)  # §7.2 / (1.35)
         # "exclusive" [D]: L_ti weighted by rho_ti = 1 - sum_{s != t} W[s, i] (no other track claims z_i)
         rho = np.clip(1.0 - (W.sum(axis=0)[None, :] - W), 0.0, 1.0)
         with np.errstate(divide="ignore"):
-            return score + score_increment(inp.log_lik + np.log(rho), inp.gated & (rho > 0.0), inp.pd, inp.pg, lam)
+            return score + score_increment(inp.log_lik + np.log(rho), inp.gated & (rho > 0.0), pd, inp.pg, lam)
 
-    def _manage(self, live, states, inp: AssociationInput, W, w0, pred: _Prediction):
+    def _manage(self, live, states, inp: AssociationInput, W, w0, pred: _Prediction, dt: float):
         mp, T = self.management, len(live)
         hit = inp.gated.any(axis=1)
         score = self._score(live, inp, W)
         max_score = np.maximum(np.array([tr.max_score for tr in live], dtype=np.float64).reshape(T), score)
         was_confirmed = np.array([tr.confirmed for tr in live], dtype=bool)
         misses = np.array([0 if hit[t] else tr.misses_in_a_row + 1 for t, tr in enumerate(live)], dtype=np.int64)
+        unseen = np.array([0.0 if hit[t] else tr.unseen_s + dt for t, tr in enumerate(live)], dtype=np.float64)
         records, diag = self._records(states, inp, W, hit)
         if self.manager == "m_of_n":
             det, known = self._windows(live, hit)
             confirmed, delete = m_of_n_decide(det, misses, was_confirmed, mp, known)
         else:  # the drop follows the nominal P_D: a track whose caller-given P_D is 0 is not deleted for it
             drop = mp.deletion_drop(self.association.pd, inp.pg)
-            confirmed, delete = score_decide(score, max_score, was_confirmed, mp, drop)
+            confirmed, delete = score_decide(score, max_score, was_confirmed, mp, drop,
+                                             miss_loss(self.association.pd, inp.pg))
+        std = self._position_std(states)
+        diag["position_std"] = std
+        delete = delete | self._beyond_bounds(std, unseen)
         ids = np.array([tr.id for tr in live], dtype=np.int64).reshape(T)
         dup = duplicate_counts(pred.z_hat, pred.S, inp.gated, confirmed & was_confirmed, ids,
-                               np.array([tr.duplicate_scans for tr in live], dtype=np.int64).reshape(T), mp.merge_d2)
+                               np.array([tr.duplicate_scans for tr in live], dtype=np.int64).reshape(T), mp.merge_d2,
+                               misses)
         keep = max(mp.history_length, mp.regime_config.longest)
         histories = [(tr.history + (records[t],))[-keep:] for t, tr in enumerate(live)]
         regimes = self._regimes(live, histories, diag)
@@ -279,12 +290,32 @@ class Tracker:
         for t, tr in enumerate(live):
             new = _evolve(tr, state=states[t], score=float(score[t]), max_score=float(max_score[t]),
                           confirmed=bool(confirmed[t]), age=tr.age + 1, hits=tr.hits + int(hit[t]),
-                          misses_in_a_row=int(misses[t]), duplicate_scans=int(dup[t]), history=histories[t],
+                          misses_in_a_row=int(misses[t]), unseen_s=float(unseen[t]), duplicate_scans=int(dup[t]),
+                          history=histories[t],
                           regime=regimes[t].label, regime_state=regimes[t])
             (deleted if delete[t] else survivors).append(new)
         diag["score"] = score
         diag["w0"] = np.asarray(w0, dtype=np.float64)
         return survivors, deleted, diag
+
+    def _position_std(self, states) -> np.ndarray:
+        """Position standard deviation (T,) [m] of each updated state: sqrt of the largest eigenvalue of the
+        position block of the filter's output covariance."""
+        pos = np.array(list(self.filter.motion.position))
+        P = np.array([self.filter.output(s)[1][np.ix_(pos, pos)] for s in states]).reshape(len(states), pos.size,
+                                                                                            pos.size)
+        return position_std(P)
+
+    def _beyond_bounds(self, std: np.ndarray, unseen: np.ndarray) -> np.ndarray:
+        """(T,) tracks past the life bounds [D]: position std above max_position_std_m or unseen for longer
+        than max_unseen_s (module trackers.management), whatever their P_D."""
+        mp = self.management
+        out = np.zeros(len(std), dtype=bool)
+        if mp.max_position_std_m is not None:
+            out |= std > mp.max_position_std_m
+        if mp.max_unseen_s is not None:
+            out |= unseen > mp.max_unseen_s + 1e-9
+        return out
 
     def _regimes(self, live, histories, diag: dict[str, np.ndarray]) -> list[RegimeState]:
         """Each track's KS regime after this scan (paper 002 §V) from its history, with the manager's clutter
@@ -337,13 +368,19 @@ class Tracker:
                 _expand(name, v, T, diag, t)
         return records, diag
 
-    def _initiate(self, candidates, Z: np.ndarray, inp: AssociationInput, dt: float, next_id: int):
-        """New tentative tracks from measurements in no gate (§7.2): at once ("single") or from a candidate of
-        the previous scan paired within reach ("two_point", [D]). A candidate keeps its position in x[:d]."""
+    def _initiate(self, candidates, live, Z: np.ndarray, inp: AssociationInput, dt: float, next_id: int,
+                  pred: _Prediction):
+        """New tentative tracks from measurements in no gate of a well-localised or just-detected live track
+        (§7.2; `claim_std_m` [D]): at once ("single") or from a candidate of the previous scan paired within reach ("two_point",
+        [D]). A candidate keeps its position in x[:d]."""
         mp, flt, meas = self.management, self.filter, self.filter.measurement
         lam, pd = self.association.clutter_density, self.association.pd
         score0 = initial_score(mp, lam, pd)
-        free = np.flatnonzero(~inp.gated.any(axis=0))
+        claims = inp.gated
+        if mp.claim_std_m is not None and len(pred.S):  # a track detected last scan always claims: a young one's
+            fresh = np.array([tr.misses_in_a_row == 0 for tr in live], dtype=bool).reshape(len(live))  # S is wide
+            claims = claims & ((position_std(pred.S) <= mp.claim_std_m) | fresh)[:, None]
+        free = np.flatnonzero(~claims.any(axis=0))
         out, used = [], set()
 
         def new(state, score, label, age, candidate=False):

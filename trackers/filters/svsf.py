@@ -8,12 +8,22 @@ Shared pieces (also used by `gvbl.py`):
   stored in the state (for NCV Phi12 = dt I, Phi22 = I; for the 5-D CT model Phi12 is 2 x 3 and its
   Moore-Penrose pseudo-inverse is used [D], in the GVBL-SVSF's E_y and Psi_y only: the
   generalised SVSF's lower gain needs Phi12 invertible, see `GeneralisedSVSF`);
-* `generalised_covariance`: thesis (4.37), which equals the Joseph form for any gain (S = H1 P11 H1^T + R).
+* `generalised_covariance`: thesis (4.37), which equals the Joseph form for any gain (S = H1 P11 H1^T + R);
+* `estimate_mse`: the default covariance of `svsf` and `gc-svsf` (below).
 
 Every update follows the PDA form of thesis §2.1.5/§3.5.1: the a priori measurement error is the combined
 innovation e_{z,k|k-1} := sum_i beta_i nu_i (2.27)/(3.54); the gain is computed from it and the stored
 a posteriori error e_{z,k-1|k-1} (`FilterState.e_post`); the covariance is the PDA combination (4.16)-(4.17)
 with the filter's single-measurement covariance P*; the new memory is e_{z,k|k} = (I - H K) e_{z,k|k-1} (3.65).
+
+Covariance ([R], `covariance = "mse"`, default): (4.37) = P_kf + (K - K_kf) S (K - K_kf)^T is the error
+covariance of a gain that does not depend on the innovation, i.e. its average over e ~ N(0, S). The fixed-layer
+gain |e| / psi does depend on it: when |e| << psi the gain is near 0, P* ~ P and P grows with Q alone, however
+well the target is measured (LiDAR convoy: gates of 1,100-1,500 m^2 against the KF's 20, issue 17). "mse" is
+the mean-square error about the SVSF estimate given the innovations, P_kf + d d^T with d the distance from the
+Kalman estimate (the PDA mixture of these for soft weights, `estimate_mse`): the KF's P when the two agree,
+larger when the SVSF's correction departs from the KF's. It changes P only, never x, the gain or the memory.
+"joseph" keeps (2.12)/(4.37) as printed.
 M = 0 or beta0 = 1 returns the prediction unchanged, so after an empty gate the memory is kept, not reset
 ([D]: the thesis is silent; keeping it is what "no update" means in (4.16)).
 Units: positions m, velocities m/s, boundary-layer widths in the units of the component they bound.
@@ -34,6 +44,7 @@ from trackers.params import POSITIVE, ParamError, param
 from trackers.state import FilterState
 
 EY_MEMORY = ("a_priori", "a_posteriori")
+COVARIANCES = ("mse", "joseph", "short")
 
 
 # ------------------------------------------------------------------------------------------ shared maths
@@ -50,6 +61,25 @@ def generalised_covariance(P: np.ndarray, K: np.ndarray, H: np.ndarray, S: np.nd
     """P - K H P - P H^T K^T + K S K^T (n, n) for any gain K (n, m); S = H P H^T + R (m, m)."""
     KHP = K @ H @ P
     return symmetrise(P - KHP - KHP.T + K @ S @ K.T)  # (4.37), (3.45)-(3.49): generalised SVSF covariance
+
+
+def estimate_mse(P: np.ndarray, H: np.ndarray, R: np.ndarray, x_pred: np.ndarray, x: np.ndarray, nu: np.ndarray,
+                 beta: np.ndarray, beta0: float) -> np.ndarray:
+    """Mean-square error (n, n) about the estimate x (n,) of the PDA posterior of the prior N(x_pred, P (n, n)):
+    beta0 [P + d0 d0^T] + sum_i beta_i [P_kf + d_i d_i^T], d0 = x - x_pred, d_i = x - x_pred - K_kf nu_i,
+    with the Kalman gain K_kf = P H^T S^-1 and P_kf = P - K_kf S K_kf^T, S = H P H^T + R.
+
+    nu (M, m) are the real measurements' innovations, H (m, n), R (m, m), beta (M,), beta0. With one
+    measurement and x = x_pred + K e this is P_kf + (K - K_kf) e e^T (K - K_kf)^T, i.e. (4.37) written as
+    P_kf + (K - K_kf) S (K - K_kf)^T with S replaced by the realised e e^T: the SVSF gain is a function of e,
+    so (4.37) (its average over e ~ N(0, S) for a FIXED gain) is not its error covariance given e. For
+    x = x_pred + K_kf nu_c it is the PDA covariance (4.16)-(4.17) with P* = P_kf."""
+    S = symmetrise(H @ P @ H.T + R)
+    K_kf = np.linalg.solve(S, H @ P).T  # (4.73): the Kalman gain, the optimal-layer SVSF gain
+    P_kf = symmetrise(P - K_kf @ S @ K_kf.T)
+    d0 = x - x_pred
+    D = d0 - nu @ K_kf.T  # (M, n): x minus each measurement's Kalman estimate
+    return symmetrise(beta0 * (P + np.outer(d0, d0)) + (1.0 - beta0) * P_kf + (D.T * beta) @ D)
 
 
 @dataclass(frozen=True)
@@ -138,7 +168,10 @@ class SVSF(ModelFilter):
     """Standard SVSF (thesis ch. 2, §2.1.3 (2.7)-(2.13); PDA form §2.1.5 (2.27)-(2.34)).
 
     K = H^+ diag[(|e_{k|k-1}| + gamma |e_{k-1|k-1}|) o sat(e_{k|k-1}, psi)] diag(e_{k|k-1})^-1   (2.30)
-    P* = (I - K H) P (I - K H)^T + K R K^T (2.31, Joseph, default) or (I - K H) P ("short", (2.54)/(2.89)).
+    P: `estimate_mse` ("mse", default, module docstring), P* = (I - K H) P (I - K H)^T + K R K^T ("joseph",
+    (2.31)) or (I - K H) P ("short", (2.54)/(2.89)), the last two combined by (4.16)-(4.17). "mse" uses the
+    real position measurement only: the artificial velocity measurement adds no information beyond z and
+    z_prev, which the prior already holds.
 
     Fewer measurements than states (m < n), `unmeasured`:
     * "pinv": the literal (2.10)/(2.30) with H^+. For H = [I 0], H^+ = H^T, so the velocity rows of K are
@@ -169,7 +202,7 @@ class SVSF(ModelFilter):
     psi: tuple[float, ...] = (1.0, 1.0)
     psi_v: float | None = None
     unmeasured: str = "artificial"
-    covariance: str = "joseph"
+    covariance: str = "mse"
 
     def __post_init__(self) -> None:
         m = self.measurement.ndim
@@ -179,8 +212,8 @@ class SVSF(ModelFilter):
             raise ValueError(f"SVSF psi must be {m} finite widths > 0, got {self.psi}")
         if self.psi_v is not None and not (math.isfinite(self.psi_v) and self.psi_v > 0):
             raise ValueError(f"SVSF psi_v must be a finite width > 0 or None, got {self.psi_v}")
-        if self.unmeasured not in ("artificial", "pinv") or self.covariance not in ("joseph", "short"):
-            raise ValueError(f"SVSF unmeasured must be artificial|pinv and covariance joseph|short, "
+        if self.unmeasured not in ("artificial", "pinv") or self.covariance not in COVARIANCES:
+            raise ValueError(f"SVSF unmeasured must be artificial|pinv and covariance {'|'.join(COVARIANCES)}, "
                              f"got {self.unmeasured!r}, {self.covariance!r}")
         if self.unmeasured == "artificial" and not (self.measurement.linear and self.motion.linear
                                                     and len(self.motion.velocity) == m
@@ -202,6 +235,22 @@ class SVSF(ModelFilter):
         """The fixed position layer psi (m,) [m]."""
         return np.array(self.psi, dtype=np.float64)
 
+    def augmented(self, s: SVSFState, nu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                                  np.ndarray]:
+        """(H_bar (2m, n), R_bar (2m, 2m), nu_bar (M, 2m), e_prev (2m,), psi (2m,)): the artificial velocity
+        measurement of [17] appended to the position measurement, for the innovations nu (M, m)."""
+        m, tau = self.measurement.ndim, s.tau
+        H, R = self.measurement_jacobian(s), self.measurement.R
+        Hv = np.zeros((m, len(s.x)))
+        Hv[range(m), self.motion.velocity] = 1.0
+        z_hat = self.measurement.h(s.x, self.motion)
+        R_bar = np.block([[R, R / tau], [R / tau, 2.0 * R / tau ** 2]])  # [17]: covariance of [z; (z - z_prev)/tau]
+        nu_bar = np.hstack([nu, (z_hat + nu - s.z_prev) / tau - Hv @ s.x])  # per-measurement augmented innovations
+        e_prev = np.concatenate([s.e_post, s.e_vel if s.e_vel is not None else np.zeros(m)])
+        psi_v = self.psi_v if self.psi_v is not None else 3.0 * np.sqrt(np.diag(R_bar)[m:])  # §2.3 [D] 3 sigma
+        psi = np.concatenate([np.array(self.psi, dtype=np.float64), np.broadcast_to(psi_v, (m,))])
+        return np.vstack([H, Hv]), R_bar, nu_bar, e_prev, psi  # [17] artificial measurement: H_bar = [H; H_v]
+
     def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState:
         """PDA-form SVSF update; nu (M, m) innovations, beta (M,), beta0 (see module docstring)."""
         m = self.measurement.ndim
@@ -209,37 +258,25 @@ class SVSF(ModelFilter):
         if nu.shape[0] == 0 or beta0 == 1.0:
             return s_pred  # (4.16) with beta0 = 1: no update
         s = _promote(SVSFState, s_pred)
-        H, R = self.measurement_jacobian(s), self.measurement.R
-        z_hat = self.measurement.h(s.x, self.motion)
-        nu_c = combined_innovation(nu, beta)  # (2.27) e_{z,k|k-1} := combined innovation
-        z_a = z_hat + nu_c  # (2.32) projected measurement
-        e_prev = s.e_post
-        psi = np.array(self.psi, dtype=np.float64)
+        H0, R0 = self.measurement_jacobian(s), self.measurement.R
+        z_a = self.measurement.h(s.x, self.motion) + combined_innovation(nu, beta)  # (2.32) projected measurement
         with_vel = (self.unmeasured == "artificial" and s.tau > 0.0 and s.z_prev is not None
                     and np.isfinite(s.z_prev).all())
-        if with_vel:
-            tau = s.tau
-            Hv = np.zeros((m, len(s.x)))
-            Hv[range(m), self.motion.velocity] = 1.0
-            H = np.vstack([H, Hv])  # [17] artificial measurement: H_bar = [H; H_v]
-            R = np.block([[R, R / tau], [R / tau, 2.0 * R / tau ** 2]])  # [17]: covariance of [z; (z - z_prev)/tau]
-            v_hat = Hv @ s.x
-            nu = np.hstack([nu, (z_hat + nu - s.z_prev) / tau - v_hat])  # per-measurement augmented innovations
-            nu_c = combined_innovation(nu, beta)
-            e_prev = np.concatenate([s.e_post, s.e_vel if s.e_vel is not None else np.zeros(m)])
-            psi_v = self.psi_v if self.psi_v is not None else 3.0 * np.sqrt(np.diag(R)[m:])  # §2.3 [D] 3 sigma
-            psi = np.concatenate([psi, np.broadcast_to(psi_v, (m,))])
+        H, R, nu_b, e_prev, psi = (self.augmented(s, nu) if with_vel
+                                   else (H0, R0, nu, s.e_post, np.array(self.psi, dtype=np.float64)))
+        nu_c = combined_innovation(nu_b, beta)  # (2.27) e_{z,k|k-1} := combined innovation
         E = np.abs(nu_c) + self.gamma * np.abs(e_prev)  # (2.10) |e_{k|k-1}| + gamma |e_{k-1|k-1}|
         K = np.linalg.pinv(H) * svsf_gain_factor(E, nu_c, psi)  # (2.30) K = H^+ diag(E o sat(e/psi)) diag(e)^-1
-        I_KH = np.eye(len(s.x)) - K @ H
-        if self.covariance == "joseph":
-            P_star = symmetrise(I_KH @ s.P @ I_KH.T + K @ R @ K.T)  # (2.31)/(2.12) Joseph form
-        else:
-            P_star = symmetrise(I_KH @ s.P)  # (2.54)/(2.89) short form as printed
-        P = pda_covariance(s.P, P_star, K, nu, beta, beta0)  # (4.16)-(4.17) with the SVSF P*
         x = s.x + K @ nu_c  # (2.29)
         if not np.isfinite(x).all():
             raise FilterError("SVSF updated state x is not finite")
+        if self.covariance == "mse":
+            P = estimate_mse(s.P, H0, R0, s.x, x, nu, beta, beta0)  # [R] MSE about x given the innovations
+        else:
+            I_KH = np.eye(len(s.x)) - K @ H
+            P_star = (I_KH @ s.P @ I_KH.T + K @ R @ K.T if self.covariance == "joseph"  # (2.31)/(2.12) Joseph
+                      else I_KH @ s.P)  # (2.54)/(2.89) short form as printed
+            P = pda_covariance(s.P, symmetrise(P_star), K, nu_b, beta, beta0)  # (4.16)-(4.17) with the SVSF P*
         check_covariance(P, "SVSF updated covariance P")
         e_post = nu_c - H @ (K @ nu_c)  # (2.34)/(3.65) e_{z,k|k} = (I - H K) e_{z,k|k-1}
         info = {"psi_z": psi[:m], "chatter": np.maximum(0.0, np.abs(nu_c[:m]) - psi[:m])}  # (5.37) chattering
@@ -258,7 +295,8 @@ class GeneralisedSVSF(ModelFilter):
                           (4.29)-(4.30)
     Unmeasured partition: K_l = diag(E_y o sat(e_y, psi_y)) diag(e_y)^-1 Phi22 Phi12^+,  e_y = Phi22 Phi12^+ e,
                           E_y = |e_y| + gamma_y |Phi12^+ e|  (4.33)-(4.34)
-    Covariance:           P* = P - K H P - P H^T K^T + K S K^T,  K = [K_u; K_l]  (4.37)
+    Covariance:           P* = P - K H P - P H^T K^T + K S K^T,  K = [K_u; K_l]  (4.37), covariance = "joseph";
+                          default "mse": `estimate_mse` (module docstring)
     with e = e_{z,k|k-1} the combined innovation (3.54) and Phi from the transition Jacobian of the last
     predict. psi_z (m,) [m] and psi_y are fixed layers; psi_y None uses 3 sqrt(diag(M R M^T)) each scan,
     M = Phi22 Phi12^+ (the 3-sigma width of e_y from measurement noise alone; 3 sigma_w / dt for NCV).
@@ -277,9 +315,12 @@ class GeneralisedSVSF(ModelFilter):
     psi_z: tuple[float, ...] = (1.0, 1.0)
     psi_y: float | None = None
     ey_memory: str = "a_priori"
+    covariance: str = "mse"
 
     def __post_init__(self) -> None:
         m = self.measurement.ndim
+        if self.covariance not in ("mse", "joseph"):
+            raise ValueError(f"GeneralisedSVSF covariance must be mse|joseph, got {self.covariance!r}")
         if not (0.0 <= self.gamma < 1.0 and 0.0 <= self.gamma_y < 1.0):
             raise ValueError(f"GeneralisedSVSF gamma and gamma_y must be in [0, 1), got {self.gamma}, {self.gamma_y}")
         if len(self.psi_z) != m or not all(math.isfinite(p) and p > 0 for p in self.psi_z):
@@ -315,8 +356,9 @@ class GeneralisedSVSF(ModelFilter):
                  else 3.0 * np.sqrt(np.maximum(np.diag(M @ R @ M.T), 1e-300)))  # [D] 3-sigma of e_y from R
         K_l = svsf_gain_factor(E_y, e_y, psi_y)[:, None] * M  # (4.33) diag(E_y o sat(e_y/psi_y)) diag(e_y)^-1 M
         K = part.assemble(K_u, K_l)
-        P = pda_covariance(s_pred.P, generalised_covariance(s_pred.P, K, H, S), K, nu, beta, beta0)  # (4.16), (4.37)
         x = s_pred.x + K @ e  # (4.35)
+        P = (estimate_mse(s_pred.P, H, R, s_pred.x, x, nu, beta, beta0) if self.covariance == "mse"  # [R]
+             else pda_covariance(s_pred.P, generalised_covariance(s_pred.P, K, H, S), K, nu, beta, beta0))  # (4.37)
         if not np.isfinite(x).all():
             raise FilterError("generalised SVSF updated state x is not finite")
         check_covariance(P, "generalised SVSF updated covariance P")
@@ -344,8 +386,10 @@ class SVSFParams(ModelParams):
     unmeasured: str = param("artificial", "m < n: artificial velocity measurements of [17] (thesis §4.5.1) or "
                             "the literal H^+ of (2.30), which never corrects velocities",
                             choices=("artificial", "pinv"))
-    covariance: str = param("joseph", "P*: Joseph form (2.12)/(2.31) or the short (I - K H) P of (2.54)/(2.89)",
-                            choices=("joseph", "short"))
+    covariance: str = param("mse", "mse: the mean-square error about the SVSF estimate given the innovations "
+                            "(consistent; the KF's P when e = 0); joseph: (2.12)/(2.31) as printed, which grows "
+                            "with Q when the in-layer gain is small; short: (I - K H) P of (2.54)/(2.89)",
+                            choices=COVARIANCES)
 
 
 @dataclass(frozen=True)
@@ -359,6 +403,8 @@ class GCSVSFParams(ModelParams):
                                 check=POSITIVE)
     ey_memory: str = param("a_priori", "gamma_y term of E_y: a priori error (thesis (4.34)) or the previous "
                            "a posteriori error (Habibi's original)", choices=EY_MEMORY)
+    covariance: str = param("mse", "mse: the mean-square error about the estimate given the innovations; "
+                            "joseph: the generalised covariance (4.37) as printed", choices=("mse", "joseph"))
 
 
 def build_svsf(p: SVSFParams) -> SVSF:
@@ -378,4 +424,4 @@ def build_gc_svsf(p: GCSVSFParams) -> GeneralisedSVSF:
     meas = p.measurement_model()
     psi_z = noise_layer(meas.R) if p.psi_z is None else (p.psi_z,) * meas.ndim
     return GeneralisedSVSF(p.motion_model(), meas, gamma=p.gamma, gamma_y=p.gamma if p.gamma_y is None else p.gamma_y,
-                           psi_z=psi_z, psi_y=p.psi_y, ey_memory=p.ey_memory)
+                           psi_z=psi_z, psi_y=p.psi_y, ey_memory=p.ey_memory, covariance=p.covariance)
