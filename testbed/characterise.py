@@ -133,12 +133,12 @@ class Characterisation:
 
 def _frames(scn: Scenario, on_frame: Callable[[int, int], None] | None):
     """(truth, scan, perception result, road map) per frame of ``scn``'s traffic, LiDAR and perception."""
-    from .run import _scan, rng_streams, sensing_setup
+    from .run import scan_frame, rng_streams, sensing_setup
 
     rngs = rng_streams(scn.seed)
     sim, static, road = sensing_setup(scn, rngs)
     for i, truth in enumerate(sim.frames()):
-        scan = _scan(truth, static, scn.sensor.lidar, rngs["lidar"])
+        scan = scan_frame(truth, static, scn.sensor.lidar, rngs["lidar"])
         perc = sensors.perceive(scan, scn.sensor.perception, road)
         yield truth, scan, perc, road
         if on_frame is not None:

@@ -8,9 +8,9 @@ from .config import ConfigError
 
 def cmd_check(args: argparse.Namespace) -> int:
     """Validate a scenario file (with ``--set``) or a campaign file fully without running it; one line."""
-    from .cli import _parse_sets
+    from .config import parse_sets
 
-    print(_check_file(args.file, _parse_sets(args.set or [])))
+    print(_check_file(args.file, parse_sets(args.set or [])))
     return 0
 
 

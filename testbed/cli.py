@@ -15,7 +15,7 @@ import traceback
 import warnings
 from pathlib import Path
 
-from .config import ConfigError
+from .config import ConfigError, parse_sets
 from .check import cmd_check
 from .errors import describe_os_error, exit_code, guarded, interruption, interruption_cause, one_line, signum_of
 from .view import WEB_VIEWER_PORT, cmd_view, port_arg
@@ -32,7 +32,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .outdir import RUN_FILES, Staging
     from .scenario import load_scenario
 
-    overrides = _parse_sets(args.set or [])
+    overrides = parse_sets(args.set or [])
     if args.tracker is not None:
         overrides["tracker.name"] = args.tracker  # "" is refused by the loader, not silently ignored
     if args.seed is not None:
@@ -139,29 +139,12 @@ def _print_run(res, args: argparse.Namespace, out: str) -> None:
         print(f"view it: testbed view {out}")
 
 
-def _parse_sets(items: list[str]) -> dict:
-    """``KEY=VALUE`` pairs, VALUE read as a TOML value (a bare word is a string)."""
-    import tomllib
-
-    out = {}
-    for item in items:
-        key, sep, raw = item.partition("=")
-        if not sep or not key.strip():
-            raise ConfigError("--set", f"{item!r}: expected KEY=VALUE, e.g. sensor.clutter.density_per_m2=0.01")
-        try:
-            value = tomllib.loads(f"v = {raw}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = raw
-        out[key.strip()] = value
-    return out
-
-
 def _cmd_perception(args: argparse.Namespace) -> int:
     from .outdir import REPORT_FILES, Staging
     from .perception_report import check_settings_path, write_settings
     from .scenario import apply_overrides, parse_scenario, read_toml
 
-    base = apply_overrides(read_toml(args.scenario), _parse_sets(args.set or []))  # what --write-settings keeps
+    base = apply_overrides(read_toml(args.scenario), parse_sets(args.set or []))  # what --write-settings keeps
     run = {"seed": args.seed, "duration_s": args.duration}
     data = apply_overrides(base, {k: v for k, v in run.items() if v is not None})
     scn = parse_scenario(data)

@@ -39,12 +39,12 @@ def _join(path: str, key: str | int) -> str:
     return f"{path}.{key}" if path else key
 
 
-def _type_name(tp: Any) -> str:
+def type_name(tp: Any) -> str:
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
-        return " or ".join(_type_name(a) for a in typing.get_args(tp))
+        return " or ".join(type_name(a) for a in typing.get_args(tp))
     if origin is tuple:
-        return f"list of {_type_name(typing.get_args(tp)[0])}"
+        return f"list of {type_name(typing.get_args(tp)[0])}"
     if dataclasses.is_dataclass(tp):
         return "table"
     if tp is type(None):
@@ -65,7 +65,7 @@ def _convert(tp: Any, value: Any, path: str) -> Any:
                 return _convert(arg, value, path)
             except ConfigError:
                 continue
-        raise ConfigError(path, f"expected {_type_name(tp)}, got {value!r}")
+        raise ConfigError(path, f"expected {type_name(tp)}, got {value!r}")
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise ConfigError(path, f"expected a table, got {value!r}")
@@ -124,7 +124,7 @@ def from_dict(cls: type, data: dict, path: str = "") -> Any:
         key_path = _join(path, name)
         if name not in data:
             if field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
-                raise ConfigError(key_path, f"missing required key ({_type_name(hints[name])})")
+                raise ConfigError(key_path, f"missing required key ({type_name(hints[name])})")
             continue
         value = _convert(hints[name], data[name], key_path)
         choices = field.metadata.get("choices")
@@ -264,3 +264,18 @@ def one_line(err: BaseException | str) -> str:
         if line.strip():
             return line.strip()
     return ""
+
+
+def parse_sets(items: list[str]) -> dict:
+    """``KEY=VALUE`` pairs, VALUE read as a TOML value (a bare word is a string)."""
+    out = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError("--set", f"{item!r}: expected KEY=VALUE, e.g. sensor.clutter.density_per_m2=0.01")
+        try:
+            value = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw
+        out[key.strip()] = value
+    return out

@@ -9,7 +9,7 @@ import inspect
 import re
 import typing
 
-from .config import _type_name
+from .config import type_name
 
 HEADER = """# Scenario file keys
 
@@ -80,7 +80,7 @@ def _walk(cls: type, prefix: str, rows: list[tuple[str, str, str, str]]) -> None
             args = [a for a in typing.get_args(tp) if a is not type(None)]
             shown = args[0] if getattr(cls, "PRESET_DEFAULTS", None) and f.name in cls.PRESET_DEFAULTS and len(args) == 1 \
                 else tp
-            rows.append((path, _type_name(shown), _default(f, cls), doc))
+            rows.append((path, type_name(shown), _default(f, cls), doc))
 
 
 TRACKER_HEADER = """## Tracker parameters

@@ -77,7 +77,7 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         out.mkdir(parents=True, exist_ok=True)
     recorder = _recorder(scn, out / "run.rrd", name, sim, static) if out is not None and record else None
     tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(), diagnostics=diagnostics_log())
-    watch = _Stopwatch()
+    watch = Stopwatch()
     state = _Progress()
     overflows = _Overflows()
     try:
@@ -122,7 +122,7 @@ def _frames(scn, tracker, sim, static, road, rngs, recorder, tables, watch, stat
     trucks: dict[int, bool] = {}
     for truth in sim.frames():
         watch.lap("simulation")
-        scan, perc, dets = _sense(truth, static, scn, rngs, watch, road)
+        scan, perc, dets = sense_frame(truth, static, scn, rngs, watch, road)
         live = np.array([trucks.get(t.id, False) for t in tracks if not t.candidate], dtype=bool)
         pd = pd_input(scan, live) if pd_input is not None else None
         result = overflows.call(tracker.step, tracks, dets.z, scn.dt if truth.frame > 0 else 0.0, next_id, pd=pd)
@@ -135,9 +135,9 @@ def _frames(scn, tracker, sim, static, road, rngs, recorder, tables, watch, stat
         kin = tracker.kinematics(reported)
         status = track_status(reported, kin, moving, truth.time)
         watch.lap("tracking")
-        _log_tables(truth, visibility(truth, scan, scn.sensor.lidar.max_range_m), dets, reported, kin, status,
+        log_tables(truth, visibility(truth, scan, scn.sensor.lidar.max_range_m), dets, reported, kin, status,
                     tables["truth"], tables["detections"], tables["tracks"])
-        _log_diagnostics(truth, result.info, tables["diagnostics"])
+        log_diagnostics(truth, result.info, tables["diagnostics"])
         if recorder is not None:
             recorder.frame(truth, scan, perc, dets, reported, kin, result.info, tracker.association.gate_alpha,
                            status)
@@ -242,7 +242,7 @@ class _Overflows:
                 f"{t} tracks x {m} measurements); those clusters used per-track PDA"), stacklevel=3)
 
 
-class _Stopwatch:
+class Stopwatch:
     """Seconds spent per stage: ``lap(stage)`` charges the time since the previous lap to ``stage``."""
 
     def __init__(self):
@@ -336,14 +336,14 @@ def track_status(tracks: tuple, kin: tuple[np.ndarray, np.ndarray], moving: Movi
     return np.where(conf, np.where(moved, "confirmed", "static"), "tentative").astype(object)
 
 
-def _sense(truth, static: np.ndarray, scn: Scenario, rngs: dict, watch: _Stopwatch, road: sensors.RoadMap | None):
+def sense_frame(truth, static: np.ndarray, scn: Scenario, rngs: dict, watch: Stopwatch, road: sensors.RoadMap | None):
     """One frame's LiDAR scan, perception and detections (plus the scenario's added clutter).
 
     ``sensor.outages``: the named vehicles are left out of the ray-cast scene; while the whole sensor is off the
     scan is cast (so the noise streams stay aligned with a run without the outage) and then emptied, and the
     added clutter is drawn and dropped."""
     off, hidden = scn.sensor.outage_at(truth.time)
-    scan = _scan(truth, static, scn.sensor.lidar, rngs["lidar"], hidden=hidden)
+    scan = scan_frame(truth, static, scn.sensor.lidar, rngs["lidar"], hidden=hidden)
     if off:
         scan = empty_scan(scan)
     watch.lap("raycast")
@@ -365,7 +365,7 @@ def empty_scan(scan: sensors.Scan) -> sensors.Scan:
                         azimuths=scan.azimuths, elevations=scan.elevations, pose=scan.pose)
 
 
-def _scan(truth, static: np.ndarray, cfg: sensors.LidarConfig, rng: np.random.Generator,
+def scan_frame(truth, static: np.ndarray, cfg: sensors.LidarConfig, rng: np.random.Generator,
           hidden: frozenset[str] = frozenset()) -> sensors.Scan:
     """One LiDAR turn from the ego car at the vehicles (ego left out) and roadside boxes within reach; the
     vehicles named in ``hidden`` are left out of the scene (a forced loss: no return, no shadow)."""
@@ -429,7 +429,7 @@ def score_tables(scn: Scenario, truth_t, trk_t, n_frames: int) -> tuple[Scores, 
     return scores, metrics
 
 
-def _log_diagnostics(truth, info, diag_t) -> None:
+def log_diagnostics(truth, info, diag_t) -> None:
     """Long format: one row per (track, quantity) of the step's diagnostics (NIS, gate volume, the filters'
     boundary layers and mode probabilities, the associator's extras)."""
     T = len(info.ids)
@@ -443,7 +443,7 @@ def _log_diagnostics(truth, info, diag_t) -> None:
                   track_id=info.ids[rows], name=np.array(names, dtype=object)[cols], value=values[rows, cols])
 
 
-def _log_tables(truth, vis, dets, tracks, kin, status, truth_t, det_t, trk_t) -> None:
+def log_tables(truth, vis, dets, tracks, kin, status, truth_t, det_t, trk_t) -> None:
     k = len(truth.ids)
     truth_t.append(frame=np.full(k, truth.frame), time=np.full(k, truth.time), vehicle_id=truth.ids,
                    name=np.array(truth.names, dtype=object), is_ego=truth.ids == truth.ids[0],

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from testbed.cli import _parse_sets
+from testbed.config import parse_sets
 from testbed.config import ConfigError
 from testbed.keys import keys_markdown
 
@@ -34,12 +34,12 @@ def test_keys_reference_lists_nested_keys_with_defaults():
 
 
 def test_parse_sets_reads_toml_values():
-    got = _parse_sets(["duration_s=5", "sensor.clutter.density_per_m2=1e-2", "tracker.name=pda-kf",
+    got = parse_sets(["duration_s=5", "sensor.clutter.density_per_m2=1e-2", "tracker.name=pda-kf",
                        "roadside.barriers=false", "vehicles.0.lane_changes=[{at_s = 1.0, lane = 0}]"])
     assert got == {"duration_s": 5, "sensor.clutter.density_per_m2": 0.01, "tracker.name": "pda-kf",
                    "roadside.barriers": False, "vehicles.0.lane_changes": [{"at_s": 1.0, "lane": 0}]}
     with pytest.raises(ConfigError, match=r"^--set: 'oops': expected KEY=VALUE"):
-        _parse_sets(["oops"])
+        parse_sets(["oops"])
 
 
 def test_listings():

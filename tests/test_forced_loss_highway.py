@@ -16,7 +16,7 @@ import pytest
 
 from testbed.config import ConfigError
 from testbed.reproduce import seed002_highway as hw
-from testbed.run import _sense, _Stopwatch, occlusion_pd, rng_streams, run_scenario, sensing_setup, visibility
+from testbed.run import sense_frame, Stopwatch, occlusion_pd, rng_streams, run_scenario, sensing_setup, visibility
 from testbed.scenario import OutageSpec, load_scenario
 
 CAR = "right"
@@ -70,8 +70,8 @@ def test_whole_sensor_outage_empties_the_scan_and_keeps_the_noise_aligned():
     off = hw.with_outages(scn, (OutageSpec(0.0, 1.0, ()),))
     truth, static, road, rngs = _first_frame(scn)
     mine = copy.deepcopy(rngs)
-    scan, _, dets = _sense(truth, static, scn, rngs, _Stopwatch(), road)
-    empty, _, none = _sense(truth, static, off, mine, _Stopwatch(), road)
+    scan, _, dets = sense_frame(truth, static, scn, rngs, Stopwatch(), road)
+    empty, _, none = sense_frame(truth, static, off, mine, Stopwatch(), road)
     assert len(scan.points) > 1000 and len(dets.z) >= 3
     assert empty.points.shape == (0, 3) and len(none.z) == 0
     assert empty.ranges.shape == scan.ranges.shape and np.all(np.isinf(empty.ranges))
@@ -86,8 +86,8 @@ def test_a_named_vehicle_vanishes_from_the_scan_and_hides_nothing():
     gone = hw.with_outages(scn, (OutageSpec(0.0, 1.0, (CAR,)),))
     truth, static, road, rngs = _first_frame(scn)
     mine = copy.deepcopy(rngs)
-    scan, _, _ = _sense(truth, static, scn, rngs, _Stopwatch(), road)
-    out, _, dets = _sense(truth, static, gone, mine, _Stopwatch(), road)
+    scan, _, _ = sense_frame(truth, static, scn, rngs, Stopwatch(), road)
+    out, _, dets = sense_frame(truth, static, gone, mine, Stopwatch(), road)
     reach = scn.sensor.lidar.max_range_m
     pts_before, pts_after = visibility(truth, scan, reach)[0], visibility(truth, out, reach)[0]
     k = truth.names.index(CAR)

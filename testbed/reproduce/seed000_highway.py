@@ -37,7 +37,7 @@ import sensors
 from sensors.perception import MERGED
 from testbed.characterise import detection_owners
 from testbed.convoy_points import Association, pda_weights
-from testbed.run import _scan, rng_streams, sensing_setup
+from testbed.run import scan_frame, rng_streams, sensing_setup
 from testbed.safe_io import save_figure, write_text
 from testbed.scenario import Scenario, load_scenario
 from trackers.filters.kalman import KalmanFilter
@@ -149,7 +149,7 @@ def sense(scn: Scenario, target: str = TARGET, bar=None) -> Sensed:
     sim, static, road = sensing_setup(scn, rngs)
     t, truth, zs, kinds, flagged, too_long = [], [], [], [], [], []
     for fr in sim.frames():
-        scan = _scan(fr, static, scn.sensor.lidar, rngs["lidar"])
+        scan = scan_frame(fr, static, scn.sensor.lidar, rngs["lidar"])
         perc = sensors.perceive(scan, scn.sensor.perception, road)
         d = perc.detections
         i = fr.names.index(target)

@@ -21,7 +21,7 @@ tracker and per scenario seed:
 
 Speed: the sensing (ray cast and perception, about 90 % of a run) does not depend on the tracker, so each
 scenario seed is sensed once per outage variant (frames without an active outage are shared: the outage does not
-change the noise streams, testbed/run.py ``_sense``) and every tracker runs on the cached detections through the
+change the noise streams, testbed/run.py ``sense_frame``) and every tracker runs on the cached detections through the
 same per-frame steps as ``testbed.run.run_scenario`` (tests/test_forced_loss_highway.py checks the tables are
 identical). Full: 2 scenarios x 4 seeds x 13 trackers x 7 runs (about 11 min on one core); quick: cut_in_out cut
 to 12 s, 3 trackers, 1 seed (about 15 s).
@@ -135,24 +135,24 @@ def sense_variants(scn: Scenario, outages: dict[str, tuple[OutageSpec, ...]]
     One pass over the traffic: each frame is sensed without outage, and again (from a copy of the noise streams as
     they were before the frame) for each variant whose outage is active then; the other frames are shared.
     ``scn.sensor.outages`` must be empty."""
-    from testbed.run import _sense, _Stopwatch, rng_streams, sensing_setup
+    from testbed.run import sense_frame, Stopwatch, rng_streams, sensing_setup
 
     assert not scn.sensor.outages
     rngs = rng_streams(scn.seed)
     sim, static, road = sensing_setup(scn, rngs)
     scns = {name: with_outages(scn, o) for name, o in outages.items()}
     out: dict[str, list[Sensed]] = {name: [] for name in outages}
-    watch, reach = _Stopwatch(), scn.sensor.lidar.max_range_m
+    watch, reach = Stopwatch(), scn.sensor.lidar.max_range_m
     for truth in sim.frames():
         before = copy.deepcopy(rngs)
-        plain = _slim(truth, *_drop_perc(_sense(truth, static, scn, rngs, watch, road)), reach)
+        plain = _slim(truth, *_drop_perc(sense_frame(truth, static, scn, rngs, watch, road)), reach)
         for name, sv in scns.items():
             off, hidden = sv.sensor.outage_at(truth.time)
             if not (off or hidden):
                 out[name].append(plain)
                 continue
             mine = copy.deepcopy(before)
-            out[name].append(_slim(truth, *_drop_perc(_sense(truth, static, sv, mine, watch, road)), reach))
+            out[name].append(_slim(truth, *_drop_perc(sense_frame(truth, static, sv, mine, watch, road)), reach))
             if any(mine[k].bit_generator.state != rngs[k].bit_generator.state for k in rngs):
                 raise RuntimeError(f"frame {truth.frame}: the outage changed the noise streams' draws")
     return out, road
@@ -178,7 +178,7 @@ def track(scn: Scenario, frames: list[Sensed], road: RoadMap, tracker_name: str)
     """``scn``'s tracker ``tracker_name`` over the sensed ``frames``: the steps of testbed.run's frame loop
     (occlusion-aware P_D, candidates left out, moving-object status, the same tables and scores)."""
     from testbed.moving import MovingTest
-    from testbed.run import _log_diagnostics, _log_tables, occlusion_pd, score_tables, track_status
+    from testbed.run import log_diagnostics, log_tables, occlusion_pd, score_tables, track_status
     from testbed.tables import diagnostics_log, detections_log, tracks_log, truth_log
     from trackers import JPDAOverflowWarning
 
@@ -200,9 +200,9 @@ def track(scn: Scenario, frames: list[Sensed], road: RoadMap, tracker_name: str)
         reported = tuple(t for t in tracks if not t.candidate)
         kin = tracker.kinematics(reported)
         status = track_status(reported, kin, moving, fr.truth.time)
-        _log_tables(fr.truth, fr.vis, fr.dets, reported, kin, status, tables["truth"], tables["detections"],
+        log_tables(fr.truth, fr.vis, fr.dets, reported, kin, status, tables["truth"], tables["detections"],
                     tables["tracks"])
-        _log_diagnostics(fr.truth, result.info, tables["diagnostics"])
+        log_diagnostics(fr.truth, result.info, tables["diagnostics"])
     scores, metrics = score_tables(scn, tables["truth"], tables["tracks"], len(frames))
     return Run(tables, scores, metrics, overflows)
 

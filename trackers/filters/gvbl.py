@@ -52,7 +52,7 @@ import numpy as np
 from trackers.errors import FilterError
 from trackers.filters.base import (ModelFilter, check_covariance, check_weights, cholesky, combined_innovation,
                                    pda_covariance, symmetrise)
-from trackers.filters.svsf import (EY_MEMORY, GAMMA, Partition, _promote, generalised_covariance, lower_error,
+from trackers.filters.svsf import (EY_MEMORY, GAMMA, Partition, promote_state, generalised_covariance, lower_error,
                                    svsf_gain_factor)
 from trackers.filters.params import ModelParams
 from trackers.params import POSITIVE, ParamError, param
@@ -118,7 +118,7 @@ class GVBLSVSF(ModelFilter):
                              f"{self.ey_memory!r}")
 
     def initial_state(self, x0: np.ndarray, P0: np.ndarray) -> GVBLState:
-        return _promote(GVBLState, super().initial_state(x0, P0))
+        return promote_state(GVBLState, super().initial_state(x0, P0))
 
     def layer(self, s_pred: FilterState) -> np.ndarray | None:
         """min(previous |diag Psi_z|, psi_max) (m,) [m]; psi_max before the first update; None if both unknown."""
@@ -134,7 +134,7 @@ class GVBLSVSF(ModelFilter):
         nu, beta, beta0 = check_weights(nu, beta, beta0, self.measurement.ndim)
         if nu.shape[0] == 0 or beta0 == 1.0:
             return s_pred  # (4.16) with beta0 = 1: no update
-        s = _promote(GVBLState, s_pred)
+        s = promote_state(GVBLState, s_pred)
         H, R, P = self.measurement_jacobian(s), self.measurement.R, s.P
         part = Partition.of(H)
         M, Phi12_pinv = part.maps(s.F)

@@ -134,7 +134,7 @@ def lower_error(M: np.ndarray, Phi12_pinv: np.ndarray, e: np.ndarray, e_post: np
     return e_y, np.abs(e_y) + gamma_y * np.abs(Phi12_pinv @ mem)  # (4.34) E_y
 
 
-def _promote(cls: type, s: FilterState) -> FilterState:
+def promote_state(cls: type, s: FilterState) -> FilterState:
     """s as an instance of the FilterState subclass `cls` (extra fields at their defaults)."""
     if isinstance(s, cls):
         return s
@@ -228,7 +228,7 @@ class SVSF(ModelFilter):
 
     def predict(self, s: FilterState, dt: float) -> SVSFState:
         """(E)KF predict (2.7)-(2.8); also advances tau, the time since the last projected measurement."""
-        s = _promote(SVSFState, s)
+        s = promote_state(SVSFState, s)
         return replace(super().predict(s, dt), tau=s.tau + float(dt))
 
     def layer(self, s_pred: FilterState) -> np.ndarray:
@@ -257,7 +257,7 @@ class SVSF(ModelFilter):
         nu, beta, beta0 = check_weights(nu, beta, beta0, m)
         if nu.shape[0] == 0 or beta0 == 1.0:
             return s_pred  # (4.16) with beta0 = 1: no update
-        s = _promote(SVSFState, s_pred)
+        s = promote_state(SVSFState, s_pred)
         H0, R0 = self.measurement_jacobian(s), self.measurement.R
         z_a = self.measurement.h(s.x, self.motion) + combined_innovation(nu, beta)  # (2.32) projected measurement
         with_vel = (self.unmeasured == "artificial" and s.tau > 0.0 and s.z_prev is not None
