@@ -110,6 +110,7 @@ class _Progress:
     frames: int = 0
     looping: bool = True
     tables_written: bool = False
+    rows: dict[str, int] = field(default_factory=dict)  # each table's rows at the end of the last frame done
 
 
 def _frames(scn, tracker, sim, static, road, rngs, recorder, tables, watch, state: _Progress, overflows,
@@ -142,6 +143,7 @@ def _frames(scn, tracker, sim, static, road, rngs, recorder, tables, watch, stat
             recorder.frame(truth, scan, perc, dets, reported, kin, result.info, tracker.association.gate_alpha,
                            status)
         watch.lap("recording")
+        state.rows = {k: log.n_rows for k, log in tables.items()}
         state.frames += 1
         if on_frame is not None:
             on_frame(state.frames, scn.n_frames)
@@ -162,6 +164,9 @@ def _keep_partial(err: BaseException, scn: Scenario, state: _Progress, recorder,
         except (Exception, KeyboardInterrupt) as close_err:  # noqa: BLE001 - err is the one to report
             err.add_note(f"the recording could not be closed ({_short_cause(close_err)})")
     if out is not None and not state.tables_written:
+        if state.looping:  # a frame cut short (e.g. a signal between its tables) is dropped from all of them
+            for k, log in tables.items():
+                log.truncate(state.rows.get(k, 0))
         try:
             _write_tables(out, tables)
         except (Exception, KeyboardInterrupt) as write_err:  # noqa: BLE001

@@ -53,6 +53,16 @@ class TableLog:
             done += take
             self.n_rows += take
 
+    def truncate(self, n_rows: int) -> None:
+        """Keep the first ``n_rows`` rows (e.g. the frames completed before an interrupt; ``n_rows`` ≤ ``n_rows``
+        now). Chunks past them are released."""
+        if not 0 <= n_rows <= self.n_rows:
+            raise ValueError(f"cannot truncate {self.n_rows} rows to {n_rows}")
+        keep = -(-n_rows // self.chunk_rows)  # chunks holding rows
+        for chunks in self._chunks.values():
+            del chunks[keep:]
+        self.n_rows = n_rows
+
     def _filled(self, name: str) -> list[np.ndarray]:
         """The chunks of column ``name`` cut to the rows appended (views, no copy)."""
         chunks = self._chunks[name]

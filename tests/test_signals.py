@@ -219,3 +219,26 @@ def test_an_ignored_hangup_stays_ignored(capsys):
     finally:
         signal.signal(signal.SIGHUP, previous)
     assert capsys.readouterr().err == ""
+
+
+def test_a_frame_cut_short_between_its_tables_is_dropped_from_all_of_them(tmp_path, monkeypatch):
+    """A signal (or Ctrl-C) can land after a frame's truth rows are logged and before the frame is counted;
+    the tables written then hold exactly the frames the stop line counts, none of them half-logged."""
+    import testbed.run as run_mod
+    from testbed.scenario import load_scenario
+
+    real = run_mod.log_diagnostics
+
+    def stop_at_frame_5(truth, info, table):
+        if truth.frame == 5:  # truth, detections and tracks of frame 5 are logged, its diagnostics are not
+            raise KeyboardInterrupt
+        real(truth, info, table)
+
+    monkeypatch.setattr(run_mod, "log_diagnostics", stop_at_frame_5)
+    scn = load_scenario("cut_in_out")
+    with pytest.raises(KeyboardInterrupt) as info:
+        run_mod.run_scenario(scn, tmp_path / "r", record=False)
+    assert any("the run stopped at frame 5 " in n for n in info.value.__notes__)
+    for name in ("truth", "detections", "tracks", "diagnostics"):
+        frames = set(pd.read_parquet(tmp_path / "r" / f"{name}.parquet").frame)
+        assert max(frames) == 4 and frames <= set(range(5)), name  # no track exists at frame 0
