@@ -53,7 +53,7 @@ def scenario(name: str, duration_s: float, longest_s: float):
 
 def child(args: argparse.Namespace) -> None:
     """One measured run in this process; prints a JSON line of its memory figures."""
-    from testbed.run import run_scenario
+    from testbed.pipeline import run_scenario
 
     scn = scenario(args.scenario, args.duration, args.longest)
     samples: list[tuple[int, float]] = [(0, rss_mb())]

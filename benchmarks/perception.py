@@ -48,7 +48,7 @@ import numpy as np
 
 import sensors
 from testbed.roadside import roadside_boxes
-from testbed.run import run_scenario
+from testbed.pipeline import run_scenario
 from testbed.scenario import RoadsideSpec, load_scenario
 
 BUDGET_MS = 100.0

@@ -21,7 +21,8 @@ import numpy as np
 
 import sensors
 from testbed.roadside import boxes_near
-from testbed.run import rng_streams, run_scenario
+from testbed.pipeline import run_scenario
+from testbed.sensing import rng_streams
 from testbed.scenario import load_scenario
 from testbed.simulation import Simulation, roadside_objects
 

@@ -5,7 +5,7 @@ trackers or testbed.
 """
 
 from sensors.boxfit import SHAPES, BoxFit, BoxFitConfig, SizePrior, fit_vehicle_box, shape_class
-from sensors.clustering import CLUSTER_METHODS, ClusterConfig, cluster
+from sensors.clustering import CLUSTER_METHODS, ClusterConfig, cluster, scan_line_links
 from sensors.clutter import clutter_detections, poisson_clutter
 from sensors.ground import GROUND_METHODS, GroundConfig, segment_ground
 from sensors.lidar import GROUND, LIDAR_PRESETS, LidarConfig, Scan, scan
@@ -53,6 +53,7 @@ __all__ = [
     "Scan",
     "SizePrior",
     "cluster",
+    "scan_line_links",
     "clutter_detections",
     "detection_probability",
     "fit_vehicle_box",

@@ -4,6 +4,13 @@ Methods (registry CLUSTER_METHODS):
   "grid":   bird's-eye occupancy grid of `cell_m` cells, connected components with 8-connectivity
             (scipy.ndimage.label); two points share a cluster when a chain of occupied cells joins them.
   "dbscan": open3d tensor `cluster_dbscan(eps_m, min_points)` in 3-D.
+Scan-line links (`scan_line_links`; sensors.perception joins clusters and noise points by them): consecutive
+returns of one beam (adjacent azimuths, or two apart across a ray that returned nothing) lie on one surface when
+the segment between them is at most `link_max_gap_m` long and meets the farther ray at `link_min_angle_deg` or
+more. A car's side seen at a grazing angle 30-40 m ahead gives returns ~1.2 m apart along the lane (the azimuth
+step over the sine of the grazing angle) that no cell size joins, while the jump from a car to the next one
+behind a gap mostly runs nearly along the ray (the angle test of Bogoslavskyi and Stachniss's range-image
+segmentation, IROS 2016).
 Clusters with fewer than `min_points` points become noise (-1). Clusters are numbered by their first
 point in lexicographic (x, y, z) order, so the labels do not depend on the input point order. DBSCAN
 clusters the points in that order (its border points otherwise go to whichever cluster came first);
@@ -32,12 +39,21 @@ class ClusterConfig:
     cell_m: float = 0.5  # grid: BEV cell size
     eps_m: float = 0.7  # dbscan: neighbourhood radius
     min_points: int = 5  # smaller clusters are noise (also DBSCAN's core-point count)
+    scan_line_links: bool = True  # perception: join consecutive returns of a beam on one surface (module doc)
+    link_min_angle_deg: float = 3.0  # ... when their segment meets the farther ray at least at this angle
+    link_max_gap_m: float = 2.0  # ... and is at most this long [m]
 
     def __post_init__(self) -> None:
         _checks.choice("ClusterConfig.method", self.method, CLUSTER_METHODS)
         _checks.positive("ClusterConfig.cell_m", self.cell_m)
         _checks.positive("ClusterConfig.eps_m", self.eps_m)
         _checks.positive_int("ClusterConfig.min_points", self.min_points)
+        if not isinstance(self.scan_line_links, bool):
+            raise ValueError(f"ClusterConfig.scan_line_links: expected a bool, got {self.scan_line_links!r}")
+        _checks.positive("ClusterConfig.link_min_angle_deg", self.link_min_angle_deg)
+        if self.link_min_angle_deg >= 90.0:
+            raise ValueError(f"ClusterConfig.link_min_angle_deg: expected below 90, got {self.link_min_angle_deg!r}")
+        _checks.positive("ClusterConfig.link_max_gap_m", self.link_max_gap_m)
 
 
 def cluster(points: np.ndarray, cfg: ClusterConfig) -> np.ndarray:
@@ -46,7 +62,7 @@ def cluster(points: np.ndarray, cfg: ClusterConfig) -> np.ndarray:
     if len(pts) == 0:
         return np.zeros(0, np.int64)
     if cfg.method in ORDER_FREE:
-        return _numbered(pts, ORDER_FREE[cfg.method](pts, cfg), cfg.min_points)
+        return numbered(pts, ORDER_FREE[cfg.method](pts, cfg), cfg.min_points)
     order = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0]))
     raw = CLUSTER_METHODS[cfg.method](pts[order], cfg)  # labels of the sorted points, -1 = noise
     sorted_labels = _canonical(raw, cfg.min_points)
@@ -55,8 +71,41 @@ def cluster(points: np.ndarray, cfg: ClusterConfig) -> np.ndarray:
     return labels
 
 
-def _numbered(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.ndarray:
-    """What _canonical gives on the lexicographically sorted points, for raw labels (N,) that do not depend
+def scan_line_links(points: np.ndarray, ray: np.ndarray, shape: tuple[int, int], origin: np.ndarray,
+                    returned: np.ndarray, cfg: ClusterConfig, labels: np.ndarray | None = None) -> np.ndarray:
+    """Pairs (L, 2) int64 of indices into points (N, 3) [m] that are consecutive returns of one beam on one
+    surface (module docstring): ray (N,) int64 flat range-image index a * B + b (-1 unknown: never linked),
+    shape (A, B) the range image's, origin (3,) the sensor [m], returned (A, B) bool rays with any return
+    (a ray without one may lie between two linked points). labels (N,) int64: cluster labels (-1 noise); when
+    given, only pairs not already in one cluster are returned (the others join nothing)."""
+    pts = _checks.float_array("points", points, (None, 3))
+    n_az, n_beams = shape
+    known = np.flatnonzero(ray >= 0)
+    if len(known) < 2 or n_az < 2:
+        return np.zeros((0, 2), np.int64)
+    at = np.full(n_az * n_beams, -1, np.int64)  # point index of each ray among points
+    at[ray[known]] = known
+    a, b = np.divmod(ray[known], n_beams)
+    nxt = at[((a + 1) % n_az) * n_beams + b]
+    gap = (nxt < 0) & ~returned[(a + 1) % n_az, b]  # the next ray returned nothing: look one further
+    nxt = np.where(gap, at[((a + 2) % n_az) * n_beams + b], nxt)
+    i, j = known[nxt >= 0], nxt[nxt >= 0]
+    if labels is not None:
+        apart = (labels[i] != labels[j]) | (labels[i] < 0)
+        i, j = i[apart], j[apart]
+    d = pts[j] - pts[i]
+    length = np.linalg.norm(d, axis=1)
+    far = np.where(np.linalg.norm(pts[j] - origin, axis=1) >= np.linalg.norm(pts[i] - origin, axis=1), j, i)
+    u = pts[far] - origin
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    sin_angle = np.linalg.norm(np.cross(d, u), axis=1) / np.maximum(length, 1e-12)
+    ok = (length <= cfg.link_max_gap_m) & (sin_angle >= np.sin(np.deg2rad(cfg.link_min_angle_deg)))
+    return np.column_stack([i[ok], j[ok]]).astype(np.int64)
+
+
+def numbered(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.ndarray:
+    """Labels (N,) for points (N, 3) from raw labels (N,) (-1 noise) that do not depend on the point order:
+    what _canonical gives on the lexicographically sorted points, for raw labels (N,) that do not depend
     on the point order: clusters under min_points dropped, the rest numbered 0.. in the lexicographic
     (x, y, z) order of their first points. Only each cluster's lowest-x points are sorted."""
     out = np.full(len(raw), -1, np.int64)

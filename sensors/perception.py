@@ -77,7 +77,7 @@ from sensors.boxfit import (
     shape_class,
     side_continuation,
 )
-from sensors.clustering import ClusterConfig, cluster
+from sensors.clustering import ClusterConfig, cluster, numbered, scan_line_links
 from sensors.ground import GroundConfig, segment_ground
 from sensors.lidar import Scan
 from sensors.roi import RoadMap
@@ -259,6 +259,7 @@ class PerceptionConfig:
     max_splits: int = 4  # cuts per cluster at most
     merge_fragments: bool = True  # join fragments of one vehicle when the union still fits one
     merge_gap_m: float = 1.0  # fragments this close (points, or points and fitted box) may be joined [m]
+    link_max_length_m: float = 6.0  # scan-line links attach noise while the object stays this long (a car) [m]
 
     def __post_init__(self) -> None:
         if not isinstance(self.ground, GroundConfig):
@@ -276,7 +277,7 @@ class PerceptionConfig:
         for name in ("max_height_m", "max_length_m", "max_width_m", "max_object_height_m", "max_median_height_m",
                      "one_face_width_m", "ref_height_m", "body_bin_m", "edge_on_width_m", "grazing_deg",
                      "lift_trunk_m", "lift_crown_m", "lift_floor_m", "max_truck_length_m", "split_gap_m",
-                     "split_min_width_m", "min_split_gap_m", "merge_gap_m"):
+                     "split_min_width_m", "min_split_gap_m", "merge_gap_m", "link_max_length_m"):
             _checks.positive(f"PerceptionConfig.{name}", getattr(self, name))
         for name in ("min_extent_m", "min_height_m", "roi_margin_m", "height_margin_m"):
             _checks.positive(f"PerceptionConfig.{name}", getattr(self, name), allow_zero=True)
@@ -296,12 +297,12 @@ class PerceptionConfig:
 
     @staticmethod
     def thesis() -> "PerceptionConfig":
-        """The thesis's plain pipeline: no map ROI, fixed 0.8 m height bound, 3.5 m top, 8 m length for every
+        """The thesis's plain pipeline: plain cell clustering (no scan-line links), no map ROI, fixed 0.8 m height bound, 3.5 m top, 8 m length for every
         object (max_truck_length_m = max_length_m), 2 m median height, no shape test, no split or merge,
         L-shape centre with the one-face completion, and the grid ground segmentation (the pipeline before the
         production-like stack: it reproduces that pipeline's detections exactly)."""
         return PerceptionConfig(
-            ground=GroundConfig(method="grid"), max_object_height_m=3.5, max_median_height_m=2.0, fit="lshape_center", roi=False,
+            ground=GroundConfig(method="grid"), cluster=ClusterConfig(scan_line_links=False), max_object_height_m=3.5, max_median_height_m=2.0, fit="lshape_center", roi=False,
             min_height_mode="fixed", robust_height=False, shape_filter=False, max_truck_length_m=8.0,
             split_vehicles=False, merge_fragments=False,
         )
@@ -357,6 +358,12 @@ def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None) -> 
     sub = cluster(pts[candidates], cfg.cluster)
     cluster_labels = np.full(len(pts), -1, np.int64)
     cluster_labels[candidates] = sub
+    if cfg.cluster.scan_line_links and cfg.roi and road is not None and scan.ranges.size and len(sub):
+        links = scan_line_links(pts[candidates], scan.ray[candidates], scan.ranges.shape, scan.origin,
+                                np.isfinite(scan.ranges), cfg.cluster, labels=sub)
+        if len(links):  # on the lanes only: a roadside rail or wall is the grazing surface links would grow
+            lane = road.on_road(pts[candidates][links.reshape(-1), :2], cfg.roi_margin_m).reshape(-1, 2)
+            sub = _linked(pts[candidates], sub, links[lane.all(axis=1)], cfg)
     labels = np.full(len(pts), -1, np.int64)
     if len(sub) == 0 or sub.max() < 0:
         return PerceptionResult(Detections.empty(), is_ground, labels, Rejected.empty(), cluster_labels)
@@ -373,6 +380,69 @@ def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None) -> 
 
 
 # --- objects --------------------------------------------------------------------------------------------
+
+def _linked(pts: np.ndarray, labels: np.ndarray, links: np.ndarray, cfg: PerceptionConfig) -> np.ndarray:
+    """Cluster labels (N,) of points (N, 3) (-1 noise) with noise points attached to clusters along scan-line links
+    (L, 2) (sensors.clustering.scan_line_links), shortest link first, as long as the object's bird's-eye box stays
+    within ``link_max_length_m`` (a car; a truck's length when its top reaches a truck prior): a convoy seen at a
+    grazing angle, whose bumper gaps one beam cannot tell from a side, is not chained into long thin objects."""
+    n_clusters = int(labels.max()) + 1 if len(labels) else 0
+    node = np.where(labels >= 0, labels, n_clusters + np.arange(len(labels)))  # a noise point is a node of its own
+    a, b = node[links[:, 0]], node[links[:, 1]]
+    # a link attaches a noise point to a cluster (directly or along a chain of noise points), never two clusters to
+    # each other (a car and the next one, a rail's pieces: split and merge decide those) and never makes an
+    # object of noise points alone
+    cross = (a != b) & ((labels[links[:, 0]] < 0) | (labels[links[:, 1]] < 0))
+    if not cross.any():
+        return labels
+    links, a, b = links[cross], a[cross], b[cross]
+    used = np.unique(np.concatenate([a, b]))  # the nodes some link touches, with their points' boxes and tops
+    sel = np.flatnonzero(np.isin(node, used))
+    which = np.searchsorted(used, node[sel])
+    order = np.argsort(which, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(which[order]) != 0])
+    xyz = pts[sel[order]]
+    lo, hi = np.minimum.reduceat(xyz[:, :2], starts), np.maximum.reduceat(xyz[:, :2], starts)
+    top = np.maximum.reduceat(xyz[:, 2], starts) - cfg.ground.ground_z_m
+    p, q = pts[links[:, 0]], pts[links[:, 1]]  # shortest first; ties by the points, not by their order
+    length = np.linalg.norm(q - p, axis=1)
+    ia, ib = np.searchsorted(used, a), np.searchsorted(used, b)
+    parent = list(range(len(used)))
+    lo, hi, top = lo.tolist(), hi.tolist(), top.tolist()
+    holds_cluster = (used < n_clusters).tolist()  # the union holds one of the clusters already
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    truck_top, truck_len, car_len = cfg.truck_min_top_m, cfg.max_truck_length_m, cfg.link_max_length_m
+    pending = np.lexsort((q[:, 2], q[:, 1], q[:, 0], p[:, 2], p[:, 1], p[:, 0], length)).tolist()
+    grew = True
+    while pending and grew:  # passes until no union: a chain of noise points grows from its cluster outwards
+        grew, later = False, []
+        for k in pending:
+            r, s = root(int(ia[k])), root(int(ib[k]))
+            if r == s or holds_cluster[r] == holds_cluster[s]:  # one side must hold a cluster, not both
+                if r != s and not holds_cluster[r]:
+                    later.append(k)  # two noise points: once one of them belongs to a cluster
+                continue
+            (x0, y0), (x1, y1) = lo[r], lo[s]
+            (X0, Y0), (X1, Y1) = hi[r], hi[s]
+            box_lo, box_hi, t = (min(x0, x1), min(y0, y1)), (max(X0, X1), max(Y0, Y1)), max(top[r], top[s])
+            if max(box_hi[0] - box_lo[0], box_hi[1] - box_lo[1]) > (truck_len if t >= truck_top else car_len):
+                continue
+            parent[s] = r
+            lo[r], hi[r], top[r] = box_lo, box_hi, t
+            holds_cluster[r] = True
+            grew = True
+        pending = later
+    roots = np.array([root(i) for i in range(len(used))], dtype=np.int64)
+    out = np.where(labels >= 0, node, -1)
+    out[sel] = used[roots[which]]  # every point of a touched node takes its union's representative node
+    return numbered(pts, out, cfg.cluster.min_points)
+
 
 def _raw_objects(pts: np.ndarray, candidates: np.ndarray, sub: np.ndarray) -> list[np.ndarray]:
     """The clusters as arrays of point indices, each in lexicographic (x, y, z) order so fits see a

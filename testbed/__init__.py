@@ -1,0 +1,74 @@
+"""roadtrack's testbed: highway-env traffic -> synthetic LiDAR -> perception -> any tracker -> scores and a rerun
+recording. The public API (docs/api.md), small enough to remember:
+
+    load_scenario(name_or_path, overrides=None) -> Scenario
+    sense(scenario)                       -> iterator of SensedFrame (truth, scan, detections, visibility, pd)
+    track(frames, tracker, scenario)      -> iterator of (SensedFrame, TrackSet)
+    run(scenario, tracker=None, out=None) -> RunResult (tables, scores, MOT metrics; files in out)
+    read_run(folder)                      -> RunData (the tables as DataFrames, scores.json, the scenario)
+    score(truth, tracks, scoring=None)    -> Evaluation (thesis scores and MOT metrics of plain tables)
+
+A tracker is anything with ``step(frame: Frame) -> TrackSet`` (testbed.tracking); everything else may change.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+__all__ = ["Frame", "TrackSet", "load_scenario", "read_run", "run", "score", "sense", "track"]
+
+if TYPE_CHECKING:
+    from .evaluate import score
+    from .runfolder import read_run
+    from .scenario import load_scenario
+    from .tracking import Frame, TrackSet
+
+
+def sense(scenario, policy=None):
+    """The frames of ``scenario`` (a Scenario, a shipped scenario's name or a file) sensed one by one
+    (testbed.sensing.SensedFrame); ``policy``: the ego's policy for a scenario with ``[env]``."""
+    from .sensing import sense as _sense
+
+    return _sense(_scenario(scenario), policy)
+
+
+def track(frames, tracker, scenario):
+    """Feed sensed ``frames`` to ``tracker`` (a built-in name, ``module:Name``, a factory or a tracker object):
+    an iterator of (SensedFrame, TrackSet) with the moving-object test's status (testbed.pipeline.track)."""
+    from .pipeline import track as _track
+
+    return _track(frames, tracker, _scenario(scenario))
+
+
+def run(scenario, tracker=None, out=None, record: bool = True, policy=None, on_frame=None):
+    """Run ``scenario`` end to end with ``tracker`` (default: the scenario's); with ``out`` write the run folder
+    (tables, scores.json and, with ``record``, run.rrd). Returns the RunResult (testbed.pipeline.run_scenario)."""
+    from .pipeline import run_scenario
+
+    return run_scenario(_scenario(scenario), out_dir=out, record=record and out is not None, tracker=tracker,
+                        on_frame=on_frame, policy=policy)
+
+
+def _scenario(scenario):
+    from .scenario import Scenario, load_scenario
+
+    return scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+
+
+def __getattr__(name: str) -> Any:  # the rest of the API, imported on first use (the CLI starts fast)
+    if name == "load_scenario":
+        from .scenario import load_scenario
+
+        return load_scenario
+    if name == "read_run":
+        from .runfolder import read_run
+
+        return read_run
+    if name == "score":
+        from .evaluate import score
+
+        return score
+    if name in ("Frame", "TrackSet"):
+        from . import tracking
+
+        return getattr(tracking, name)
+    raise AttributeError(f"module 'testbed' has no attribute {name!r}")

@@ -133,7 +133,7 @@ class Characterisation:
 
 def _frames(scn: Scenario, on_frame: Callable[[int, int], None] | None):
     """(truth, scan, perception result, road map) per frame of ``scn``'s traffic, LiDAR and perception."""
-    from .run import scan_frame, rng_streams, sensing_setup
+    from .sensing import scan_frame, rng_streams, sensing_setup
 
     rngs = rng_streams(scn.seed)
     sim, static, road = sensing_setup(scn, rngs)
@@ -297,7 +297,7 @@ ABLATION = {
 def ablation(scenario_data: dict, on_run: Callable[[str], None] | None = None) -> dict[str, dict]:
     """Run the tracker on ``scenario_data`` (a scenario dict) with each static-object method off in turn.
     Returns {variant: scores dict (thesis form and ours)}."""
-    from .run import run_scenario
+    from .pipeline import run_scenario
     from .scenario import apply_overrides, parse_scenario
 
     out = {}

@@ -32,17 +32,22 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .outdir import RUN_FILES, Staging
     from .scenario import load_scenario
 
+    from .tracking import load_tracker
+    from .usercode import is_code_spec
+
     overrides = parse_sets(args.set or [])
-    if args.tracker is not None:
+    user = args.tracker is not None and is_code_spec(args.tracker)  # --tracker my_module:MyTracker
+    if args.tracker is not None and not user:
         overrides["tracker.name"] = args.tracker  # "" is refused by the loader, not silently ignored
     if args.seed is not None:
         overrides["seed"] = args.seed
     scn = load_scenario(args.scenario, overrides)
     policy = _policy(args.policy, scn) if args.policy is not None else None
+    tracker = load_tracker(args.tracker) if user else None  # imported once, before any simulation
     out = args.out if args.out is not None else str(Path("runs") / scn.name)  # the loader checked the name
     stage = Staging(out, RUN_FILES)  # refused up front (exit 2), before any simulation
     try:
-        res = _run_with_progress(scn, stage.tmp, args, policy)
+        res = _run_with_progress(scn, stage.tmp, args, policy, tracker)
     except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - kept, marked INCOMPLETE, one line
         return _failed(err, stage, args.debug)
     _commit(stage)
@@ -60,15 +65,16 @@ def _policy(text: str, scn):
     return load_policy(text)
 
 
-def _run_with_progress(scn, out: Path, args: argparse.Namespace, policy=None):
+def _run_with_progress(scn, out: Path, args: argparse.Namespace, policy=None, tracker=None):
     from tqdm import tqdm
 
-    from .run import run_scenario
+    from .pipeline import run_scenario
 
-    with tqdm(total=scn.n_frames, desc=f"{scn.name} [{scn.tracker.name}]", unit="frame",
+    label = args.tracker if tracker is not None else scn.tracker.name
+    with tqdm(total=scn.n_frames, desc=f"{scn.name} [{label}]", unit="frame",
               disable=args.quiet or None, leave=False) as bar:
         return run_scenario(scn, out_dir=out, record=not args.no_record, on_frame=lambda i, n: bar.update(1),
-                            policy=policy)
+                            policy=policy, tracker=tracker, label=label)
 
 
 def _failed(err: BaseException, stage, debug: bool) -> int:
@@ -117,17 +123,20 @@ def _headline(err: BaseException) -> str:
     return f"{type(err).__name__}: {one_line(err)}"
 
 
-def _print_run(res, args: argparse.Namespace, out: str) -> None:
+def _print_scores(label: str, scores, m: dict) -> None:
+    """The score table (thesis form left of |, ours right) and the MOT metrics lines."""
     from .scoring import format_table
 
-    scn = res.scenario
-    print(format_table({f"{scn.name}/{scn.tracker.name}": res.scores}))
-    m = res.metrics
+    print(format_table({label: scores}))
     for label, sfx in (("visible truth", ""), ("all truth    ", "_all")):
         print(f"{label}: HOTA {m['hota' + sfx]:.3f}  MOTA {m['mota' + sfx]:.3f}  MOTP {m['motp' + sfx]:.3f}  "
               f"IDF1 {m['idf1' + sfx]:.3f}  ID switches {m['id_switches' + sfx]:.0f}  GOSPA {m['gospa' + sfx]:.2f} m "
               f"(per frame: missed {m['gospa_missed' + sfx]:.2f}, false {m['gospa_false' + sfx]:.2f}, "
               f"localisation {m['gospa_localisation' + sfx]:.2f} m^2)")
+
+
+def _print_run(res, args: argparse.Namespace, out: str) -> None:
+    _print_scores(f"{res.scenario.name}/{res.tracker}", res.scores, res.metrics)
     per_frame = sum(res.timings_ms.values())
     print(f"\n{res.n_frames} frames, {per_frame:.1f} ms/frame "
           f"({', '.join(f'{k} {v:.1f}' for k, v in res.timings_ms.items())})")
@@ -137,6 +146,45 @@ def _print_run(res, args: argparse.Namespace, out: str) -> None:
     print(f"wrote {', '.join(written)} to {out}/")
     if not args.no_record:
         print(f"view it: testbed view {out}")
+
+
+def _cmd_score(args: argparse.Namespace) -> int:
+    """Score a run's tracks, or another program's tracks table (parquet or CSV), against the run's truth."""
+    from .evaluate import score
+    from .jsonio import json_text
+    from .runfolder import read_run
+    from .scenario import ScoringSpec
+
+    run = read_run(args.run)
+    if args.tracks is None:
+        tracks, label = run.tracks, f"{run.scores.get('scenario', Path(args.run).name)}/{run.scores.get('tracker', '?')}"
+    else:
+        tracks, label = _read_tracks(args.tracks), f"{Path(args.tracks).name}"
+    scoring = run.scenario.scoring if run.scenario is not None else ScoringSpec()
+    ev = score(run.truth, tracks, scoring, run.n_frames)
+    if args.json:
+        print(json_text(dict(run=str(args.run), tracks=args.tracks, scores=ev.scores.to_dict(), mot_metrics=ev.metrics),
+                        indent=2, default=float))
+    else:
+        _print_scores(label, ev.scores, ev.metrics)
+    return 0
+
+
+def _read_tracks(path: str):
+    """A tracks table from a .parquet or .csv file (schema: testbed/evaluate.py, docs/api.md)."""
+    import pandas as pd
+
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError("--tracks", f"{path}: no such file")
+    try:
+        if p.suffix.lower() == ".csv":
+            return pd.read_csv(p)
+        if p.suffix.lower() in (".parquet", ".pq"):
+            return pd.read_parquet(p)
+    except Exception as err:  # noqa: BLE001 - a file we cannot parse is the option's error
+        raise ConfigError("--tracks", f"{path}: cannot be read ({type(err).__name__}: {one_line(err)})") from None
+    raise ConfigError("--tracks", f"{path}: expected a .csv or .parquet file")
 
 
 def _cmd_perception(args: argparse.Namespace) -> int:
@@ -240,7 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run a scenario end to end: recording, tables, scores")
     r.add_argument("scenario", help="scenario file, or the name of a shipped one (see `testbed scenarios`)")
-    r.add_argument("--tracker", help="tracker name overriding the scenario's, e.g. jpda-kf (see `testbed trackers`)")
+    r.add_argument("--tracker", help="tracker name overriding the scenario's, e.g. jpda-kf (see `testbed trackers`), or "
+                                     "your own tracker class: my_module:MyTracker or path/to/file.py:MyTracker "
+                                     "(docs/api.md)")
     r.add_argument("--seed", type=int, help="seed overriding the scenario's")
     r.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override any scenario key by its dotted path, e.g. --set duration_s=5 "
@@ -252,6 +302,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-record", action="store_true", help="skip the rerun recording")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_run)
+    sc = sub.add_parser("score", help="score a run's tracks, or any tracks table (CSV or parquet, e.g. from another "
+                                      "program), against the run's truth")
+    sc.add_argument("run", help="a run folder (testbed run ... --out RUN)")
+    sc.add_argument("--tracks", help="a tracks table to score instead of the run's: frame (or time), track_id (or "
+                                     "id), x, y, optional vx, vy, status (docs/api.md)")
+    sc.add_argument("--json", action="store_true", help="print the scores as JSON")
+    sc.set_defaults(func=_cmd_score)
     c = sub.add_parser("perception", help="characterise the perception on a scenario: P_D, centre error, merges, "
                        "splits, clutter, ground (markdown + PNG report)")
     c.add_argument("scenario", help="scenario file, or the name of a shipped one")

@@ -40,8 +40,6 @@ ends the frames there with an :class:`EpisodeEndWarning`, and the run scores the
 from __future__ import annotations
 
 import dataclasses
-import importlib
-import importlib.util
 import itertools
 import math
 import os
@@ -53,7 +51,8 @@ import numpy as np
 
 from .config import ConfigError, field, non_negative
 from .envcheck import check_env_config
-from .errors import RunError, one_line
+from .errors import RunError
+from .usercode import load_object
 
 if TYPE_CHECKING:
     from .scenario import Scenario
@@ -159,42 +158,13 @@ Policy = Callable[[Any, dict], Any]
 
 
 def load_policy(path: str) -> Policy:
-    """The callable named by a command-line option the user typed: ``"module:function"`` (an installed or
-    already importable module) or ``"path/to/file.py:function"`` (that file, loaded as a module).
-
-    Never called on a scenario file's contents, and never puts the current directory on ``sys.path``.
-    ConfigError at ``--policy`` (one line) when it cannot be loaded or is not callable."""
-    target, sep, attr = path.rpartition(":")
-    if not sep or not target or not attr:
-        raise ConfigError("--policy", f"{path!r}: expected module:function or path/to/file.py:function")
-    try:
-        obj: Any = _policy_module(target)
-    except ConfigError:
-        raise
-    except Exception as err:  # noqa: BLE001 - any import failure is the option's error
-        raise ConfigError("--policy", f"cannot import {target!r} ({type(err).__name__}: {one_line(err)})") from None
-    for part in attr.split("."):
-        if not hasattr(obj, part):
-            raise ConfigError("--policy", f"{target!r} has no attribute {attr!r}")
-        obj = getattr(obj, part)
+    """The callable named by a command-line option the user typed: ``"module:function"`` or
+    ``"path/to/file.py:function"`` (testbed/usercode.py). ConfigError at ``--policy`` (one line) when it cannot
+    be loaded or is not callable."""
+    obj = load_object(path, "--policy", "function")
     if not callable(obj):
         raise ConfigError("--policy", f"{path!r} is not callable")
     return obj
-
-
-def _policy_module(target: str) -> Any:
-    """The module of a ``--policy``: a ``.py`` file path, else an importable module name."""
-    if not target.endswith(".py"):
-        return importlib.import_module(target)
-    if not os.path.isfile(target):
-        raise ConfigError("--policy", f"{target}: no such file")
-    name = "roadtrack_user_policy_" + os.path.splitext(os.path.basename(target))[0].replace("-", "_")
-    spec = importlib.util.spec_from_file_location(name, target)
-    if spec is None or spec.loader is None:
-        raise ConfigError("--policy", f"{target}: cannot be loaded as a Python module")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _merge(base: dict, over: dict) -> dict:

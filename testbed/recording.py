@@ -160,14 +160,11 @@ class Recorder:
             self.rec.log("world/roadside", rr.Boxes3D(**_boxes(roadside[:, :2], roadside[:, 2:5], roadside[:, 5],
                                                                roadside[:, 6]), colors=[120, 120, 120]), static=True)
 
-    def frame(self, truth, scan, perception, detections, tracks, kin, info, gate_alpha: float,
-              status: np.ndarray | None = None) -> None:
-        """Log one frame. ``tracks``: the trackers' Track tuple after the step; ``kin``: their position-velocity
-        estimates and covariances ((T, 2d), (T, 2d, 2d), ``Tracker.kinematics``); ``info``: the StepInfo;
-        ``status`` (T,): "confirmed", "tentative" or "static" (default: from each track's confirmed flag)."""
-        if status is None:
-            status = np.array(["confirmed" if t.confirmed else "tentative" for t in tracks], dtype=object)
-        status = np.asarray(status, dtype=object).reshape(len(tracks))
+    def frame(self, truth, scan, perception, detections, ts) -> None:
+        """Log one frame. ``ts``: the tracker's testbed.tracking.TrackSet after the step, its status "confirmed",
+        "tentative" or "static" (the moving-object test's); its ``info`` (the built-in trackers' StepInfo) adds
+        the gates and boundary layers. ``scan`` and ``perception`` may be None (no point cloud is logged)."""
+        status = ts.status
         rec = self.rec
         rec.set_time("frame", sequence=int(truth.frame))
         rec.set_time("sim_time", duration=float(truth.time))
@@ -199,12 +196,11 @@ class Recorder:
             labels=[f"v{p}" if p >= 0 else "clutter" for p in detections.provenance], show_labels=False))
         self._boxes_and_rejects(detections, perception)
 
-        conf = [t for t, s in zip(tracks, status) if s == "confirmed"]
-        tent = [t for t, s in zip(tracks, status) if s == "tentative"]
-        self._tracks(tracks, kin, info, gate_alpha, status)
-        self._diagnostics(truth, conf, info)
+        conf = ts.ids[status == "confirmed"]
+        self._tracks(ts)
+        self._diagnostics(truth, conf, ts)
 
-        counts = dict(tracks_confirmed=len(conf), tracks_tentative=len(tent),
+        counts = dict(tracks_confirmed=len(conf), tracks_tentative=int(np.count_nonzero(status == "tentative")),
                       tracks_static=int(np.count_nonzero(status == "static")), detections=len(z),
                       clutter_detections=int(np.count_nonzero(~is_vehicle)),
                       lidar_points=0 if scan is None else len(scan.points))
@@ -274,14 +270,13 @@ class Recorder:
         for name, value in stats.items():
             self.rec.log(f"metrics/{name}", rr.Scalars(float(value)))
 
-    def _tracks(self, tracks, kin, info, gate_alpha: float, status: np.ndarray) -> None:
+    def _tracks(self, ts) -> None:
         """Track estimates, velocities, covariance ellipses, gates, boundary layers and trajectories."""
         rec = self.rec
-        xs, covs = kin
-        d = xs.shape[1] // 2
-        pos, vel, ppos = xs[:, :2], xs[:, d:d + 2], covs[:, :2, :2]
-        ids = np.array([t.id for t in tracks], dtype=np.int64)
-        regime = np.array([t.regime for t in tracks], dtype=object).reshape(len(tracks))  # paper 002 KS regime
+        info, gate_alpha, status = ts.info, ts.gate_alpha, ts.status
+        pos, vel, ppos = ts.xy, ts.v, ts.cov[:, :2, :2]
+        ids = ts.ids
+        regime = ts.regime  # e.g. paper 002's KS regime
         conf = status == "confirmed"
         for name, sel, radius in (("confirmed", conf, 0.5), ("tentative", status == "tentative", 0.25),
                                   ("static", status == "static", 0.35)):
@@ -291,7 +286,9 @@ class Recorder:
         rec.log("world/tracks/velocity", rr.Arrows3D(origins=np.column_stack([pos[conf], np.ones(int(conf.sum()))]),
                                                      vectors=np.column_stack([vel[conf], np.zeros(int(conf.sum()))]),
                                                      class_ids=ids[conf]))
-        rec.log("world/tracks/covariance", rr.LineStrips3D(ellipses(pos, ppos, 2.0, 1.0), class_ids=ids, radii=0.04))
+        given = np.isfinite(ppos).all(axis=(1, 2))
+        rec.log("world/tracks/covariance", rr.LineStrips3D(ellipses(pos[given], ppos[given], 2.0, 1.0),
+                                                           class_ids=ids[given], radii=0.04))
         if info is not None and len(info.ids):
             rec.log("world/tracks/gates", rr.LineStrips3D(
                 ellipses(info.z_hat, info.S, float(np.sqrt(gate_alpha)), 0.2), class_ids=info.ids, radii=0.03))
@@ -320,19 +317,20 @@ class Recorder:
         rec.log("world/tracks/trajectories", rr.LineStrips3D(
             [np.array(self.trajectories[i]) for i in sorted(live)], class_ids=sorted(live), radii=0.08))
 
-    def _diagnostics(self, truth, conf, info) -> None:
-        """Buffer the confirmed tracks' diagnostics as series ``world/tracks/<id>/<name>``; sent in columns."""
-        if info is None or not info.diagnostics:
+    def _diagnostics(self, truth, conf: np.ndarray, ts) -> None:
+        """Buffer the confirmed tracks' (ids ``conf``) diagnostics as series ``world/tracks/<id>/<name>``; sent in
+        columns."""
+        if not ts.diagnostics:
             return
-        row = {int(i): k for k, i in enumerate(info.ids)}
-        for t in conf:
-            k = row.get(int(t.id))
+        row = {int(i): k for k, i in enumerate(ts.diagnostic_ids)}
+        for tid in conf:
+            k = row.get(int(tid))
             if k is None:
                 continue
-            for name, values in info.diagnostics.items():
+            for name, values in ts.diagnostics.items():
                 v = float(values[k])
                 if np.isfinite(v):
-                    f, tm, vs = self.series.setdefault((int(t.id), name), ([], [], []))
+                    f, tm, vs = self.series.setdefault((int(tid), name), ([], [], []))
                     f.append(int(truth.frame)); tm.append(float(truth.time)); vs.append(v)
         self.series_frames += 1
         if self.series_frames >= SERIES_FLUSH_FRAMES:

@@ -31,7 +31,7 @@ Positions along a carriageway are *chain coordinates* S [m]: the arc length alon
 road segments, in its driving direction.
 
 Randomness: one generator, a child of the scenario seed that no other consumer uses,
-``SeedSequence(seed).spawn(4)[3]`` (``testbed.run.rng_streams`` spawns its ``roadside``, ``lidar`` and
+``SeedSequence(seed).spawn(4)[3]`` (``testbed.pipeline.rng_streams`` spawns its ``roadside``, ``lidar`` and
 ``clutter`` streams as ``spawn(3)``, i.e. children 0..2, so adding traffic changes none of them; a fourth
 stream added there must be this one, ``traffic``). It is split once more: ``spawn(2)`` gives the jitter of
 the scripted vehicles and the background traffic, so switching on jitter does not change the traffic.

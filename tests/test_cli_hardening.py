@@ -78,12 +78,12 @@ def test_an_unexpected_exception_is_one_line_and_debug_shows_its_traceback(capsy
 # --- output folders ------------------------------------------------------------------------------------------
 
 def test_unusable_out_is_refused_before_any_simulation(capsys, tmp_path, monkeypatch):
-    import testbed.run
+    import testbed.pipeline
 
     def never(*args, **kwargs):
         raise AssertionError("a simulation ran")
 
-    monkeypatch.setattr(testbed.run, "run_scenario", never)
+    monkeypatch.setattr(testbed.pipeline, "run_scenario", never)
     a_file = tmp_path / "a_file"
     a_file.write_text("mine\n")
     user = tmp_path / "user"
@@ -125,19 +125,19 @@ def test_a_rerun_replaces_the_folder_and_a_failure_marks_it_incomplete(capsys, t
 
 
 def test_failures_outside_the_frame_loop_say_what_was_kept(capsys, tmp_path, monkeypatch):
-    import testbed.run
+    import testbed.pipeline
 
     def boom(*args, **kwargs):
         raise RuntimeError("boom")
 
     out = tmp_path / "r"
-    monkeypatch.setattr(testbed.run, "score_tables", boom)  # after the last frame
+    monkeypatch.setattr(testbed.pipeline, "score_tables", boom)  # after the last frame
     code, _, err = _cli(capsys, *_run(out, "--no-record"))
     assert code == 1 and len(err) == 1 and "(;" not in err[0]
     assert err[0] == f"error: RuntimeError: boom (the run had done its 4 frames; the tables of the frames before " \
                      f"it are in {out}/, marked INCOMPLETE)"
     assert (out / "truth.parquet").is_file() and (out / "INCOMPLETE").is_file()
-    monkeypatch.setattr(testbed.run, "sensing_setup", boom)  # before the first frame: nothing written
+    monkeypatch.setattr(testbed.pipeline, "sensing_setup", boom)  # before the first frame: nothing written
     code, _, err = _cli(capsys, *_run(out, "--no-record"))
     assert code == 1 and len(err) == 1
     assert err[0] == f"error: RuntimeError: boom (nothing was written ({out} is unchanged))"
@@ -373,7 +373,7 @@ def test_check_validates_scenarios_and_campaigns(capsys, tmp_path):
 
 def test_jpda_overflows_are_counted_once_per_run():
     """The run's counter: warnings of each oversize cluster swallowed, one summary warning at the end."""
-    from testbed.run import _Overflows
+    from testbed.pipeline import JPDAOverflows
     from trackers import JPDAOverflowWarning
 
     def step(sizes):
@@ -383,7 +383,7 @@ def test_jpda_overflows_are_counted_once_per_run():
             warnings.warn(w)
         return len(sizes)
 
-    counter = _Overflows()
+    counter = JPDAOverflows()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         assert [counter.call(step, s) for s in ([(3, 4)], [], [(9, 14), (2, 2)])] == [1, 0, 2]

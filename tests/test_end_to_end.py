@@ -16,7 +16,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from testbed.recording import METRICS
-from testbed.run import run_scenario
+from testbed.pipeline import run_scenario
 from testbed.scenario import load_scenario
 
 BASELINE = Path(__file__).parent / "baselines" / "cut_in_out_10s.json"
@@ -204,7 +204,7 @@ def test_every_named_tracker_runs_a_scenario_and_reports_its_diagnostics(name, t
     the default 3 sigma_w = 1.5 m pda-svsf tracks none in 4 s, see docs/trackers.md); SVSF-family filters
     report boundary layers (drawn as world/tracks/layers), IMMs their mode probabilities."""
     scn = load_scenario("cut_in_out", {"duration_s": 4.0, "record.lidar_every": 0})
-    res = run_scenario(scn, out_dir=tmp_path, record=True, tracker_name=name)
+    res = run_scenario(scn, out_dir=tmp_path, record=True, tracker=name)
     assert res.scores.cars_seen == 3 and res.scores.cars_tracked >= 2, res.scores
     names = set(pd.read_parquet(tmp_path / "diagnostics.parquet").name.unique())
     rows = _entity_rows(tmp_path / "run.rrd")

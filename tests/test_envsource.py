@@ -12,7 +12,8 @@ import pytest
 from testbed.config import ConfigError
 from testbed.envsource import EnvSimulation, EnvSpec, EpisodeEndWarning, env_config, env_ids, vehicle_height
 from testbed.roadside import roadside_boxes
-from testbed.run import rng_streams, run_scenario
+from testbed.pipeline import run_scenario
+from testbed.sensing import rng_streams
 from testbed.scenario import SCENARIO_DIR, apply_overrides, load_scenario, parse_scenario, read_toml
 from testbed.simulation import road_edges, roadside_objects
 

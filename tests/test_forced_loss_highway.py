@@ -16,7 +16,8 @@ import pytest
 
 from testbed.config import ConfigError
 from testbed.reproduce import seed002_highway as hw
-from testbed.run import sense_frame, Stopwatch, occlusion_pd, rng_streams, run_scenario, sensing_setup, visibility
+from testbed.pipeline import Stopwatch, run_scenario
+from testbed.sensing import occlusion_pd, rng_streams, sense_frame, sensing_setup, visibility
 from testbed.scenario import OutageSpec, load_scenario
 
 CAR = "right"
@@ -77,7 +78,7 @@ def test_whole_sensor_outage_empties_the_scan_and_keeps_the_noise_aligned():
     assert empty.ranges.shape == scan.ranges.shape and np.all(np.isinf(empty.ranges))
     for k in rngs:  # the outage drew what the plain scan drew: later frames get the same noise
         assert mine[k].bit_generator.state == rngs[k].bit_generator.state
-    pd = occlusion_pd(off, 0.9, road)(empty)(truth.xy[1:])  # the tracker is not told: nominal P_D
+    pd = occlusion_pd(off, road)(empty)(truth.xy[1:], 0.9)  # the tracker is not told: nominal P_D
     np.testing.assert_array_equal(pd, np.full(len(truth.xy) - 1, 0.9))
 
 
@@ -113,7 +114,7 @@ def loss():
 
 def test_cached_sensing_gives_run_scenarios_tables(loss):
     scn, frames, road = loss
-    mine = hw.track(scn, frames, road, "jpda-kf")
+    mine = hw.track(scn, frames, "jpda-kf")
     ref = run_scenario(scn, None, record=False)
     for name, log in ref.tables.items():
         for col in log.columns:
@@ -131,7 +132,7 @@ def test_the_lost_cars_track_reaches_track_lost_within_the_window(loss, tracker)
     f0 = round(T0_S * scn.rate_hz)
     got = {}
     for deletion in ("manager", "ks", "manager+ks"):
-        run = hw.track(hw.with_deletion(scn, deletion), frames, road, tracker)
+        run = hw.track(hw.with_deletion(scn, deletion), frames, tracker)
         tid = hw.target_track(run, CAR, f0 - 1, scn.scoring.match_distance_m)
         assert tid is not None
         tf, ti, reg = hw._cols(run.tables["tracks"], "frame", "track_id", "regime")

@@ -190,7 +190,9 @@ def test_a_campaign_folder_is_strict_json_and_resumes_and_reports(capsys, tmp_pa
     code, _, err = _cli(capsys, "campaign", "run", str(spec), "--out", str(out), "--workers", "0", "--quiet")
     assert code == 0, err
     files = strict_json_files(out)
-    assert {"meta.json", "scenarios.json"} <= set(files) and len(files) == 3
+    assert {"meta.json", "scenarios.json"} <= set(files) and len(files) == 4
+    (sensed,) = (v for k, v in files.items() if k.startswith("sensing/"))  # the sensing cache's entry
+    assert sensed["frames"] == 2
     (recorded,) = (v for k, v in files.items() if k.startswith("recordings/") and k.endswith("/scores.json"))
     assert recorded["scores"]["track_precision_pct"] is None and recorded["frames"] == 2
     assert files["meta.json"]["name"] == "tiny" and files["meta.json"]["n_runs"] == 1

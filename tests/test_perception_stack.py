@@ -9,7 +9,8 @@ import pytest
 
 from testbed.characterise import characterise, merge_curve
 from testbed.cli import main
-from testbed.run import rng_streams, run_scenario
+from testbed.pipeline import run_scenario
+from testbed.sensing import rng_streams
 from testbed.scenario import load_scenario
 from testbed.simulation import Simulation, roadside_objects
 

@@ -546,7 +546,7 @@ def test_rejected_record_and_raw_cluster_labels():
     boxes = np.array(rails_and_posts() + [[12.0, 12.0, 2.0, 2.0, 1.5, 0.3, 0.0], car(20.0, 1.75), car(-30.0, -5.25)])
     ids = np.r_[np.full(len(boxes) - 2, -1), [0, 1]]
     s = scan(LidarConfig(), np.array([0.0, -1.75, 0.0]), boxes, ids, np.random.default_rng(8))
-    cfg = PerceptionConfig()
+    cfg = PerceptionConfig(cluster=ClusterConfig(scan_line_links=False))  # the links attach noise points too
     res = perceive(s, cfg)
     rej = res.rejected
     counts = rej.counts()

@@ -224,7 +224,7 @@ def test_an_ignored_hangup_stays_ignored(capsys):
 def test_a_frame_cut_short_between_its_tables_is_dropped_from_all_of_them(tmp_path, monkeypatch):
     """A signal (or Ctrl-C) can land after a frame's truth rows are logged and before the frame is counted;
     the tables written then hold exactly the frames the stop line counts, none of them half-logged."""
-    import testbed.run as run_mod
+    import testbed.pipeline as run_mod
     from testbed.scenario import load_scenario
 
     real = run_mod.log_diagnostics

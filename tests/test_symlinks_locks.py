@@ -73,12 +73,12 @@ def _refused(code: int, err: list[str], link: str, target: str, exit_code: int =
 
 @pytest.fixture
 def no_simulation(monkeypatch):
-    import testbed.run
+    import testbed.pipeline
 
     def never(*args, **kwargs):
         raise AssertionError("a simulation ran")
 
-    monkeypatch.setattr(testbed.run, "run_scenario", never)
+    monkeypatch.setattr(testbed.pipeline, "run_scenario", never)
 
 
 # --- run folders ----------------------------------------------------------------------------------------------
@@ -123,7 +123,7 @@ def test_a_link_at_the_lock_or_staged_folder_name_is_refused(capsys, tmp_path, n
 
 
 def test_a_link_planted_at_incomplete_during_a_run_is_left_alone(capsys, tmp_path, monkeypatch):
-    import testbed.run
+    import testbed.pipeline
 
     victim = _victim(tmp_path)
     out = tmp_path / "r"
@@ -133,7 +133,7 @@ def test_a_link_planted_at_incomplete_during_a_run_is_left_alone(capsys, tmp_pat
         Path(out_dir, outdir.INCOMPLETE).symlink_to(victim)
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(testbed.run, "run_scenario", planting)
+    monkeypatch.setattr(testbed.pipeline, "run_scenario", planting)
     code, _, err = _cli(capsys, *_run(out))
     stage = tmp_path / f".r.partial-{os.getpid()}"
     line = _refused(code, err, str(stage / outdir.INCOMPLETE), str(victim), exit_code=1)

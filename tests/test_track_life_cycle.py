@@ -160,11 +160,11 @@ def test_duplicate_counts_rank_the_pair():
 
 
 def test_a_truck_seen_from_behind_has_the_nominal_pd_at_its_centre():
-    """The occlusion-aware P_D input (testbed/run.py): a 14.9 m truck 20 m behind the sensor, one lane over, hit
+    """The occlusion-aware P_D input (testbed/sensing): a 14.9 m truck 20 m behind the sensor, one lane over, hit
     by ~1000 points, used to get P_D 0 at its centre (its own rear face 'blocked' a car-sized box there)."""
     from sensors import LidarConfig, RoadMap
     from sensors.lidar import scan
-    from testbed.run import occlusion_pd
+    from testbed.sensing import occlusion_pd
     from testbed.scenario import load_scenario
 
     scn = load_scenario("highway_benchmark")
@@ -175,14 +175,33 @@ def test_a_truck_seen_from_behind_has_the_nominal_pd_at_its_centre():
     centre = np.concatenate([np.column_stack([x, np.full_like(x, y)]) for y in (-4.0, 0.0)])
     road = RoadMap(centre, np.zeros(len(centre)), np.full(len(centre), 2.0))
     at = np.array([[-20.0, -4.0], [-20.0, -4.0]])
-    pd = occlusion_pd(scn, 0.9, road)(s, np.array([True, False]))(at)
+    pd = occlusion_pd(scn, road)(s)(at, 0.9, np.array([True, False]))
     assert pd[0] == pytest.approx(0.9, abs=1e-9)  # a track known to be a truck's
     assert pd[1] < 0.1  # the car box: the truck's own rear face hides it (the old P_D of every track)
 
 
 def test_a_track_takes_the_class_of_the_detection_it_is_associated_with():
-    from testbed.run import truck_tracks
+    from testbed.tracking.builtin import truck_tracks
 
     W = np.array([[0.9, 0.0], [0.0, 0.3], [0.1, 0.8]])
     got = truck_tracks(np.array([4, 5, 6]), W, np.array([15.4, 4.6]), {5: True, 6: True})
     assert got == {4: True, 5: True, 6: False}  # 5 keeps what it was: no weight above 1/2
+
+
+@pytest.mark.parametrize("offset, starts", [(1.0, False), (6.0, True)])
+def test_a_wide_track_claims_only_the_detections_near_it(offset, starts):
+    """A track whose gate has grown past claim_std_m still owns a detection within claim_radius_m (3 m) of its
+    prediction (no twin is started on its car) but not one 6 m away (the car a wide JPDA track trails: before, it
+    was never tracked on the dense motorway)."""
+    trk = make_tracker("jpda-kf", management={"initiation": "single"})
+    tracks, nid = _confirm(trk)
+    for k in range(20, 50):  # 3 s hidden: position std past 2 m, below the 7.5 m bound
+        res = trk.step(tracks, np.zeros((0, 2)), DT, nid, pd=np.zeros(len(_reported(tracks))))
+        tracks, nid = res.tracks, res.next_id
+    (old,) = _reported(tracks)
+    res = trk.step(tracks, np.zeros((0, 2)), DT, nid, pd=np.zeros(1))
+    z_hat = res.info.z_hat[0]
+    assert res.info.diagnostics["position_std"][0] > 2.0
+    res = trk.step(res.tracks, (z_hat + [0.0, offset])[None, :], DT, res.next_id)
+    assert bool(res.info.gated[0, 0])  # in its (wide) gate either way
+    assert any(t.id != old.id for t in res.tracks) == starts

@@ -10,7 +10,8 @@ import pytest
 from testbed import simulation
 from testbed.config import ConfigError
 from testbed.roadside import roadside_boxes
-from testbed.run import rng_streams, run_scenario
+from testbed.pipeline import run_scenario
+from testbed.sensing import rng_streams
 from testbed.scenario import RoadsideSpec, RoadSpec, TrafficSpec, load_scenario, parse_scenario
 from testbed.simulation import Simulation, build_network, road_edges
 from testbed.traffic import (IDM_C, TRAFFIC_STREAM, TrafficNetwork, TrafficRoad, entry_flux, idm_fit_speed,

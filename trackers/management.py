@@ -19,8 +19,10 @@ position covariance after the scan) exceeds `max_position_std_m`, or that has go
 gated measurement, is deleted: a track the sensor cannot see (P_D ~ 0, so no score loss) coasts until what is
 known about it is no longer worth a track.
 Initiation [D]: a measurement starts a track unless it lies in the gate of a track that is well localised
-(gate standard deviation, sqrt of the largest eigenvalue of S, at most `claim_std_m`): the huge gate of a
-coasting track does not block new tracks.
+(gate standard deviation, sqrt of the largest eigenvalue of S, at most `claim_std_m`) or young and just detected
+(at most `claim_age_scans` old, detected in the last scan), or lies within `claim_radius_m` of the track's
+predicted position: the huge gate of a coasting track, or of an old one held wide by the spread of several
+measurements it keeps gating, blocks no new track beyond that radius.
 Duplicates [D]: two confirmed tracks sharing a gated measurement whose predicted positions lie within
 `merge_d2` of each other, in the squared Mahalanobis distance under the smaller of their two S (the better
 localised one's), are a duplicate pair; the worse of the two (more scans since its last detection, then the
@@ -95,6 +97,14 @@ class ManagementParams:
                                       "largest eigenvalue of S) is at most this [m] starts no new track; larger "
                                       "gates do not block initiation; default: about half a lane [D]; None: every "
                                       "gate blocks (the thesis's rule)", check=POSITIVE)
+    claim_radius_m: float | None = param(3.0, "a gated measurement this close [m] to the predicted position of a "
+                                         "track whose gate is wider than claim_std_m is still claimed by it (the "
+                                         "car it follows); farther ones, e.g. of a car a wide track trails by "
+                                         "5-8 m, may start tracks [D]; None: such tracks claim nothing",
+                                         check=POSITIVE)
+    claim_age_scans: int = param(3, "a track at most this many scans old that was detected in the last scan claims "
+                                 "its gated measurements whatever its gate std (a young track's S is wide) [D]",
+                                 check=POSITIVE, bounds=(1, WINDOW_MAX))
     tentative_misses: int = param(2, "missed scans in a row a tentative track may take below the SPRT deletion "
                                   "threshold: it is judged against T_d + (tentative_misses - 1) ln(1 - P_D P_G) "
                                   "(1: the plain SPRT) [D]", check=POSITIVE, bounds=(1, WINDOW_MAX))

@@ -370,16 +370,21 @@ class Tracker:
 
     def _initiate(self, candidates, live, Z: np.ndarray, inp: AssociationInput, dt: float, next_id: int,
                   pred: _Prediction):
-        """New tentative tracks from measurements in no gate of a well-localised or just-detected live track
+        """New tentative tracks from measurements in no gate of a well-localised or young, just-detected live track
         (§7.2; `claim_std_m` [D]): at once ("single") or from a candidate of the previous scan paired within reach ("two_point",
         [D]). A candidate keeps its position in x[:d]."""
         mp, flt, meas = self.management, self.filter, self.filter.measurement
         lam, pd = self.association.clutter_density, self.association.pd
         score0 = initial_score(mp, lam, pd)
         claims = inp.gated
-        if mp.claim_std_m is not None and len(pred.S):  # a track detected last scan always claims: a young one's
-            fresh = np.array([tr.misses_in_a_row == 0 for tr in live], dtype=bool).reshape(len(live))  # S is wide
-            claims = claims & ((position_std(pred.S) <= mp.claim_std_m) | fresh)[:, None]
+        if mp.claim_std_m is not None and len(pred.S):  # a young track detected last scan claims: its S is wide
+            fresh = np.array([tr.misses_in_a_row == 0 and tr.age <= mp.claim_age_scans for tr in live],
+                             dtype=bool).reshape(len(live))
+            owns = ((position_std(pred.S) <= mp.claim_std_m) | fresh)[:, None]
+            if mp.claim_radius_m is not None and Z.size:
+                d = pred.z_hat[:, None, :2] - Z[None, :, :2]
+                owns = owns | (np.einsum("tmk,tmk->tm", d, d) <= mp.claim_radius_m**2)  # (T, M)
+            claims = claims & owns
         free = np.flatnonzero(~claims.any(axis=0))
         out, used = [], set()
 

@@ -55,6 +55,9 @@ def _engine_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=_at_least_one, metavar="N",
                    help="threads (OpenMP, and as many pinned cores) per local worker (default: cores // workers; "
                    "results do not depend on it)")
+    p.add_argument("--no-sensing-cache", action="store_true",
+                   help="sense the traffic anew for every run (default: each traffic is sensed once into the "
+                        "campaign folder's sensing/ and every tracker runs on it; results are identical)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -68,7 +71,7 @@ def _engine(args: argparse.Namespace):
     if args.scheduler is not None:
         check_scheduler_address(args.scheduler)
     return EngineOptions(workers=args.workers, scheduler=args.scheduler, dask_local=args.dask_local,
-                         threads=args.threads)
+                         threads=args.threads, sensing_cache=not args.no_sensing_cache)
 
 
 def _reach(engine) -> None:

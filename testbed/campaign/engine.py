@@ -129,8 +129,10 @@ def init_worker(threads: int | None, counter=None, parent_pid: int | None = None
     die_with_parent(parent_pid)
 
 
-def make_task(campaign: Campaign, run: RunSpec, out_dir: str | Path | None) -> dict[str, Any]:
-    """Everything a worker needs for one run, as plain picklable data."""
+def make_task(campaign: Campaign, run: RunSpec, out_dir: str | Path | None, sensing_cache: bool = True
+              ) -> dict[str, Any]:
+    """Everything a worker needs for one run, as plain picklable data. ``sensing_cache``: read and store the
+    sensed frames in ``out_dir``/sensing (testbed.sensing.cache), so each traffic is sensed once."""
     from ..scenario import apply_overrides
 
     src = next(s for s in campaign.scenarios if s.name == run.scenario)
@@ -141,7 +143,9 @@ def make_task(campaign: Campaign, run: RunSpec, out_dir: str | Path | None) -> d
                 tracker=run.tracker, params=dict(run.params), columns=dict(run.columns),
                 grid_index=".".join(map(str, run.grid_index)), seed_index=run.seed_index, seed=run.seed,
                 scenario_data=apply_overrides(src.data, for_tracker(campaign.overrides, run.tracker)),
-                record_dir=record_dir)
+                record_dir=record_dir,
+                sensing_cache=str(Path(out_dir).resolve() / store.SENSING_DIR)
+                if out_dir is not None and sensing_cache else None)
 
 
 def _where(err: BaseException) -> str:
@@ -182,7 +186,7 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     n_frames, dt, series = 0, float("nan"), np.zeros(0)
     caught: list[warnings.WarningMessage] = []
     try:
-        from ..run import run_scenario
+        from ..pipeline import run_scenario
 
         data = apply_overrides(task["scenario_data"], {**for_tracker(task["params"], task["tracker"]),
                                                        "tracker.name": task["tracker"], "seed": task["seed"]})
@@ -190,7 +194,8 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
         dt = scn.dt
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            res = run_scenario(scn, out_dir=task["record_dir"], record=task["record_dir"] is not None)
+            res = run_scenario(scn, out_dir=task["record_dir"], record=task["record_dir"] is not None,
+                               sensing_cache=task.get("sensing_cache"))
         summary = {k: _scalar(v) for k, v in res.summary().items()}
         n_frames = res.n_frames
         series = np.full(n_frames, np.nan)
@@ -458,13 +463,16 @@ class EngineOptions:
     """Where runs execute: ``workers`` local processes (None: usable cores; 0: in this process), or Dask
     on ``scheduler`` or on a ``dask_local``-worker LocalCluster. ``threads``: OMP threads per local
     worker (None: cores // workers). ``pin``: give each local or LocalCluster worker its own cores
-    (when they are enough), so that no run's helper threads compete with another worker."""
+    (when they are enough), so that no run's helper threads compete with another worker. ``sensing_cache``: sense
+    each traffic once into the campaign folder's ``sensing/`` and run every tracker on it (False: each run
+    senses its own)."""
 
     workers: int | None = None
     scheduler: str | None = None
     dask_local: int | None = None
     threads: int | None = None
     pin: bool = True
+    sensing_cache: bool = True
 
     def __post_init__(self) -> None:
         chosen = [x is not None for x in (self.scheduler, self.dask_local)]
@@ -511,10 +519,31 @@ class Outcome:
         return self.before + self.ran == self.total
 
 
-def _submit_order(runs: list[RunSpec]) -> list[RunSpec]:
+def _submit_order(runs: list[RunSpec], campaign: Campaign | None = None) -> list[RunSpec]:
     """Seed-major: every configuration's seed 0 first, then seed 1, ... so a stopped campaign has
-    balanced partial results."""
-    return sorted(runs, key=lambda r: (r.seed_index, r.run_index))
+    balanced partial results; with ``campaign``, the first run of each traffic to sense (its sensing key) goes
+    first, so the workers sense different traffic at once and the other runs read it from the cache."""
+    order = sorted(runs, key=lambda r: (r.seed_index, r.run_index))
+    if campaign is None:
+        return order
+    keys = [_sensing_key(campaign, r) for r in order]
+    first = {k: i for i, k in reversed(list(enumerate(keys)))}
+    lead = set(first.values())
+    return [order[i] for i in sorted(lead)] + [r for i, r in enumerate(order) if i not in lead]
+
+
+def _sensing_key(campaign: Campaign, run: RunSpec) -> str:
+    """The sensing key of a run (testbed.sensing.cache), or its run id when its scenario does not load."""
+    from ..scenario import apply_overrides, parse_scenario
+    from ..sensing.cache import sensing_key
+
+    task = make_task(campaign, run, None)
+    try:
+        data = apply_overrides(task["scenario_data"], {**for_tracker(task["params"], task["tracker"]),
+                                                       "tracker.name": task["tracker"], "seed": task["seed"]})
+        return sensing_key(parse_scenario(data))
+    except Exception:  # noqa: BLE001 - the run will report its own error
+        return run.run_id
 
 
 STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
@@ -555,8 +584,9 @@ class _StopOnSignals:
 class _Loop:
     """Submits pending runs to a backend (at most 2 per slot in flight) and writes each result as it arrives."""
 
-    def __init__(self, campaign: Campaign, out: Path, backend, bar, failed: int):
+    def __init__(self, campaign: Campaign, out: Path, backend, bar, failed: int, sensing_cache: bool = True):
         self.campaign, self.out, self.backend, self.bar = campaign, out, backend, bar
+        self.sensing_cache = sensing_cache
         self.in_flight: dict[Any, RunSpec] = {}
         self.ran, self.failed = 0, failed
 
@@ -582,7 +612,7 @@ class _Loop:
                 if run is None:
                     exhausted = True
                     break
-                self.in_flight[self.backend.submit(make_task(self.campaign, run, self.out))] = run
+                self.in_flight[self.backend.submit(make_task(self.campaign, run, self.out, self.sensing_cache))] = run
             if not self.in_flight:
                 break
             for fut in self.backend.wait(set(self.in_flight), timeout=0.25):
@@ -632,7 +662,8 @@ def _run_locked(campaign: Campaign, out: Path, engine: EngineOptions | None, qui
     runs = plan(campaign)
     finished = store.finished_runs(out, clean=True, warn=warn)
     keep = {rid for rid, status in finished.items() if status == "ok" or not retry_errors}
-    pending = _submit_order([r for r in runs if r.run_id not in keep])
+    cached = (engine or EngineOptions()).sensing_cache
+    pending = _submit_order([r for r in runs if r.run_id not in keep], campaign if cached else None)
     before = len(runs) - len(pending)
     failed = sum(1 for rid in keep if finished[rid] == "error")
     if not pending:
@@ -652,7 +683,7 @@ def _run_locked(campaign: Campaign, out: Path, engine: EngineOptions | None, qui
         bar = tqdm(total=len(runs), initial=before, unit="run", desc=campaign.name, disable=quiet or None,
                    file=sys.stderr, dynamic_ncols=True, smoothing=0.05)
         bar.set_postfix(failed=failed)
-        loop = _Loop(campaign, out, backend, bar, failed)
+        loop = _Loop(campaign, out, backend, bar, failed, (engine or EngineOptions()).sensing_cache)
         loop.run(pending, stop)
     except InfrastructureError as err:
         broken = str(err)

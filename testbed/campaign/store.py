@@ -48,6 +48,7 @@ SCENARIOS_FILE = "scenarios.json"
 META_FILE = "meta.json"
 RUNS_DIR = "runs"
 RECORDINGS_DIR = "recordings"
+SENSING_DIR = "sensing"  # the campaign's sensing cache (testbed.sensing.cache): each traffic sensed once
 PLOTS_DIR = "plots"
 RESULTS_FILE = "results.parquet"
 LOCK_FILE = "campaign.lock"
@@ -274,7 +275,7 @@ def refuse_links(out_dir: str | Path) -> None:
     link stops the command before any run (the writers refuse links too)."""
     out = Path(out_dir)
     recordings = [Path(e.path) for e in _entries(out / RECORDINGS_DIR) if e.is_dir(follow_symlinks=False)]
-    for folder in [out, out / RUNS_DIR, out / PLOTS_DIR, out / RECORDINGS_DIR, *recordings]:
+    for folder in [out, out / RUNS_DIR, out / PLOTS_DIR, out / RECORDINGS_DIR, out / SENSING_DIR, *recordings]:
         for entry in _entries(folder):
             if entry.is_symlink():
                 raise safe_io.link_error(entry.path)

@@ -37,7 +37,7 @@ import sensors
 from sensors.perception import MERGED
 from testbed.characterise import detection_owners
 from testbed.convoy_points import Association, pda_weights
-from testbed.run import scan_frame, rng_streams, sensing_setup
+from testbed.sensing import scan_frame, rng_streams, sensing_setup
 from testbed.safe_io import save_figure, write_text
 from testbed.scenario import Scenario, load_scenario
 from trackers.filters.kalman import KalmanFilter

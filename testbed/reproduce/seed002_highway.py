@@ -21,8 +21,8 @@ tracker and per scenario seed:
 
 Speed: the sensing (ray cast and perception, about 90 % of a run) does not depend on the tracker, so each
 scenario seed is sensed once per outage variant (frames without an active outage are shared: the outage does not
-change the noise streams, testbed/run.py ``sense_frame``) and every tracker runs on the cached detections through the
-same per-frame steps as ``testbed.run.run_scenario`` (tests/test_forced_loss_highway.py checks the tables are
+change the noise streams, testbed/pipeline.py ``sense_frame``) and every tracker runs on the cached detections through the
+same per-frame steps as ``testbed.pipeline.run_scenario`` (tests/test_forced_loss_highway.py checks the tables are
 identical). Full: 2 scenarios x 4 seeds x 13 trackers x 7 runs (about 11 min on one core); quick: cut_in_out cut
 to 12 s, 3 trackers, 1 seed (about 15 s).
 """
@@ -41,11 +41,12 @@ import numpy as np
 
 from testbed.safe_io import save_figure, write_text
 from testbed.scenario import OutageSpec, Scenario, load_scenario
+from testbed.sensing import (SensedFrame, occlusion_pd, pd_scan, rng_streams, sense_frame, sensing_setup,
+                             visibility)
 
 if TYPE_CHECKING:
-    from sensors import Detections, RoadMap, Scan
+    from sensors import RoadMap
     from testbed.scoring import Scores
-    from testbed.simulation import TruthFrame
 
 REGIMES = ("unknown", "tracking", "ambiguous", "track-lost")
 COLOURS = {"unknown": "0.75", "tracking": "tab:green", "ambiguous": "tab:orange", "track-lost": "tab:red"}
@@ -108,59 +109,42 @@ def with_deletion(scn: Scenario, deletion: str) -> Scenario:
 
 
 # ------------------------------------------------------------------------------------- sensing, once per seed
-@dataclass(frozen=True)
-class Sensed:
-    """One frame's tracker input: the truth, the detections, the scan without its points (the range image, for the
-    occlusion-aware P_D) and the visibility per vehicle (points (K,), in range (K,))."""
-
-    truth: TruthFrame
-    dets: Detections
-    scan: Scan
-    vis: tuple[np.ndarray, np.ndarray]
-
-
-def _slim(truth, scan, dets, max_range_m: float) -> Sensed:
-    from testbed.run import visibility
-
-    vis = visibility(truth, scan, max_range_m)
-    bare = dataclasses.replace(scan, points=np.zeros((0, 3)), source=np.zeros(0, dtype=np.int64),
-                               ray=np.zeros(0, dtype=np.int64))
-    return Sensed(truth, dets, bare, vis)
+def _slim(truth, sensed: tuple, max_range_m: float, pd_for) -> SensedFrame:
+    """The sensed frame kept for tracking from ``sense_frame``'s (scan, perception, detections): the scan the
+    occlusion-aware P_D reads (testbed.sensing.pd_scan: no points), not the point cloud."""
+    scan, perc, dets = sensed
+    bare = pd_scan(scan, perc.is_ground)
+    return SensedFrame(truth, bare, None, dets, visibility(truth, scan, max_range_m),
+                       pd_for(bare) if pd_for is not None else None, bare)
 
 
 def sense_variants(scn: Scenario, outages: dict[str, tuple[OutageSpec, ...]]
-                   ) -> tuple[dict[str, list[Sensed]], RoadMap]:
+                   ) -> tuple[dict[str, list[SensedFrame]], RoadMap]:
     """Per variant name, the frames of ``scn`` sensed with those outages, and the perception's road map.
 
     One pass over the traffic: each frame is sensed without outage, and again (from a copy of the noise streams as
     they were before the frame) for each variant whose outage is active then; the other frames are shared.
     ``scn.sensor.outages`` must be empty."""
-    from testbed.run import sense_frame, Stopwatch, rng_streams, sensing_setup
-
     assert not scn.sensor.outages
     rngs = rng_streams(scn.seed)
     sim, static, road = sensing_setup(scn, rngs)
+    pd_for = occlusion_pd(scn, road) if scn.sensor.occlusion_pd else None
     scns = {name: with_outages(scn, o) for name, o in outages.items()}
-    out: dict[str, list[Sensed]] = {name: [] for name in outages}
-    watch, reach = Stopwatch(), scn.sensor.lidar.max_range_m
+    out: dict[str, list[SensedFrame]] = {name: [] for name in outages}
+    reach = scn.sensor.lidar.max_range_m
     for truth in sim.frames():
         before = copy.deepcopy(rngs)
-        plain = _slim(truth, *_drop_perc(sense_frame(truth, static, scn, rngs, watch, road)), reach)
+        plain = _slim(truth, sense_frame(truth, static, scn, rngs, None, road), reach, pd_for)
         for name, sv in scns.items():
             off, hidden = sv.sensor.outage_at(truth.time)
             if not (off or hidden):
                 out[name].append(plain)
                 continue
             mine = copy.deepcopy(before)
-            out[name].append(_slim(truth, *_drop_perc(sense_frame(truth, static, sv, mine, watch, road)), reach))
+            out[name].append(_slim(truth, sense_frame(truth, static, sv, mine, None, road), reach, pd_for))
             if any(mine[k].bit_generator.state != rngs[k].bit_generator.state for k in rngs):
                 raise RuntimeError(f"frame {truth.frame}: the outage changed the noise streams' draws")
     return out, road
-
-
-def _drop_perc(sensed: tuple) -> tuple:
-    scan, _, dets = sensed
-    return scan, dets
 
 
 # ------------------------------------------------------------------------------------- tracking on cached input
@@ -174,37 +158,20 @@ class Run:
     overflows: int
 
 
-def track(scn: Scenario, frames: list[Sensed], road: RoadMap, tracker_name: str) -> Run:
-    """``scn``'s tracker ``tracker_name`` over the sensed ``frames``: the steps of testbed.run's frame loop
-    (occlusion-aware P_D, candidates left out, moving-object status, the same tables and scores)."""
-    from testbed.moving import MovingTest
-    from testbed.run import log_diagnostics, log_tables, occlusion_pd, score_tables, track_status
+def track(scn: Scenario, frames: list[SensedFrame], tracker_name: str) -> Run:
+    """``scn``'s tracker ``tracker_name`` over the sensed ``frames`` through testbed.pipeline's tracking loop (the
+    occlusion-aware P_D with its truck boxes, the moving-object status, the same tables and scores)."""
+    from testbed.pipeline import JPDAOverflows, log_diagnostics, log_tables, score_tables, track as track_frames
     from testbed.tables import diagnostics_log, detections_log, tracks_log, truth_log
-    from trackers import JPDAOverflowWarning
 
-    tracker = scn.tracker.build(tracker_name)
-    pd_input = occlusion_pd(scn, tracker.association.pd, road) if scn.sensor.occlusion_pd else None
-    moving = MovingTest(scn.moving_test)
     tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(), diagnostics=diagnostics_log())
-    tracks, next_id, overflows = (), 1, 0
-    for fr in frames:
-        pd = pd_input(fr.scan) if pd_input is not None else None
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", JPDAOverflowWarning)
-            result = tracker.step(tracks, fr.dets.z, scn.dt if fr.truth.frame > 0 else 0.0, next_id, pd=pd)
-        overflows += sum(issubclass(w.category, JPDAOverflowWarning) for w in caught)
-        for w in caught:  # the others pass through
-            if not issubclass(w.category, JPDAOverflowWarning):
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        tracks, next_id = result.tracks, result.next_id
-        reported = tuple(t for t in tracks if not t.candidate)
-        kin = tracker.kinematics(reported)
-        status = track_status(reported, kin, moving, fr.truth.time)
-        log_tables(fr.truth, fr.vis, fr.dets, reported, kin, status, tables["truth"], tables["detections"],
-                    tables["tracks"])
-        log_diagnostics(fr.truth, result.info, tables["diagnostics"])
+    overflows = JPDAOverflows()
+    for fr, ts in track_frames(frames, tracker_name, scn, overflows):
+        log_tables(fr.truth, fr.visibility, fr.detections, ts, tables["truth"], tables["detections"],
+                   tables["tracks"])
+        log_diagnostics(fr.truth, ts, tables["diagnostics"])
     scores, metrics = score_tables(scn, tables["truth"], tables["tracks"], len(frames))
-    return Run(tables, scores, metrics, overflows)
+    return Run(tables, scores, metrics, overflows.clusters)
 
 
 # ------------------------------------------------------------------------------------- measures
@@ -297,7 +264,7 @@ def case_scenario(case: Case, seed: int) -> Scenario:
 
 def tracker_runs(scn: Scenario, case: Case, frames: dict, road: RoadMap, name: str) -> dict[tuple[str, str], Run]:
     """Every (variant, deletion) run of RUNS for tracker ``name``."""
-    return {(v, d): track(with_deletion(with_outages(scn, variants(case)[v]), d), frames[v], road, name)
+    return {(v, d): track(with_deletion(with_outages(scn, variants(case)[v]), d), frames[v], name)
             for v, d in RUNS}
 
 
@@ -674,7 +641,7 @@ NOTES = """## Notes
   their frames on a visible car without any outage: {heavy}; their gates are the largest (last column of the
   false-alarm table): their S does not follow their errors, so the gate counts fit neither cdf.
 - **Method.** The sensing of each scenario seed is computed once per outage variant and every tracker runs on the
-  cached detections with testbed.run's per-frame steps; tests/test_forced_loss_highway.py checks the tables equal
+  cached detections with testbed.pipeline's per-frame steps; tests/test_forced_loss_highway.py checks the tables equal
   `run_scenario`'s bit for bit.
 """
 

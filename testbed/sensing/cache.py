@@ -1,0 +1,303 @@
+"""Sense once, track many: the sensed frames of a scenario kept on disk, keyed by exactly what changes sensing.
+
+``SensingCache(folder).frames(scn)`` yields the frames of ``scn`` from the cache when an entry for its sensing key
+exists, else senses them live and writes the entry once the last frame is done (an interrupted sensing writes
+nothing). The key (:func:`sensing_key`) hashes the scenario without the keys that do not change sensing
+(``tracker``, ``scoring``, ``record``, ``moving_test``, ``name``, ``description``) together with the source code
+of the sensing stages (sensors/, testbed's simulation, traffic, roadside, env source and sensing), so changing a
+sensing key or that code makes a new entry. A damaged entry is re-sensed with one warning line. Several processes
+may share a folder: the first to need an entry senses it while the others wait for it (a lock per key).
+
+An entry is a folder ``<key>/``: ``truth.parquet`` (the truth rows with each vehicle's visibility),
+``detections.parquet`` (every field of the detections), ``ranges.parquet`` (per frame the sensor pose and the
+range image the occlusion-aware P_D reads, as ``ranges_for_pd`` makes it: 2 mm steps, uint16) and ``meta.json``
+(written last: its presence marks the entry complete). Frames from the cache carry no point cloud and no
+perception internals (``scan.points`` is empty, ``perception`` is None): a tracker gets exactly what it gets live
+(tests/test_sensing_cache.py checks a tracker run from the cache is identical to one from scratch), a recording
+shows no LiDAR points.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import time
+import warnings
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+import sensors
+
+from ..config import to_dict
+from ..jsonio import json_text
+from ..safe_io import make_folder, try_lock, unlock, write_text
+from ..scenario import Scenario
+from ..simulation import TruthFrame
+from .frames import PD_RANGE_STEP_M, SensedFrame, occlusion_pd, rng_streams, sense_simulation, sensing_setup
+
+CACHE_VERSION = 1
+NOT_SENSING = ("tracker", "scoring", "record", "moving_test", "name", "description")
+"""Scenario keys that do not change what is sensed."""
+
+WAIT_POLL_S = 0.5
+_CODE = ("sensors", "testbed/sensing", "testbed/simulation.py", "testbed/traffic.py", "testbed/roadside.py",
+         "testbed/envsource.py", "testbed/envcheck.py", "testbed/scenario.py")
+_fingerprint: str | None = None
+
+
+class CacheWarning(UserWarning):
+    """A damaged sensing-cache entry (re-sensed)."""
+
+
+def code_fingerprint() -> str:
+    """sha256 of the source of the sensing stages (see the module docstring), computed once per process."""
+    global _fingerprint
+    if _fingerprint is None:
+        root = Path(__file__).resolve().parents[2]
+        h = hashlib.sha256()
+        for rel in _CODE:
+            p = root / rel
+            files = sorted(p.rglob("*.py")) if p.is_dir() else [p]
+            for f in files:
+                h.update(str(f.relative_to(root)).encode())
+                h.update(f.read_bytes())
+        _fingerprint = h.hexdigest()
+    return _fingerprint
+
+
+def sensing_settings(scn: Scenario) -> dict:
+    """The scenario as a dict without the keys that do not change sensing (:data:`NOT_SENSING`)."""
+    return {k: v for k, v in to_dict(scn).items() if k not in NOT_SENSING}
+
+
+def sensing_key(scn: Scenario) -> str:
+    """24 hex digits naming what ``scn`` senses (its sensing settings, the sensing code, the cache version)."""
+    text = json.dumps(dict(v=CACHE_VERSION, code=code_fingerprint(), scenario=sensing_settings(scn)), sort_keys=True,
+                      default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+class SensingCache:
+    """Sensed frames on disk under ``folder`` (created if missing; never through a symbolic link)."""
+
+    def __init__(self, folder: str | Path):
+        self.folder = Path(folder)
+
+    def entry(self, scn: Scenario) -> Path:
+        return self.folder / sensing_key(scn)
+
+    def has(self, scn: Scenario) -> bool:
+        return (self.entry(scn) / "meta.json").is_file()
+
+    def size_bytes(self, scn: Scenario | None = None) -> int:
+        """Bytes on disk of ``scn``'s entry, or of the whole cache."""
+        root = self.entry(scn) if scn is not None else self.folder
+        return sum(f.stat().st_size for f in root.rglob("*") if f.is_file()) if root.exists() else 0
+
+    def frames(self, scn: Scenario, sim=None, static=None, road=None, watch=None) -> Iterator[SensedFrame]:
+        """The sensed frames of ``scn``: from the entry when it is complete, else sensed (on ``sim``, ``static``,
+        ``road`` from :func:`sensing_setup` when given) and stored. ``watch``: a Stopwatch or None."""
+        make_folder(self.folder, "sensing cache")
+        entry = self.entry(scn)
+        if sim is None:
+            sim, static, road = sensing_setup(scn, rng_streams(scn.seed))
+        lock_path = self.folder / f".{entry.name}.lock"
+        fd = None
+        while True:
+            if (entry / "meta.json").is_file():
+                frames = self._load(scn, entry, road, watch)
+                if frames is not None:
+                    if fd is not None:
+                        unlock(fd, lock_path)
+                    yield from frames
+                    return
+            if fd is None:
+                fd = try_lock(lock_path)
+                if fd is None:  # another process is sensing this entry: wait for it
+                    time.sleep(WAIT_POLL_S)
+                    continue
+                continue  # locked: look once more (it may have been finished meanwhile)
+            break
+        try:
+            yield from self._sense_and_store(scn, entry, sim, static, road, watch)
+        finally:
+            unlock(fd, lock_path)
+
+    def _load(self, scn: Scenario, entry: Path, road, watch) -> Iterator[SensedFrame] | None:
+        """The entry's frames, or None (with one warning line, the entry removed) when it cannot be read."""
+        try:
+            meta = json.loads((entry / "meta.json").read_text(encoding="utf-8"))
+            if meta.get("version") != CACHE_VERSION or meta.get("key") != entry.name:
+                raise ValueError("written by another version")
+            tables = {n: pq.read_table(entry / f"{n}.parquet") for n in ("truth", "detections", "ranges")}
+            frames = list(_decode(scn, meta, tables, road))
+        except Exception as err:  # noqa: BLE001 - any damage: sense again
+            warnings.warn(CacheWarning(f"sensing cache {entry}: damaged ({type(err).__name__}: "
+                                       f"{str(err).splitlines()[0] if str(err) else ''}); sensing again"),
+                          stacklevel=3)
+            shutil.rmtree(entry, ignore_errors=True)
+            return None
+        if watch is not None:
+            watch.lap("simulation")
+        return iter(frames)
+
+    def _sense_and_store(self, scn, entry: Path, sim, static, road, watch) -> Iterator[SensedFrame]:
+        rows = _Rows(range_dtype(scn.sensor.lidar.max_range_m))
+        rngs = rng_streams(scn.seed)  # the lidar and clutter streams as sensing_setup left them (it draws roadside)
+        for sf in sense_simulation(scn, sim, static, road, rngs, watch):
+            rows.add(sf)
+            yield sf
+        tmp = self.folder / f".{entry.name}.partial-{os.getpid()}"
+        shutil.rmtree(tmp, ignore_errors=True)
+        make_folder(tmp, "sensing cache entry")
+        try:
+            for name, table in rows.tables().items():
+                pq.write_table(table, tmp / f"{name}.parquet", compression="zstd")
+            meta = dict(version=CACHE_VERSION, key=entry.name, frames=rows.n, settings=sensing_settings(scn),
+                        azimuths=rows.azimuths, elevations=rows.elevations, shape=rows.shape,
+                        range_step_m=PD_RANGE_STEP_M, dtype=rows.dtype.name)
+            write_text(tmp / "meta.json", json_text(meta, default=str))
+            shutil.rmtree(entry, ignore_errors=True)
+            os.replace(tmp, entry)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+
+
+class _Rows:
+    """Columns of the sensed frames, appended per frame."""
+
+    def __init__(self, dtype: np.dtype):
+        self.n = 0
+        self.truth: dict[str, list] = {k: [] for k in ("frame", "time", "vehicle_id", "name", "x", "y", "heading",
+                                                         "vx", "vy", "length", "width", "height", "lane", "crashed",
+                                                         "n_points", "in_range")}
+        self.dets: dict[str, list] = {k: [] for k in ("frame", "z", "provenance", "n_points", "extent", "R",
+                                                        "centroid", "heading", "flags")}
+        self.ranges: dict[str, list] = {k: [] for k in ("frame", "time", "origin", "pose", "ranges")}
+        self.azimuths: list[float] = []
+        self.elevations: list[float] = []
+        self.shape: list[int] = [0, 0]
+        self.dtype = dtype
+
+    def add(self, sf: SensedFrame) -> None:
+        t, d, s = sf.truth, sf.detections, sf.pd_scan
+        k, m = len(t.ids), len(d.z)
+        self.truth["frame"].append(np.full(k, t.frame, np.int64))
+        self.truth["time"].append(np.full(k, t.time))
+        self.truth["vehicle_id"].append(t.ids)
+        self.truth["name"].append(np.array(t.names, dtype=object))
+        for col, a in (("x", t.xy[:, 0]), ("y", t.xy[:, 1]), ("heading", t.heading), ("vx", t.velocity[:, 0]),
+                       ("vy", t.velocity[:, 1]), ("length", t.size[:, 0]), ("width", t.size[:, 1]),
+                       ("height", t.size[:, 2]), ("lane", t.lane), ("crashed", t.crashed),
+                       ("n_points", sf.visibility[0]), ("in_range", sf.visibility[1])):
+            self.truth[col].append(np.asarray(a))
+        self.dets["frame"].append(np.full(m, t.frame, np.int64))
+        for col in ("z", "provenance", "n_points", "extent", "R", "centroid", "heading", "flags"):
+            self.dets[col].append(np.asarray(getattr(d, col)))
+        self.ranges["frame"].append(t.frame)
+        self.ranges["time"].append(t.time)
+        self.ranges["origin"].append(s.origin.tolist())
+        self.ranges["pose"].append(s.pose.tolist())
+        self.ranges["ranges"].append(quantised(s.ranges, self.dtype).tobytes())
+        if not self.n:
+            self.azimuths, self.elevations = s.azimuths.tolist(), s.elevations.tolist()
+            self.shape = list(s.ranges.shape)
+        self.n += 1
+
+    def tables(self) -> dict[str, pa.Table]:
+        truth = {k: np.concatenate(v) if v else np.zeros(0) for k, v in self.truth.items()}
+        dets = {}
+        for k, v in self.dets.items():
+            a = np.concatenate(v) if v else np.zeros(0)
+            if a.ndim > 1:  # fixed-size rows, flattened (z (M, 2), R (M, 2, 2), ...)
+                width = int(np.prod(a.shape[1:]))
+                a = pa.FixedSizeListArray.from_arrays(pa.array(a.reshape(-1)), width)
+            dets[k] = a
+        ranges = dict(frame=pa.array(self.ranges["frame"], pa.int64()), time=pa.array(self.ranges["time"], pa.float64()),
+                      origin=pa.array(self.ranges["origin"], pa.list_(pa.float64(), 3)),
+                      pose=pa.array(self.ranges["pose"], pa.list_(pa.float64(), 3)),
+                      ranges=pa.array(self.ranges["ranges"], pa.binary()))
+        return dict(truth=pa.table({k: pa.array(v) for k, v in truth.items()}), detections=pa.table(dets),
+                    ranges=pa.table(ranges))
+
+
+def range_dtype(max_range_m: float) -> np.dtype:
+    """The integer type of a cached range image: uint16 (2 mm steps up to 131 m) or uint32; its largest value
+    means no return."""
+    return np.dtype(np.uint16 if max_range_m / PD_RANGE_STEP_M < 65534 else np.uint32)
+
+
+def quantised(ranges: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """A P_D range image (A, B) [m] (testbed.sensing.pd_scan: multiples of PD_RANGE_STEP_M or inf) as integer
+    steps of ``dtype`` (:func:`range_dtype`)."""
+    finite = np.isfinite(ranges)
+    out = np.full(ranges.shape, np.iinfo(dtype).max, dtype)
+    out[finite] = np.rint(ranges[finite] / PD_RANGE_STEP_M).astype(dtype)
+    return out
+
+
+def _fixed(col: pa.ChunkedArray, shape: tuple[int, ...], dtype) -> np.ndarray:
+    flat = col.combine_chunks()
+    values = flat.values.to_numpy(zero_copy_only=False) if len(flat) else np.zeros(0)
+    return values.astype(dtype).reshape((len(flat), *shape))
+
+
+def _decode(scn: Scenario, meta: dict, tables: dict, road) -> Iterator[SensedFrame]:
+    n = int(meta["frames"])
+    shape = tuple(meta["shape"])
+    az, el = np.asarray(meta["azimuths"], np.float64), np.asarray(meta["elevations"], np.float64)
+    dtype = np.dtype(meta["dtype"])
+    tr = {c: tables["truth"].column(c).to_numpy(zero_copy_only=False) for c in tables["truth"].column_names}
+    dt = tables["detections"]
+    det = dict(frame=dt.column("frame").to_numpy(), provenance=dt.column("provenance").to_numpy(),
+               n_points=dt.column("n_points").to_numpy(), heading=dt.column("heading").to_numpy(),
+               flags=dt.column("flags").to_numpy(), z=_fixed(dt.column("z"), (2,), np.float64),
+               extent=_fixed(dt.column("extent"), (3,), np.float64), R=_fixed(dt.column("R"), (2, 2), np.float64),
+               centroid=_fixed(dt.column("centroid"), (2,), np.float64))
+    rg = tables["ranges"]
+    origins = _fixed(rg.column("origin"), (3,), np.float64)
+    poses = _fixed(rg.column("pose"), (3,), np.float64)
+    blobs = rg.column("ranges").to_pylist()
+    frames_col = rg.column("frame").to_numpy()
+    if len(frames_col) != n or list(frames_col) != list(range(n)):
+        raise ValueError(f"{len(frames_col)} frames, expected {n}")
+    t_bounds = np.searchsorted(tr["frame"], np.arange(n + 1))
+    d_bounds = np.searchsorted(det["frame"], np.arange(n + 1))
+    pd_for = occlusion_pd(scn, road) if scn.sensor.occlusion_pd else None
+    empty3, empty_i = np.zeros((0, 3)), np.zeros(0, np.int64)
+    for f in range(n):
+        a, b = t_bounds[f], t_bounds[f + 1]
+        truth = TruthFrame(frame=f, time=float(tr["time"][a]), ids=tr["vehicle_id"][a:b].astype(np.int64),
+                           names=tuple(tr["name"][a:b].tolist()),
+                           xy=np.column_stack([tr["x"][a:b], tr["y"][a:b]]).astype(np.float64),
+                           heading=tr["heading"][a:b].astype(np.float64),
+                           velocity=np.column_stack([tr["vx"][a:b], tr["vy"][a:b]]).astype(np.float64),
+                           size=np.column_stack([tr["length"][a:b], tr["width"][a:b], tr["height"][a:b]]).astype(np.float64),
+                           lane=tr["lane"][a:b].astype(np.int64), crashed=tr["crashed"][a:b].astype(bool))
+        vis = (tr["n_points"][a:b].astype(np.int64), tr["in_range"][a:b].astype(bool))
+        c, e = d_bounds[f], d_bounds[f + 1]
+        dets = sensors.Detections(det["z"][c:e], det["provenance"][c:e], det["n_points"][c:e], det["extent"][c:e],
+                                  det["R"][c:e], det["centroid"][c:e], det["heading"][c:e], det["flags"][c:e])
+        steps = np.frombuffer(blobs[f], dtype=dtype).reshape(shape)
+        ranges = np.where(steps == np.iinfo(dtype).max, np.inf, steps.astype(np.float64) * PD_RANGE_STEP_M)
+        scan = sensors.Scan(points=empty3, source=empty_i, origin=origins[f], ranges=ranges, ray=empty_i,
+                            azimuths=az, elevations=el, pose=poses[f])
+        yield SensedFrame(truth, scan, None, dets, vis, pd_for(scan) if pd_for is not None else None, scan)
+
+
+def cached_or_live(scn: Scenario, cache: str | Path | SensingCache | None, policy: Callable | None = None,
+                   watch=None) -> Iterator[SensedFrame]:
+    """:func:`testbed.sensing.sense` through ``cache`` (a folder or SensingCache) when given and no ``policy``
+    drives the ego (a user's code is not part of the key: its frames are never cached)."""
+    if cache is None or policy is not None:
+        rngs = rng_streams(scn.seed)
+        sim, static, road = sensing_setup(scn, rngs, policy)
+        return sense_simulation(scn, sim, static, road, rngs, watch)
+    store = cache if isinstance(cache, SensingCache) else SensingCache(cache)
+    return store.frames(scn, watch=watch)

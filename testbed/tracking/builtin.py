@@ -1,0 +1,65 @@
+"""The built-in trackers (``trackers.make_tracker``: any filter with any associator) behind the tracker protocol.
+
+``BuiltinTracker`` keeps the tracks, the next label and which tracks follow trucks between scans, feeds the
+occlusion-aware P_D (a truck-sized box for the tracks whose last detection was truck-long) and reports the
+non-candidate tracks with their gates, boundary layers and diagnostics for the recording.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+import trackers
+
+from .protocol import Frame, TrackSet
+
+TRUCK_MIN_LENGTH_M = 7.0
+"""A detection longer than this [m] is a truck's (the box fit's truck boxes are at least 7.5 m long)."""
+
+
+def truck_tracks(ids: np.ndarray, W: np.ndarray, lengths: np.ndarray, known: dict[int, bool]) -> dict[int, bool]:
+    """``known`` (track id -> truck) updated from one step: a track whose association weight W (T, M) on one
+    detection exceeds 1/2 takes that detection's class (``lengths`` (M,) [m] > :data:`TRUCK_MIN_LENGTH_M`)."""
+    out = dict(known)
+    if W.size:
+        best = np.argmax(W, axis=1)
+        for t in np.flatnonzero(W[np.arange(len(ids)), best] > 0.5):
+            out[int(ids[t])] = bool(lengths[best[t]] > TRUCK_MIN_LENGTH_M)
+    return out
+
+
+class BuiltinTracker:
+    """A ``trackers.Tracker`` as a protocol tracker. ``tracker``: the built tracker (``trackers.make_tracker``);
+    ``tracks``: the live tracks after the last step (candidates included), ``next_id`` the next label."""
+
+    def __init__(self, tracker: trackers.Tracker):
+        self.tracker = tracker
+        self.name = tracker.name
+        self.tracks: tuple = ()
+        self.next_id = 1
+        self._trucks: dict[int, bool] = {}
+
+    def step(self, frame: Frame) -> TrackSet:
+        trk = self.tracker
+        pd = None
+        if frame.pd is not None:
+            live = np.array([self._trucks.get(t.id, False) for t in self.tracks if not t.candidate], dtype=bool)
+            nominal, occ = trk.association.pd, frame.pd
+            pd = lambda z_hat: occ(z_hat[:, :2], nominal, live)  # noqa: E731 - the tracker calls it once
+        res = trk.step(self.tracks, frame.z, frame.dt, self.next_id, pd=pd)
+        self.tracks, self.next_id = res.tracks, res.next_id
+        if frame.pd is not None:
+            alive = {t.id for t in res.tracks}
+            self._trucks = {k: v for k, v in truck_tracks(res.info.ids, res.info.W, frame.extent[:, 0],
+                                                          self._trucks).items() if k in alive}
+        reported = tuple(t for t in res.tracks if not t.candidate)  # candidates await a second measurement
+        kin, cov = trk.kinematics(reported)
+        d = kin.shape[1] // 2
+        idx = np.array([0, 1, d, d + 1])  # [x, y, vx, vy] of the filter's [p; v]
+        return TrackSet(
+            ids=np.array([t.id for t in reported], dtype=np.int64), xy=kin[:, :2], v=kin[:, d:d + 2],
+            cov=cov[:, idx][:, :, idx], status=np.array(["confirmed" if t.confirmed else "tentative" for t in reported],
+                                                        dtype=object),
+            score=np.array([t.score for t in reported], dtype=np.float64),
+            regime=np.array([t.regime for t in reported], dtype=object),
+            diagnostics=res.info.diagnostics, diagnostic_ids=res.info.ids, info=res.info,
+            gate_alpha=trk.association.gate_alpha)

@@ -1,0 +1,53 @@
+"""Trackers by name: a built-in combination (``jpda-kf``, ``imm-pda-kf``, ...) or a user's class named on the
+command line (``--tracker my_module:MyTracker`` or ``--tracker path/to/file.py:MyTracker``)."""
+from __future__ import annotations
+
+import inspect
+from typing import Any
+
+from ..config import ConfigError
+from ..usercode import is_code_spec, load_object
+from .builtin import BuiltinTracker
+from .protocol import Tracker
+
+
+def load_tracker(spec: str) -> Any:
+    """The tracker factory named by ``spec`` (``module:Name`` or ``file.py:Name``): a class or function called
+    with the scenario (or with nothing when it takes no argument) to give a fresh tracker per run."""
+    obj = load_object(spec, "--tracker", "Class")
+    if not callable(obj):
+        raise ConfigError("--tracker", f"{spec!r} is not a class or function")
+    return obj
+
+
+def build_tracker(scenario, tracker: Any = None) -> Tracker:
+    """A fresh protocol tracker for one run of ``scenario``. ``tracker``: None (the scenario's tracker), a
+    built-in name (``jpda-kf``), ``module:Name`` / ``file.py:Name`` (:func:`load_tracker`), a factory (class or
+    function of the scenario), or an object with ``step`` already built. ConfigError (one line) when it is none
+    of these or the factory does not give an object with ``step``."""
+    if tracker is None or (isinstance(tracker, str) and not is_code_spec(tracker)):
+        return BuiltinTracker(scenario.tracker.build(tracker or scenario.tracker.name))
+    factory = load_tracker(tracker) if isinstance(tracker, str) else tracker
+    if isinstance(factory, Tracker) and not inspect.isclass(factory):
+        return factory
+    if not callable(factory):
+        raise ConfigError("tracker", f"expected a name, module:Name, a class or an object with step(), got "
+                          f"{type(factory).__name__}")
+    try:
+        takes_scenario = bool(inspect.signature(factory).parameters)
+    except (TypeError, ValueError):  # a builtin without a signature
+        takes_scenario = True
+    built = factory(scenario) if takes_scenario else factory()
+    if not isinstance(built, Tracker):
+        raise ConfigError("tracker", f"{getattr(factory, '__name__', factory)!r} gave a {type(built).__name__}, "
+                          f"which has no step(frame) method")
+    return built
+
+
+def tracker_label(tracker: Any, scenario) -> str:
+    """The name a run's outputs give its tracker: the built-in name, the ``module:Name`` typed, or the class."""
+    if tracker is None:
+        return scenario.tracker.name
+    if isinstance(tracker, str):
+        return tracker
+    return getattr(tracker, "name", None) or getattr(tracker, "__name__", None) or type(tracker).__name__
