@@ -5,7 +5,8 @@ no worker and no resource-tracker noise (no "leaked semaphore" warning, no trace
 
 The runs are real (convoy, 30 s of simulated time: 301 frames, several seconds of work) started as
 ``python -m testbed.cli`` subprocesses, signalled in their frame loop: once the recording holds frames, or
-(``--no-record``) once open3d, which the first scan imports, is loaded and 2 s later.
+(``--no-record``) once open3d, which the first scan imports, is loaded and the sensors' numba kernels are
+compiled (a fresh clone compiles them in its first frames), 2 s later.
 """
 from __future__ import annotations
 
@@ -59,11 +60,27 @@ def _wait_for_frames(proc: subprocess.Popen, out: Path, record: bool, timeout: f
             if rrd.is_file() and rrd.stat().st_size > 100_000:
                 return
         elif partial.is_dir() and "open3d" in Path(f"/proc/{proc.pid}/maps").read_text():
-            time.sleep(2.0)
+            _wait_for_jit(proc, t0 + timeout)
             assert proc.poll() is None, "the run ended before it could be signalled"
             return
         time.sleep(0.05)
     raise AssertionError(f"the run did not start its frames within {timeout} s")
+
+
+def _wait_for_jit(proc: subprocess.Popen, deadline: float) -> None:
+    """Until the sensors' numba kernels are compiled and cached (a fresh clone compiles them in the first frames:
+    a signal inside numba's compiler, not a case of ours, crashed the run once), and 2 s more: the cache index
+    files of the ray-cast kernels exist and their count held still for 2 s."""
+    cache = REPO / "sensors" / "__pycache__"
+    count = -1
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        now = len(list(cache.glob("*.nbi"))) if cache.is_dir() else 0
+        if now == count and any(cache.glob("_raycast.*.nbi")):
+            return
+        count = now
+        time.sleep(2.0)
+    raise AssertionError("the sensors' numba kernels were not compiled in time")
 
 
 def _leftovers(folder: Path) -> list[str]:
