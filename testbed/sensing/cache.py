@@ -25,7 +25,7 @@ import shutil
 import time
 import warnings
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Iterator
 
 import numpy as np
 import pyarrow as pa
@@ -289,15 +289,3 @@ def _decode(scn: Scenario, meta: dict, tables: dict, road) -> Iterator[SensedFra
         scan = sensors.Scan(points=empty3, source=empty_i, origin=origins[f], ranges=ranges, ray=empty_i,
                             azimuths=az, elevations=el, pose=poses[f])
         yield SensedFrame(truth, scan, None, dets, vis, pd_for(scan) if pd_for is not None else None, scan)
-
-
-def cached_or_live(scn: Scenario, cache: str | Path | SensingCache | None, policy: Callable | None = None,
-                   watch=None) -> Iterator[SensedFrame]:
-    """:func:`testbed.sensing.sense` through ``cache`` (a folder or SensingCache) when given and no ``policy``
-    drives the ego (a user's code is not part of the key: its frames are never cached)."""
-    if cache is None or policy is not None:
-        rngs = rng_streams(scn.seed)
-        sim, static, road = sensing_setup(scn, rngs, policy)
-        return sense_simulation(scn, sim, static, road, rngs, watch)
-    store = cache if isinstance(cache, SensingCache) else SensingCache(cache)
-    return store.frames(scn, watch=watch)
