@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from testbed.mot_metrics import _trackeval_metrics, mot_metrics
+from testbed.mot_metrics import trackeval_metrics, mot_metrics
 
 
 def make_case(n_frames: int, n_truth: int, n_tracks: int, seed: int = 0):
@@ -39,7 +39,7 @@ def main() -> None:
     args = ap.parse_args()
 
     t0 = time.perf_counter()
-    _trackeval_metrics()
+    trackeval_metrics()
     print(f"TrackEval import + construction (once per process): {1e3 * (time.perf_counter() - t0):.0f} ms")
 
     truth, tracks = make_case(args.frames, args.truths, args.tracks)

@@ -1,6 +1,6 @@
 """Synthetic LiDAR and its processing: scan -> ground removal -> clustering -> vehicle-like detections.
 
-Only this package imports open3d (lazily, see sensors/_o3d.py). It does not import highway_env, rerun,
+Only this package imports open3d (lazily, see sensors/open3d_loader.py). It does not import highway_env, rerun,
 trackers or testbed.
 """
 

@@ -56,7 +56,7 @@ fit_vehicle_box: the centre of the whole vehicle of which a LiDAR sees one or tw
      completion offset (centre - seen centre) and adds |offset|^2 sigma_theta^2 across it. On ray-cast
      cars and trucks at 5-65 m the mean normalised squared centre error e' R^-1 e is 1.4 (cars) and 2.0
      (trucks), for a chi-square(2) mean of 2 (tests/test_sensors_boxfit.py).
-  The steps run as one compiled function (sensors/_boxfit_jit.py, numba): ~10 us instead of ~200 us a fit.
+  The steps run as one compiled function (sensors/boxfit_jit.py, numba): ~10 us instead of ~200 us a fit.
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from sensors import _boxfit_jit, _checks
+from sensors import boxfit_jit, checks
 
 _MIN, _MAX = np.minimum.reduce, np.maximum.reduce  # without ndarray.min's wrapper (hot loops)
 
@@ -155,10 +155,10 @@ class SizePrior:
     min_length_m: float = 0.0
 
     def __post_init__(self) -> None:
-        _checks.positive(f"SizePrior.min_top_m ({self.name})", self.min_top_m, allow_zero=True)
+        checks.positive(f"SizePrior.min_top_m ({self.name})", self.min_top_m, allow_zero=True)
         for name in ("length_m", "width_m", "length_std_m", "width_std_m"):
-            _checks.positive(f"SizePrior.{name} ({self.name})", getattr(self, name))
-        _checks.positive(f"SizePrior.min_length_m ({self.name})", self.min_length_m, allow_zero=True)
+            checks.positive(f"SizePrior.{name} ({self.name})", getattr(self, name))
+        checks.positive(f"SizePrior.min_length_m ({self.name})", self.min_length_m, allow_zero=True)
 
 
 CAR = SizePrior("car", 0.0, 4.6, 1.8, 0.4, 0.15)  # scenario cars 4.2-5.0 x 1.75-2.0, highway-env 5.0 x 2.0
@@ -216,12 +216,12 @@ class BoxFitConfig:
                      "open_nbr_deg", "azimuth_step_deg", "max_range_m", "gap_factor", "gap_heading_tol_deg",
                      "side_min_z_m", "heading_std_deg", "free_heading_std_deg", "thin_width_m", "thin_length_m", "thin_max_top_m",
                      "post_size_m", "panel_gap_m", "panel_min_top_m", "panel_max_top_m", "panel_bin_m"):
-            _checks.positive(f"BoxFitConfig.{name}", getattr(self, name))
+            checks.positive(f"BoxFitConfig.{name}", getattr(self, name))
         for name in ("range_noise_m", "floor_std_m", "post_min_top_m", "panel_max_cover"):
-            _checks.positive(f"BoxFitConfig.{name}", getattr(self, name), allow_zero=True)
-        _checks.positive_int("BoxFitConfig.max_points", self.max_points)
-        _checks.positive_int("BoxFitConfig.few_points", self.few_points)
-        _checks.finite("BoxFitConfig.hint_override", self.hint_override)
+            checks.positive(f"BoxFitConfig.{name}", getattr(self, name), allow_zero=True)
+        checks.positive_int("BoxFitConfig.max_points", self.max_points)
+        checks.positive_int("BoxFitConfig.few_points", self.few_points)
+        checks.finite("BoxFitConfig.hint_override", self.hint_override)
         if self.hint_override < 1.0:
             raise ValueError(f"BoxFitConfig.hint_override: expected >= 1, got {self.hint_override!r}")
 
@@ -270,10 +270,10 @@ def shape_class(xy: np.ndarray, z: np.ndarray | None, top_m: float, cfg: BoxFitC
       vehicle: anything else (clusters that are too small or too large for a vehicle are left to the
           caller's size tests).
     """
-    xy = _checks.float_array("xy", xy, (None, 2))
-    _checks.finite("top_m", top_m)
+    xy = checks.float_array("xy", xy, (None, 2))
+    checks.finite("top_m", top_m)
     if z is not None:
-        z = _checks.float_array("z", z, (len(xy),))
+        z = checks.float_array("z", z, (len(xy),))
     if len(xy) == 0:
         return "vehicle"
     local = xy - xy.mean(axis=0)
@@ -320,13 +320,13 @@ def fit_vehicle_box(xy: np.ndarray, sensor_xy: np.ndarray, *, top_m: float,
     of shape_class (without it only the footprint rules apply; an addition to the issue-8 contract).
     Clusters that are not vehicle-shaped keep the centre of their points' box (not completed).
     """
-    xy = _checks.float_array("xy", xy, (None, 2))
+    xy = checks.float_array("xy", xy, (None, 2))
     if len(xy) == 0:
         raise ValueError("xy: expected at least one point, got 0")
-    sensor = _checks.float_array("sensor_xy", sensor_xy, (2,))
-    _checks.finite("top_m", top_m)
+    sensor = checks.float_array("sensor_xy", sensor_xy, (2,))
+    checks.finite("top_m", top_m)
     if heading_hint is not None:
-        _checks.finite("heading_hint", heading_hint)
+        checks.finite("heading_hint", heading_hint)
     if open_ends is None:
         open_ends = (False, False)
     elif len(open_ends) != 2:
@@ -335,14 +335,14 @@ def fit_vehicle_box(xy: np.ndarray, sensor_xy: np.ndarray, *, top_m: float,
         raise TypeError(f"cfg: expected BoxFitConfig, got {type(cfg).__name__}")
 
     if z is not None:
-        z = _checks.float_array("z", z, (len(xy),))
+        z = checks.float_array("z", z, (len(xy),))
     prior = cfg.prior(top_m)
     return _fit_compiled(xy, sensor, float(top_m), prior, heading_hint, open_ends, z, cfg)
 
 
-def _fit_vehicle_box(xy: np.ndarray, sensor_xy: np.ndarray, *, top_m: float, heading_hint: float | None = None,
-                     open_ends: tuple[bool, bool] | None = None, cfg: BoxFitConfig = BoxFitConfig(),
-                     z: np.ndarray | None = None) -> BoxFit:
+def fit_vehicle_box_unchecked(xy: np.ndarray, sensor_xy: np.ndarray, *, top_m: float,
+                              heading_hint: float | None = None, open_ends: tuple[bool, bool] | None = None,
+                              cfg: BoxFitConfig = BoxFitConfig(), z: np.ndarray | None = None) -> BoxFit:
     """fit_vehicle_box without its argument checks, for callers that already hold float64 arrays of the
     documented shapes, a finite top_m and hint and a BoxFitConfig (sensors/perception.py): the same result."""
     return _fit_compiled(xy, sensor_xy, float(top_m), cfg.prior(top_m), heading_hint,
@@ -351,9 +351,9 @@ def _fit_vehicle_box(xy: np.ndarray, sensor_xy: np.ndarray, *, top_m: float, hea
 
 def _fit_compiled(xy: np.ndarray, sensor: np.ndarray, top_m: float, prior: SizePrior, hint: float | None,
                   open_ends: tuple[bool, bool], z: np.ndarray | None, cfg: BoxFitConfig) -> BoxFit:
-    """fit_vehicle_box's steps by the compiled kernel (sensors/_boxfit_jit.py) on validated inputs."""
+    """fit_vehicle_box's steps by the compiled kernel (sensors/boxfit_jit.py) on validated inputs."""
     window, n_inner, refine, free = _grids(cfg.step_deg, cfg.coarse_step_deg, cfg.hint_window_deg)
-    r = _boxfit_jit.fit(np.ascontiguousarray(xy), sensor, top_m,
+    r = boxfit_jit.fit(np.ascontiguousarray(xy), sensor, top_m,
                         np.array([prior.length_m, prior.width_m, prior.length_std_m, prior.width_std_m,
                                   prior.min_length_m]),
                         hint is not None, 0.0 if hint is None else float(hint), bool(open_ends[0]),
@@ -362,7 +362,7 @@ def _fit_compiled(xy: np.ndarray, sensor: np.ndarray, top_m: float, prior: SizeP
     cx, cy, heading, length, width, seen_l, seen_w, faces, completed, rxx, rxy, ryy, shape, scx, scy = r
     return BoxFit(centre=np.array([cx, cy]), heading=heading, length=length, width=width, seen_length=seen_l,
                   seen_width=seen_w, faces=int(faces), completed=bool(completed),
-                  R=np.array([[rxx, rxy], [rxy, ryy]]), shape=_boxfit_jit.SHAPE_CODES[shape],
+                  R=np.array([[rxx, rxy], [rxy, ryy]]), shape=boxfit_jit.SHAPE_CODES[shape],
                   size_class=prior.name, seen_centre=np.array([scx, scy]))
 
 
@@ -371,7 +371,7 @@ _NO_Z = np.zeros(0)
 
 @functools.lru_cache(maxsize=16)
 def _params(cfg: BoxFitConfig) -> np.ndarray:
-    p = _boxfit_jit.params(cfg)
+    p = boxfit_jit.params(cfg)
     p.setflags(write=False)
     return p
 
@@ -454,13 +454,13 @@ def open_ends_from_ranges(ranges: np.ndarray, ray: np.ndarray, *, margin_m: floa
     if ranges.ndim != 2:
         raise ValueError(f"ranges: expected shape (A, B), got {ranges.shape}")
     a_n, b_n = ranges.shape
-    ray = _checks.int_array("ray", ray, (None,))
+    ray = checks.int_array("ray", ray, (None,))
     if len(ray) == 0:
         return (False, False)
     if ray.min() < 0 or ray.max() >= a_n * b_n:
         raise ValueError(f"ray: indices must be in [0, {a_n * b_n}), got [{ray.min()}, {ray.max()}]")
-    _checks.positive("margin_m", margin_m, allow_zero=True)
-    _checks.positive_int("look", look)
+    checks.positive("margin_m", margin_m, allow_zero=True)
+    checks.positive_int("look", look)
     az, beam = ray // b_n, ray % b_n
     cols = np.unique(az)
     # first and last column counter-clockwise: the cluster starts after the widest empty arc

@@ -26,9 +26,9 @@ from typing import Callable
 import numpy as np
 from scipy import ndimage
 
-from sensors import _checks
-from sensors._grid import bev_cells
-from sensors._o3d import open3d
+from sensors import checks
+from sensors.grid import bev_cells
+from sensors.open3d_loader import open3d
 
 
 @dataclass(frozen=True)
@@ -44,21 +44,21 @@ class ClusterConfig:
     link_max_gap_m: float = 2.0  # ... and is at most this long [m]
 
     def __post_init__(self) -> None:
-        _checks.choice("ClusterConfig.method", self.method, CLUSTER_METHODS)
-        _checks.positive("ClusterConfig.cell_m", self.cell_m)
-        _checks.positive("ClusterConfig.eps_m", self.eps_m)
-        _checks.positive_int("ClusterConfig.min_points", self.min_points)
+        checks.choice("ClusterConfig.method", self.method, CLUSTER_METHODS)
+        checks.positive("ClusterConfig.cell_m", self.cell_m)
+        checks.positive("ClusterConfig.eps_m", self.eps_m)
+        checks.positive_int("ClusterConfig.min_points", self.min_points)
         if not isinstance(self.scan_line_links, bool):
             raise ValueError(f"ClusterConfig.scan_line_links: expected a bool, got {self.scan_line_links!r}")
-        _checks.positive("ClusterConfig.link_min_angle_deg", self.link_min_angle_deg)
+        checks.positive("ClusterConfig.link_min_angle_deg", self.link_min_angle_deg)
         if self.link_min_angle_deg >= 90.0:
             raise ValueError(f"ClusterConfig.link_min_angle_deg: expected below 90, got {self.link_min_angle_deg!r}")
-        _checks.positive("ClusterConfig.link_max_gap_m", self.link_max_gap_m)
+        checks.positive("ClusterConfig.link_max_gap_m", self.link_max_gap_m)
 
 
 def cluster(points: np.ndarray, cfg: ClusterConfig) -> np.ndarray:
     """points (N, 3) [m] -> labels (N,) int64: cluster 0..C-1, or -1 for noise / too-small clusters."""
-    pts = _checks.float_array("points", points, (None, 3))
+    pts = checks.float_array("points", points, (None, 3))
     if len(pts) == 0:
         return np.zeros(0, np.int64)
     if cfg.method in ORDER_FREE:
@@ -78,7 +78,7 @@ def scan_line_links(points: np.ndarray, ray: np.ndarray, shape: tuple[int, int],
     shape (A, B) the range image's, origin (3,) the sensor [m], returned (A, B) bool rays with any return
     (a ray without one may lie between two linked points). labels (N,) int64: cluster labels (-1 noise); when
     given, only pairs not already in one cluster are returned (the others join nothing)."""
-    pts = _checks.float_array("points", points, (None, 3))
+    pts = checks.float_array("points", points, (None, 3))
     n_az, n_beams = shape
     known = np.flatnonzero(ray >= 0)
     if len(known) < 2 or n_az < 2:

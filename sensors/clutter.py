@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sensors import _checks
+from sensors import checks
 from sensors.perception import Detections
 
 
@@ -19,9 +19,9 @@ def poisson_clutter(
     K ~ Poisson(density_per_m2 * pi * radius_m^2). density <= 0 or radius 0 gives K = 0."""
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng: expected numpy.random.Generator, got {type(rng).__name__}")
-    _checks.finite("density_per_m2", density_per_m2)
-    _checks.positive("radius_m", radius_m, allow_zero=True)
-    center = _checks.float_array("center_xy", center_xy, (2,))
+    checks.finite("density_per_m2", density_per_m2)
+    checks.positive("radius_m", radius_m, allow_zero=True)
+    center = checks.float_array("center_xy", center_xy, (2,))
     mean = max(float(density_per_m2), 0.0) * np.pi * float(radius_m) ** 2
     k = int(rng.poisson(mean)) if mean > 0.0 else 0
     r = radius_m * np.sqrt(rng.random(k))  # sqrt: uniform in area, not in radius

@@ -32,9 +32,9 @@ from typing import Callable
 
 import numpy as np
 
-from sensors import _checks, _perception_jit
-from sensors._grid import MAX_CELLS, bev_cells
-from sensors._o3d import open3d
+from sensors import checks, perception_jit
+from sensors.grid import MAX_CELLS, bev_cells
+from sensors.open3d_loader import open3d
 from sensors.lidar import GROUND
 
 _COARSE_BANDS_M = (1.0, 0.3, 0.1)  # road_plane: trimming schedule of the fit on the cells' lowest points
@@ -61,22 +61,22 @@ class GroundConfig:
     seed: int = 0  # ransac: seeds open3d's global RNG before each fit, so results are reproducible
 
     def __post_init__(self) -> None:
-        _checks.choice("GroundConfig.method", self.method, GROUND_METHODS)
-        _checks.positive("GroundConfig.height_tol_m", self.height_tol_m)
-        _checks.positive("GroundConfig.cell_m", self.cell_m)
-        _checks.positive("GroundConfig.max_ground_offset_m", self.max_ground_offset_m, allow_zero=True)
-        _checks.positive("GroundConfig.range_tol_m", self.range_tol_m, allow_zero=True)
-        _checks.positive("GroundConfig.angle_tol_deg", self.angle_tol_deg, allow_zero=True)
+        checks.choice("GroundConfig.method", self.method, GROUND_METHODS)
+        checks.positive("GroundConfig.height_tol_m", self.height_tol_m)
+        checks.positive("GroundConfig.cell_m", self.cell_m)
+        checks.positive("GroundConfig.max_ground_offset_m", self.max_ground_offset_m, allow_zero=True)
+        checks.positive("GroundConfig.range_tol_m", self.range_tol_m, allow_zero=True)
+        checks.positive("GroundConfig.angle_tol_deg", self.angle_tol_deg, allow_zero=True)
         if self.angle_tol_deg >= 10.0:
             raise ValueError(f"GroundConfig.angle_tol_deg: expected 0..10, got {self.angle_tol_deg!r}")
-        _checks.positive("GroundConfig.road_tol_m", self.road_tol_m, allow_zero=True)
-        _checks.positive("GroundConfig.foot_cell_m", self.foot_cell_m, allow_zero=True)
-        _checks.positive_int("GroundConfig.ransac_iterations", self.ransac_iterations)
-        _checks.positive_int("GroundConfig.seed", self.seed, allow_zero=True)
-        _checks.positive("GroundConfig.max_tilt_deg", self.max_tilt_deg, allow_zero=True)
+        checks.positive("GroundConfig.road_tol_m", self.road_tol_m, allow_zero=True)
+        checks.positive("GroundConfig.foot_cell_m", self.foot_cell_m, allow_zero=True)
+        checks.positive_int("GroundConfig.ransac_iterations", self.ransac_iterations)
+        checks.positive_int("GroundConfig.seed", self.seed, allow_zero=True)
+        checks.positive("GroundConfig.max_tilt_deg", self.max_tilt_deg, allow_zero=True)
         if self.max_tilt_deg > 90.0:
             raise ValueError(f"GroundConfig.max_tilt_deg: expected 0..90, got {self.max_tilt_deg!r}")
-        _checks.finite("GroundConfig.ground_z_m", self.ground_z_m)
+        checks.finite("GroundConfig.ground_z_m", self.ground_z_m)
 
 
 def segment_ground(points: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None = None) -> np.ndarray:
@@ -84,9 +84,9 @@ def segment_ground(points: np.ndarray, cfg: GroundConfig, origin: np.ndarray | N
 
     origin: (3,) sensor position [m] (Scan.origin), optional; road_plane uses it for its range-aware band.
     """
-    pts = _checks.float_array("points", points, (None, 3))
+    pts = checks.float_array("points", points, (None, 3))
     if origin is not None:
-        origin = _checks.float_array("origin", origin, (3,))
+        origin = checks.float_array("origin", origin, (3,))
     if len(pts) == 0:
         return np.zeros(0, bool)
     return GROUND_METHODS[cfg.method](pts, cfg, origin)
@@ -102,7 +102,7 @@ def ground_scores(is_ground: np.ndarray, source: np.ndarray) -> tuple[float, flo
     mask = np.asarray(is_ground)
     if mask.dtype != bool or mask.ndim != 1:
         raise ValueError(f"is_ground: expected a 1-D bool array, got dtype {mask.dtype}, shape {mask.shape}")
-    truth = _checks.int_array("source", source, (len(mask),)) == GROUND
+    truth = checks.int_array("source", source, (len(mask),)) == GROUND
     hits = np.count_nonzero(mask & truth)
     n_labelled, n_road = np.count_nonzero(mask), np.count_nonzero(truth)
     return (hits / n_labelled if n_labelled else float("nan"), hits / n_road if n_road else float("nan"))
@@ -135,7 +135,7 @@ def _road_plane(pts: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None) -
         plane = np.array([0.0, 0.0, cfg.ground_z_m - centre[2]])
     # compiled: a point is road when its height above the plane is at most the band tol (the range-aware band of
     # the module docstring when the origin is known, else height_tol_m), unless it is at an object's foot
-    return _perception_jit.road_band(
+    return perception_jit.road_band(
         x, y, z, float(plane[0]), float(plane[1]), float(plane[2]), origin is not None, cfg.road_tol_m,
         cfg.range_tol_m * max(-plane[2], 0.0), float(np.tan(np.deg2rad(cfg.angle_tol_deg))), cfg.height_tol_m,
         cfg.foot_cell_m, _FOOT_ABOVE_M[0], _FOOT_ABOVE_M[1], _FOOT_KEEP)
@@ -150,7 +150,7 @@ def _coarse_plane(pts: np.ndarray, centre: np.ndarray, z: np.ndarray, cfg: Groun
     shape = (int(np.floor(pts[:, 0].max() * inv) - fx0) + 1, int(np.floor(pts[:, 1].max() * inv) - fy0) + 1)
     if shape[0] * shape[1] > MAX_CELLS:
         bev_cells(pts, cfg.cell_m, "ground")  # raises its ValueError
-    lowest = _perception_jit.cell_lowest(pts, z, inv, fx0, fy0, shape[1], shape[0] * shape[1])
+    lowest = perception_jit.cell_lowest(pts, z, inv, fx0, fy0, shape[1], shape[0] * shape[1])
     occupied = np.flatnonzero(np.isfinite(lowest))
     cx = (fx0 + 0.5 + occupied // shape[1]) * cfg.cell_m - centre[0]  # cell centres
     cy = (fy0 + 0.5 + occupied % shape[1]) * cfg.cell_m - centre[1]

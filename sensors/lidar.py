@@ -6,7 +6,7 @@ however far along the highway the car is. Hit points are returned in the world f
 
 Speed: the road z = 0 is intersected analytically (every downward ray, one division); only the rays that
 can reach a box (its azimuth sector and elevation band, widened by the angular errors actually drawn) are
-tested against it, by a compiled float64 ray / oriented-box slab test (sensors/_raycast.py); each ray keeps
+tested against it, by a compiled float64 ray / oriented-box slab test (sensors/raycast.py); each ray keeps
 the nearer of the two hits. `scan(..., fast=False)` casts every ray at the full open3d mesh (ground +
 boxes, float32) instead, the reference: the same points up to float32 precision (~1e-5 m at 70 m) and the
 same labels, except for the odd ray grazing a box edge within that precision (tests/test_sensors_lidar.py
@@ -21,8 +21,8 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from sensors import _checks, _raycast
-from sensors._o3d import open3d
+from sensors import checks, raycast
+from sensors.open3d_loader import open3d
 
 GROUND: int = -2
 """Source label of points that hit the ground plane (vehicle ids are >= 0, static objects -1)."""
@@ -99,29 +99,29 @@ class LidarConfig:
         for name, value in LIDAR_PRESETS[self.preset].items():
             if getattr(self, name) is None:
                 object.__setattr__(self, name, value)
-        _checks.positive_int("LidarConfig.n_beams", self.n_beams)
-        _checks.finite("LidarConfig.elevation_min_deg", self.elevation_min_deg)
-        _checks.finite("LidarConfig.elevation_max_deg", self.elevation_max_deg)
+        checks.positive_int("LidarConfig.n_beams", self.n_beams)
+        checks.finite("LidarConfig.elevation_min_deg", self.elevation_min_deg)
+        checks.finite("LidarConfig.elevation_max_deg", self.elevation_max_deg)
         lo, hi = self.elevation_min_deg, self.elevation_max_deg
         if not (-90.0 < lo <= hi < 90.0):
             raise ValueError(f"LidarConfig.elevation_*_deg: need -90 < min <= max < 90, got {lo!r}, {hi!r}")
-        _checks.positive("LidarConfig.azimuth_step_deg", self.azimuth_step_deg)
+        checks.positive("LidarConfig.azimuth_step_deg", self.azimuth_step_deg)
         if self.azimuth_step_deg > 360.0:
             raise ValueError(f"LidarConfig.azimuth_step_deg: expected 0 < step <= 360, got {self.azimuth_step_deg!r}")
-        _checks.positive("LidarConfig.min_range_m", self.min_range_m, allow_zero=True)
-        _checks.positive("LidarConfig.max_range_m", self.max_range_m)
+        checks.positive("LidarConfig.min_range_m", self.min_range_m, allow_zero=True)
+        checks.positive("LidarConfig.max_range_m", self.max_range_m)
         if self.min_range_m >= self.max_range_m:
             raise ValueError(f"LidarConfig.min_range_m: must be < max_range_m, got {self.min_range_m!r}")
-        _checks.positive("LidarConfig.mount_height_m", self.mount_height_m)
-        _checks.positive("LidarConfig.range_noise_std_m", self.range_noise_std_m, allow_zero=True)
+        checks.positive("LidarConfig.mount_height_m", self.mount_height_m)
+        checks.positive("LidarConfig.range_noise_std_m", self.range_noise_std_m, allow_zero=True)
         for name in ("angle_jitter_deg", "pitch_std_deg", "roll_std_deg"):
-            _checks.positive(f"LidarConfig.{name}", getattr(self, name), allow_zero=True)
+            checks.positive(f"LidarConfig.{name}", getattr(self, name), allow_zero=True)
             if getattr(self, name) > 10.0:
                 raise ValueError(f"LidarConfig.{name}: expected 0..10 deg, got {getattr(self, name)!r}")
-        _checks.finite("LidarConfig.dropout", self.dropout)
+        checks.finite("LidarConfig.dropout", self.dropout)
         if not (0.0 <= self.dropout < 1.0):
             raise ValueError(f"LidarConfig.dropout: expected 0 <= dropout < 1, got {self.dropout!r}")
-        _checks.positive("LidarConfig.ground_half_size_m", self.ground_half_size_m)
+        checks.positive("LidarConfig.ground_half_size_m", self.ground_half_size_m)
 
     @property
     def elevations_deg(self) -> np.ndarray:
@@ -164,10 +164,10 @@ class Scan:
     pose: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        pts = _checks.float_array("Scan.points", self.points, (None, 3))
+        pts = checks.float_array("Scan.points", self.points, (None, 3))
         object.__setattr__(self, "points", pts)
-        object.__setattr__(self, "source", _checks.int_array("Scan.source", self.source, (len(pts),)))
-        origin = _checks.float_array("Scan.origin", self.origin, (3,))
+        object.__setattr__(self, "source", checks.int_array("Scan.source", self.source, (len(pts),)))
+        origin = checks.float_array("Scan.origin", self.origin, (3,))
         object.__setattr__(self, "origin", origin)
         ranges = np.zeros((0, 0)) if self.ranges is None else np.asarray(self.ranges, dtype=np.float64)
         if ranges.ndim != 2:
@@ -177,16 +177,16 @@ class Scan:
         object.__setattr__(self, "ranges", ranges)
         a, b = ranges.shape
         ray = np.full(len(pts), -1, np.int64) if self.ray is None else self.ray
-        ray = _checks.int_array("Scan.ray", ray, (len(pts),))
+        ray = checks.int_array("Scan.ray", ray, (len(pts),))
         if np.any(ray < -1) or (ranges.size and np.any(ray >= ranges.size)):
             raise ValueError(f"Scan.ray: expected indices in [-1, {ranges.size}), got {ray.min()}..{ray.max()}")
         object.__setattr__(self, "ray", ray)
         for name, n in (("azimuths", a), ("elevations", b)):
             value = getattr(self, name)
             value = np.zeros(0) if value is None else value
-            object.__setattr__(self, name, _checks.float_array(f"Scan.{name}", value, (n if ranges.size else None,)))
+            object.__setattr__(self, name, checks.float_array(f"Scan.{name}", value, (n if ranges.size else None,)))
         pose = np.array([origin[0], origin[1], 0.0]) if self.pose is None else self.pose
-        object.__setattr__(self, "pose", _checks.float_array("Scan.pose", pose, (3,)))
+        object.__setattr__(self, "pose", checks.float_array("Scan.pose", pose, (3,)))
 
 
 def scan(
@@ -218,9 +218,9 @@ def scan(
         raise TypeError(f"cfg: expected LidarConfig, got {type(cfg).__name__}")
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng: expected numpy.random.Generator, got {type(rng).__name__}")
-    pose = _checks.float_array("sensor_xy_yaw", sensor_xy_yaw, (3,))
-    boxes = _checks.float_array("boxes", boxes, (None, 7))
-    box_ids = _checks.int_array("box_ids", box_ids, (len(boxes),))
+    pose = checks.float_array("sensor_xy_yaw", sensor_xy_yaw, (3,))
+    boxes = checks.float_array("boxes", boxes, (None, 7))
+    box_ids = checks.int_array("box_ids", box_ids, (len(boxes),))
     if np.any(boxes[:, 2:5] <= 0.0):
         raise ValueError("boxes: length, width and height (columns 2-4) must be > 0")
     if np.any(box_ids < -1):
@@ -245,7 +245,7 @@ def scan(
 
     c, s = np.cos(pose[2]), np.sin(pose[2])
     empty = np.zeros(0)
-    ranges, idx, points, source = _raycast.assemble(
+    ranges, idx, points, source = raycast.assemble(
         t, which, empty if u_drop is None else u_drop, cfg.dropout, empty if noise is None else noise,
         cfg.min_range_m, cfg.max_range_m, pat.dirs, c, s, pose[0], pose[1], cfg.mount_height_m, box_ids, GROUND)
     ranges = ranges.reshape(len(pat.azimuths), len(pat.elevations))
@@ -353,14 +353,14 @@ def _cast_full(o3d, cfg: LidarConfig, pat: _Pattern, dirs: np.ndarray, verts: np
 
 def _cast_fast(o3d, cfg: LidarConfig, pat: _Pattern, dirs: np.ndarray, verts: np.ndarray, w_az: float,
                w_el: float, reach: float):
-    """Road hits analytically, boxes by a compiled slab test of their candidate rays only (sensors/_raycast.py);
+    """Road hits analytically, boxes by a compiled slab test of their candidate rays only (sensors/raycast.py);
     the outputs of _cast_full up to float32 round-off (its mesh holds the same boxes in float32)."""
     t = pat.t_ground.copy() if dirs is pat.dirs else _ground_range(cfg, dirs)
     which = np.full(len(t), -1, np.int64)
     sectors = _candidates(cfg, pat, verts, w_az, w_el, reach)
     if len(sectors[0]) == 0:
         return t, which
-    _raycast.cast_boxes(np.ascontiguousarray(dirs), float(cfg.mount_height_m), t, which, _slab_boxes(verts),
+    raycast.cast_boxes(np.ascontiguousarray(dirs), float(cfg.mount_height_m), t, which, _slab_boxes(verts),
                         *sectors, len(pat.azimuths), len(pat.elevations))
     return t, which
 
@@ -375,7 +375,7 @@ def _slab_boxes(verts: np.ndarray) -> np.ndarray:
 
 
 def _candidates(cfg: LidarConfig, pat: _Pattern, verts: np.ndarray, w_az: float, w_el: float, reach: float):
-    """The candidate rays of each box: (active, b0, b1, i0, i1, wrap, every), see _raycast.cast_boxes.
+    """The candidate rays of each box: (active, b0, b1, i0, i1, wrap, every), see raycast.cast_boxes.
 
     active (K',) int64 the boxes within reach whose elevation band holds a beam; per box (K,) the beam
     range [b0, b1), the azimuth index range [i0, i1], and [0, wrap] when wrap >= 0 (the sector passes

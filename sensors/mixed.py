@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sensors import _checks
+from sensors import checks
 
 MIX_MODES = {"fraction": "exactly round(fraction K) wrong steps at distinct random positions (paper 000 §IV)",
              "probability": "each step independently wrong with probability `fraction` [D]"}
@@ -45,11 +45,11 @@ def wrong_steps(K: int, fraction: float, rng: np.random.Generator, mode: str = "
 
     mode "fraction" (paper 000 §IV): N = round(fraction K) distinct steps drawn uniformly without replacement;
     mode "probability": each step independently with probability `fraction`."""
-    _checks.positive_int("K", K, allow_zero=True)
-    _checks.finite("fraction", fraction)
+    checks.positive_int("K", K, allow_zero=True)
+    checks.finite("fraction", fraction)
     if not 0.0 <= fraction <= 1.0:
         raise ValueError(f"fraction: expected a number in [0, 1], got {fraction!r}")
-    _checks.choice("mode", mode, MIX_MODES)
+    checks.choice("mode", mode, MIX_MODES)
     mask = np.zeros(K, dtype=bool)
     if mode == "fraction":
         mask[rng.choice(K, size=int(round(fraction * K)), replace=False)] = True  # paper 000 §IV mixing rule
@@ -68,9 +68,9 @@ def mixed_measurements(positions: np.ndarray, target: int, sigma: float, wrong: 
     [m] (paper 000 §IV: 0.5 m); wrong (K,) bool: steps that return a neighbour's measurement (see
     `wrong_steps`); rng: the noise generator; neighbour_rng: picks which neighbour (uniformly [D]) when the
     target has two (default: `rng`, drawn after the noise, so the noise never depends on the choice)."""
-    pos = _checks.float_array("positions", positions, (None, None, 2))
+    pos = checks.float_array("positions", positions, (None, None, 2))
     K, C = pos.shape[:2]
-    _checks.positive("sigma", sigma)
+    checks.positive("sigma", sigma)
     if isinstance(target, bool) or not isinstance(target, (int, np.integer)) or not 0 <= target < C:
         raise ValueError(f"target: expected a car index in [0, {C - 1}], got {target!r}")
     mask = np.asarray(wrong)

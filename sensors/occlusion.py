@@ -49,7 +49,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sensors import _checks
+from sensors import checks
 from sensors.lidar import LidarConfig, Scan
 
 
@@ -76,26 +76,26 @@ class OcclusionConfig:
     def __post_init__(self) -> None:
         for name in ("pd_nominal", "visible_lo", "visible_hi"):
             value = getattr(self, name)
-            _checks.finite(f"OcclusionConfig.{name}", value)
+            checks.finite(f"OcclusionConfig.{name}", value)
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"OcclusionConfig.{name}: expected 0 <= value <= 1, got {value!r}")
         if not self.visible_lo < self.visible_hi:
             raise ValueError(f"OcclusionConfig.visible_lo: must be < visible_hi, got {self.visible_lo!r}")
-        _checks.positive("OcclusionConfig.min_range_m", self.min_range_m, allow_zero=True)
-        _checks.positive("OcclusionConfig.max_range_m", self.max_range_m)
+        checks.positive("OcclusionConfig.min_range_m", self.min_range_m, allow_zero=True)
+        checks.positive("OcclusionConfig.max_range_m", self.max_range_m)
         if self.min_range_m >= self.max_range_m:
             raise ValueError(f"OcclusionConfig.min_range_m: must be < max_range_m, got {self.min_range_m!r}")
-        _checks.positive("OcclusionConfig.min_hit_height_m", self.min_hit_height_m, allow_zero=True)
-        _checks.positive("OcclusionConfig.margin_m", self.margin_m, allow_zero=True)
-        _checks.positive_int("OcclusionConfig.min_points", self.min_points, allow_zero=True)
-        _checks.positive_int("OcclusionConfig.max_columns", self.max_columns)
-        _checks.positive("OcclusionConfig.attitude_tol_deg", self.attitude_tol_deg, allow_zero=True)
+        checks.positive("OcclusionConfig.min_hit_height_m", self.min_hit_height_m, allow_zero=True)
+        checks.positive("OcclusionConfig.margin_m", self.margin_m, allow_zero=True)
+        checks.positive_int("OcclusionConfig.min_points", self.min_points, allow_zero=True)
+        checks.positive_int("OcclusionConfig.max_columns", self.max_columns)
+        checks.positive("OcclusionConfig.attitude_tol_deg", self.attitude_tol_deg, allow_zero=True)
         if self.attitude_tol_deg >= 45.0:
             raise ValueError(f"OcclusionConfig.attitude_tol_deg: expected 0 <= tol < 45, got {self.attitude_tol_deg!r}")
-        _checks.positive("OcclusionConfig.shadow_max_height_m", self.shadow_max_height_m)
-        _checks.positive("OcclusionConfig.shadow_jump_m", self.shadow_jump_m)
-        _checks.positive_int("OcclusionConfig.shadow_min_columns", self.shadow_min_columns)
-        _checks.positive_int("OcclusionConfig.shadow_max_vertices", self.shadow_max_vertices)
+        checks.positive("OcclusionConfig.shadow_max_height_m", self.shadow_max_height_m)
+        checks.positive("OcclusionConfig.shadow_jump_m", self.shadow_jump_m)
+        checks.positive_int("OcclusionConfig.shadow_min_columns", self.shadow_min_columns)
+        checks.positive_int("OcclusionConfig.shadow_max_vertices", self.shadow_max_vertices)
         if self.shadow_max_vertices < 2:
             raise ValueError(f"OcclusionConfig.shadow_max_vertices: expected >= 2, got {self.shadow_max_vertices!r}")
 
@@ -166,10 +166,10 @@ def visibility(
         raise TypeError(f"scan: expected Scan, got {type(scan).__name__}")
     if not isinstance(cfg, OcclusionConfig):
         raise TypeError(f"cfg: expected OcclusionConfig, got {type(cfg).__name__}")
-    xy = _checks.float_array("xy", xy, (None, 2))
+    xy = checks.float_array("xy", xy, (None, 2))
     length, width, height = _size(size_m)
     if heading is not None:
-        heading = _checks.float_array("heading", heading, (len(xy),))
+        heading = checks.float_array("heading", heading, (len(xy),))
     ranges, azimuths, elevations = _range_image(scan)
     if len(xy) == 0:
         return Visibility(*np.zeros((4, 0)))

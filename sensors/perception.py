@@ -66,12 +66,12 @@ from typing import Callable
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from sensors import _checks, _perception_jit
+from sensors import checks, perception_jit
 from sensors.boxfit import (
     SHAPES,
     BoxFit,
     BoxFitConfig,
-    _fit_vehicle_box,
+    fit_vehicle_box_unchecked,
     lshape_rectangle,
     min_area_rectangle,
     shape_class,
@@ -121,23 +121,23 @@ class Detections:
     flags: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        z = _checks.float_array("Detections.z", self.z, (None, 2))
+        z = checks.float_array("Detections.z", self.z, (None, 2))
         m = len(z)
         object.__setattr__(self, "z", z)
-        object.__setattr__(self, "provenance", _checks.int_array("Detections.provenance", self.provenance, (m,)))
-        object.__setattr__(self, "n_points", _checks.int_array("Detections.n_points", self.n_points, (m,)))
-        object.__setattr__(self, "extent", _checks.float_array("Detections.extent", self.extent, (m, 3)))
+        object.__setattr__(self, "provenance", checks.int_array("Detections.provenance", self.provenance, (m,)))
+        object.__setattr__(self, "n_points", checks.int_array("Detections.n_points", self.n_points, (m,)))
+        object.__setattr__(self, "extent", checks.float_array("Detections.extent", self.extent, (m, 3)))
         r = np.broadcast_to(DEFAULT_STD_M**2 * np.eye(2), (m, 2, 2)).copy() if self.R is None else self.R
-        r = _checks.float_array("Detections.R", r, (m, 2, 2))
+        r = checks.float_array("Detections.R", r, (m, 2, 2))
         if np.any(np.abs(r - r.transpose(0, 2, 1)) > 1e-9 * (1.0 + np.abs(r))) or np.any(r[:, [0, 1], [0, 1]] <= 0):
             raise ValueError("Detections.R: expected symmetric matrices with positive diagonals")
         object.__setattr__(self, "R", r)
         c = z.copy() if self.centroid is None else self.centroid
-        object.__setattr__(self, "centroid", _checks.float_array("Detections.centroid", c, (m, 2)))
+        object.__setattr__(self, "centroid", checks.float_array("Detections.centroid", c, (m, 2)))
         h = np.zeros(m) if self.heading is None else self.heading
-        object.__setattr__(self, "heading", _checks.float_array("Detections.heading", h, (m,)))
+        object.__setattr__(self, "heading", checks.float_array("Detections.heading", h, (m,)))
         f = np.zeros(m, np.int64) if self.flags is None else self.flags
-        object.__setattr__(self, "flags", _checks.int_array("Detections.flags", f, (m,)))
+        object.__setattr__(self, "flags", checks.int_array("Detections.flags", f, (m,)))
 
     def __len__(self) -> int:
         return len(self.z)
@@ -171,7 +171,7 @@ class Rejected:
     flags: np.ndarray
 
     def __post_init__(self) -> None:
-        c = _checks.float_array("Rejected.centre", self.centre, (None, 2))
+        c = checks.float_array("Rejected.centre", self.centre, (None, 2))
         k = len(c)
         reason = np.asarray(self.reason, dtype=str).reshape(-1)
         if len(reason) != k:
@@ -181,9 +181,9 @@ class Rejected:
             raise ValueError(f"Rejected.reason: unknown {unknown[0]!r}; valid: {', '.join(REJECT_REASONS)}")
         object.__setattr__(self, "centre", c)
         object.__setattr__(self, "reason", reason)
-        object.__setattr__(self, "provenance", _checks.int_array("Rejected.provenance", self.provenance, (k,)))
-        object.__setattr__(self, "n_points", _checks.int_array("Rejected.n_points", self.n_points, (k,)))
-        object.__setattr__(self, "flags", _checks.int_array("Rejected.flags", self.flags, (k,)))
+        object.__setattr__(self, "provenance", checks.int_array("Rejected.provenance", self.provenance, (k,)))
+        object.__setattr__(self, "n_points", checks.int_array("Rejected.n_points", self.n_points, (k,)))
+        object.__setattr__(self, "flags", checks.int_array("Rejected.flags", self.flags, (k,)))
 
     def __len__(self) -> int:
         return len(self.centre)
@@ -278,11 +278,11 @@ class PerceptionConfig:
                      "one_face_width_m", "ref_height_m", "body_bin_m", "edge_on_width_m", "grazing_deg",
                      "lift_trunk_m", "lift_crown_m", "lift_floor_m", "max_truck_length_m", "split_gap_m",
                      "split_min_width_m", "min_split_gap_m", "merge_gap_m", "link_max_length_m"):
-            _checks.positive(f"PerceptionConfig.{name}", getattr(self, name))
+            checks.positive(f"PerceptionConfig.{name}", getattr(self, name))
         for name in ("min_extent_m", "min_height_m", "roi_margin_m", "height_margin_m"):
-            _checks.positive(f"PerceptionConfig.{name}", getattr(self, name), allow_zero=True)
-        _checks.positive_int("PerceptionConfig.max_splits", self.max_splits)
-        _checks.choice("PerceptionConfig.fit", self.fit, FITS)
+            checks.positive(f"PerceptionConfig.{name}", getattr(self, name), allow_zero=True)
+        checks.positive_int("PerceptionConfig.max_splits", self.max_splits)
+        checks.choice("PerceptionConfig.fit", self.fit, FITS)
         if self.min_height_mode not in HEIGHT_MODES:
             raise ValueError(f"PerceptionConfig.min_height_mode: expected one of {', '.join(HEIGHT_MODES)}, "
                              f"got {self.min_height_mode!r}")
@@ -499,7 +499,7 @@ def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy:
     n = np.fromiter(map(len, objects), np.int64, len(objects))
     members = np.concatenate(objects)
     starts = np.cumsum(n) - n
-    top, lo, hi, centroid, sxx, syy, sxy, d_min, xy, rel = _perception_jit.object_sums(
+    top, lo, hi, centroid, sxx, syy, sxy, d_min, xy, rel = perception_jit.object_sums(
         pts, members, starts, n, float(road_z), float(sensor_xy[0]), float(sensor_xy[1]))
     principal = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     cos_p, sin_p = np.cos(principal), np.sin(principal)
@@ -507,7 +507,7 @@ def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy:
     p_length = _extent(rel, cos_p, sin_p, n, starts)
     axis = road.heading_at(centroid) if road is not None else principal
     cos_a, sin_a = (np.cos(axis), np.sin(axis)) if road is not None else (cos_p, sin_p)
-    u, along = _perception_jit.along(rel, cos_a, sin_a, starts, n)
+    u, along = perception_jit.along(rel, cos_a, sin_a, starts, n)
     across = _extent(rel, -sin_a, cos_a, n, starts)
     return _Stats(members, starts, n, top, lo, hi, centroid, axis, along, across, d_min, u, xy, rel, principal,
                   thickness, p_length)
@@ -515,7 +515,7 @@ def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy:
 
 def _extent(rel: np.ndarray, cx: np.ndarray, cy: np.ndarray, n: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """(K,) extent of each object's points rel (sum n, 2) along its unit direction (cx, cy) (K,) each."""
-    return _perception_jit.extent(rel, np.ascontiguousarray(cx, np.float64), np.ascontiguousarray(cy, np.float64),
+    return perception_jit.extent(rel, np.ascontiguousarray(cx, np.float64), np.ascontiguousarray(cy, np.float64),
                                   starts, n)
 
 
@@ -788,7 +788,7 @@ def _screen(scan: Scan, st: _Stats, cfg: PerceptionConfig) -> tuple[np.ndarray, 
         thin = (facing < cfg.edge_on_width_m) | ((st.thickness < cfg.edge_on_width_m) & along_sight)
         edge_on = thin & (st.top < cfg.min_height_m)
         reason[(reason == "") & edge_on] = "edge_on"
-    median = _perception_jit.medians(z, st.starts, st.n)
+    median = perception_jit.medians(z, st.starts, st.n)
     reason[(reason == "") & (median > cfg.max_median_height_m)] = "high_median"
     if cfg.shape_filter:
         reason[(reason == "") & _lifted(z, st, cfg)] = "lifted"
@@ -822,7 +822,7 @@ def _lifted(z: np.ndarray, st: _Stats, cfg: PerceptionConfig) -> np.ndarray:
     reaches down along its whole near face (a car seen from behind: the lower rear spans its width under
     the roof rings). Alone: its lowest point is above lift_floor_m. No car reaches that high, and a car
     in front of a vehicle hides it only below the car's roof (the sensor is higher)."""
-    bottom, low_span, high_span = _perception_jit.lift_spans(z, st.xy, st.top, st.starts, st.n)
+    bottom, low_span, high_span = perception_jit.lift_spans(z, st.xy, st.top, st.starts, st.n)
     crown_on_trunk = (low_span < cfg.lift_trunk_m) & (high_span >= cfg.lift_crown_m)
     return crown_on_trunk | (bottom > cfg.lift_floor_m)
 
@@ -831,7 +831,7 @@ def _body_reaches(z: np.ndarray, st: _Stats, required: np.ndarray, bin_m: float)
     """(K,) bool: in at least half of each object's bin_m bins along its axis, the highest point reaches
     the required top (K,) [m]; z (sum n,) the members' heights above the road [m]. A post on a guard rail
     lifts the rail's top, not its body."""
-    return _perception_jit.body_reaches(z, st.u, np.ascontiguousarray(required, np.float64), float(bin_m),
+    return perception_jit.body_reaches(z, st.u, np.ascontiguousarray(required, np.float64), float(bin_m),
                                         st.starts, st.n)
 
 
@@ -954,7 +954,7 @@ def _vehicle_box(scan: Scan, idx: np.ndarray, top: float, hint: float | None, op
     `pool` that continue its seen side (boxfit.side_continuation: the clustering leaves a side seen at a
     grazing angle as noise and fragments)."""
     pts, road_z = scan.points, cfg.ground.ground_z_m
-    f = _fit_vehicle_box(pts[idx, :2], scan.origin[:2], top_m=float(top), heading_hint=hint, open_ends=open_ends,
+    f = fit_vehicle_box_unchecked(pts[idx, :2], scan.origin[:2], top_m=float(top), heading_hint=hint, open_ends=open_ends,
                          cfg=boxfit, z=pts[idx, 2] - road_z)  # checked inputs
     if pool is None or len(pool) == 0 or boxfit.prior(top).min_length_m <= 0 or (open_ends and any(open_ends)):
         return f
@@ -964,7 +964,7 @@ def _vehicle_box(scan: Scan, idx: np.ndarray, top: float, hint: float | None, op
     if len(more) == 0:
         return f
     both = _canonical(pts, np.concatenate([idx, more]))
-    return _fit_vehicle_box(pts[both, :2], scan.origin[:2], top_m=float(top), heading_hint=hint,
+    return fit_vehicle_box_unchecked(pts[both, :2], scan.origin[:2], top_m=float(top), heading_hint=hint,
                             open_ends=open_ends, cfg=boxfit, z=pts[both, 2] - road_z)
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sensors import _checks
+from sensors import checks
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,11 +31,11 @@ class RoadMap:
     _tree: cKDTree = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        centre = _checks.float_array("RoadMap.centre", self.centre, (None, 2))
+        centre = checks.float_array("RoadMap.centre", self.centre, (None, 2))
         if len(centre) == 0:
             raise ValueError("RoadMap.centre: expected at least one sample, got 0")
-        heading = _checks.float_array("RoadMap.heading", self.heading, (len(centre),))
-        half_width = _checks.float_array("RoadMap.half_width", self.half_width, (len(centre),))
+        heading = checks.float_array("RoadMap.heading", self.heading, (len(centre),))
+        half_width = checks.float_array("RoadMap.half_width", self.half_width, (len(centre),))
         if np.any(half_width <= 0.0):
             raise ValueError(f"RoadMap.half_width: expected > 0 everywhere, got min {half_width.min()!r}")
         object.__setattr__(self, "centre", centre)
@@ -45,7 +45,7 @@ class RoadMap:
 
     def nearest(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance (M,) [m] to the nearest centre sample and its index (M,) int64, for xy (M, 2) [m]."""
-        q = _checks.float_array("xy", xy, (None, 2))
+        q = checks.float_array("xy", xy, (None, 2))
         if len(q) == 0:
             return np.zeros(0), np.zeros(0, np.int64)
         dist, k = self._tree.query(q)
@@ -56,7 +56,7 @@ class RoadMap:
 
         Between samples s apart the distance to the nearest one is up to sqrt(d^2 + (s/2)^2) for a
         lateral offset d: the lane edge moves in by at most 0.07 m (half width 1.75 m, s = 1 m)."""
-        _checks.positive("margin_m", margin_m, allow_zero=True)
+        checks.positive("margin_m", margin_m, allow_zero=True)
         dist, k = self.nearest(xy)
         return dist <= self.half_width[k] + margin_m
 

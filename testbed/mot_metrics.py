@@ -87,7 +87,7 @@ METRIC_KEYS = ("hota", "deta", "assa", "loca", "mota", "motp", "idf1", "id_switc
 
 
 @functools.cache
-def _trackeval_metrics():
+def trackeval_metrics():
     """(HOTA, CLEAR, Identity) TrackEval metric objects, built once (import + construction ~1 s).
 
     The config dicts switch off TrackEval's printing of its configuration; CLEAR and Identity keep
@@ -233,7 +233,7 @@ def mot_metrics(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray], n_f
         "num_gt_dets": len(g_frame), "num_tracker_dets": len(t_frame),
         "gt_ids": gt_ids, "tracker_ids": tr_ids, "similarity_scores": sims,
     }
-    hota_m, clear_m, id_m = _trackeval_metrics()
+    hota_m, clear_m, id_m = trackeval_metrics()
     hota = hota_m.combine_sequences({"run": hota_m.eval_sequence(data)})
     clear = clear_m.combine_sequences({"run": clear_m.eval_sequence(data)})
     ident = id_m.combine_sequences({"run": id_m.eval_sequence(data)})

@@ -351,10 +351,3 @@ def write_scores(res: RunResult, tracker_name: str) -> None:
                config=to_dict(res.scenario))
     text = json_text(doc, indent=2, default=float) + "\n"  # a score with nothing to measure is null
     write_atomic(out / "scores.json", lambda tmp: tmp.write_text(text, encoding="utf-8"))
-
-
-def write_outputs(res: RunResult, tracker_name: str) -> None:
-    """The tables and scores.json of a finished run into ``res.out_dir``."""
-    assert res.out_dir is not None
-    _write_tables(res.out_dir, res.tables)
-    write_scores(res, tracker_name)

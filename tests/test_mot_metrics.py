@@ -9,7 +9,7 @@ from stonesoup.metricgenerator.ospametric import GOSPAMetric
 from stonesoup.types.array import StateVector
 from stonesoup.types.state import State
 
-from testbed.mot_metrics import METRIC_KEYS, _trackeval_metrics, gospa, mot_metrics, visible_truth
+from testbed.mot_metrics import METRIC_KEYS, trackeval_metrics, gospa, mot_metrics, visible_truth
 
 T0 = datetime.datetime(2024, 1, 1)
 N_ALPHA = 19  # HOTA alphas 0.05, 0.10, ..., 0.95
@@ -243,8 +243,8 @@ def test_row_order_does_not_matter():
 
 
 def test_trackeval_construction_prints_nothing(capsys):
-    _trackeval_metrics.cache_clear()
-    hota, clear, ident = _trackeval_metrics()
+    trackeval_metrics.cache_clear()
+    hota, clear, ident = trackeval_metrics()
     assert capsys.readouterr().out == ""
     assert clear.threshold == 0.5 and ident.threshold == 0.5
     assert len(hota.array_labels) == N_ALPHA

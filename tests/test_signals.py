@@ -76,7 +76,7 @@ def _wait_for_jit(proc: subprocess.Popen, deadline: float) -> None:
     while time.monotonic() < deadline:
         assert proc.poll() is None, proc.communicate()
         now = len(list(cache.glob("*.nbi"))) if cache.is_dir() else 0
-        if now == count and any(cache.glob("_raycast.*.nbi")):
+        if now == count and any(cache.glob("raycast.*.nbi")):
             return
         count = now
         time.sleep(2.0)

@@ -112,11 +112,6 @@ class TrackSet:
     def __len__(self) -> int:
         return len(self.ids)
 
-    @property
-    def kinematics(self) -> tuple[np.ndarray, np.ndarray]:
-        """(T, 4) [x, y, vx, vy] and (T, 4, 4) its covariance."""
-        return np.hstack([self.xy, self.v]), self.cov
-
     def with_status(self, status: np.ndarray) -> "TrackSet":
         """The same tracks with another status (T,) (the testbed's moving-object test adds "static")."""
         new = object.__new__(TrackSet)

@@ -205,7 +205,7 @@ def cell_minimum(ix, iy, ny, z, size):
 @njit(cache=True)
 def cell_lowest(pts, z, inv, fx0, fy0, ny, size):
     """(size,) the lowest z (N,) in each BEV cell (floor(x inv) - fx0) * ny + floor(y inv) - fy0 of the points
-    (N, 3) (sensors/_grid.bev_cells numbering), inf where empty."""
+    (N, 3) (sensors/grid.bev_cells numbering), inf where empty."""
     out = np.full(size, np.inf)
     for i in range(len(z)):
         c = np.int64(np.floor(pts[i, 0] * inv) - fx0) * ny + np.int64(np.floor(pts[i, 1] * inv) - fy0)
