@@ -4,7 +4,7 @@ recording. The public API (docs/api.md), small enough to remember:
     load_scenario(name_or_path, overrides=None) -> Scenario
     sense(scenario)                       -> iterator of SensedFrame (truth, scan, detections, visibility, pd)
     track(frames, tracker, scenario)      -> iterator of (SensedFrame, TrackSet)
-    run(scenario, tracker=None, out=None) -> RunResult (tables, scores, MOT metrics; files in out)
+    run(scenario, tracker=None, out=None, sensing_cache=None) -> RunResult (tables, scores, MOT metrics)
     read_run(folder)                      -> RunData (the tables as DataFrames, scores.json, the scenario)
     score(truth, tracks, scoring=None)    -> Evaluation (thesis scores and MOT metrics of plain tables)
 
@@ -39,13 +39,15 @@ def track(frames, tracker, scenario):
     return _track(frames, tracker, _scenario(scenario))
 
 
-def run(scenario, tracker=None, out=None, record: bool = True, policy=None, on_frame=None):
-    """Run ``scenario`` end to end with ``tracker`` (default: the scenario's); with ``out`` write the run folder
-    (tables, scores.json and, with ``record``, run.rrd). Returns the RunResult (testbed.pipeline.run_scenario)."""
+def run(scenario, tracker=None, out=None, record: bool = True, policy=None, on_frame=None, sensing_cache=None):
+    """Run ``scenario`` end to end with ``tracker`` (default: the scenario's; a built-in or named tracker such as
+    ``stonesoup-jpda-kf``, ``module:Name``, a factory or an object); with ``out`` write the run folder (tables,
+    scores.json and, with ``record``, run.rrd); with ``sensing_cache`` (a folder) sense each traffic once and
+    track from it after (bit-identical). Returns the RunResult (testbed.pipeline.run_scenario)."""
     from .pipeline import run_scenario
 
     return run_scenario(_scenario(scenario), out_dir=out, record=record and out is not None, tracker=tracker,
-                        on_frame=on_frame, policy=policy)
+                        on_frame=on_frame, policy=policy, sensing_cache=sensing_cache)
 
 
 def _scenario(scenario):

@@ -32,11 +32,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .outdir import RUN_FILES, Staging
     from .scenario import load_scenario
 
-    from .tracking import load_tracker
-    from .usercode import is_code_spec
+    from .tracking import is_factory_spec, load_tracker
 
     overrides = parse_sets(args.set or [])
-    user = args.tracker is not None and is_code_spec(args.tracker)  # --tracker my_module:MyTracker
+    user = is_factory_spec(args.tracker)  # --tracker my_module:MyTracker or a named one (stonesoup-jpda-kf)
     if args.tracker is not None and not user:
         overrides["tracker.name"] = args.tracker  # "" is refused by the loader, not silently ignored
     if args.seed is not None:
@@ -267,10 +266,20 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _cmd_trackers(args: argparse.Namespace) -> int:
-    from trackers import describe_tracker, named_trackers
+    from trackers import describe_tracker, named_trackers, plugin_trackers
+
+    from .tracking import named_trackers as whole_trackers
 
     for name in named_trackers(all_combinations=args.all):
         print(f"{name:<22} {describe_tracker(name)}")
+    plugged = [n for n in plugin_trackers() if args.all or n not in named_trackers()]
+    if plugged and not args.all:
+        print("\nwith installed plug-in filters and associators (entry points roadtrack.filters, .associators):")
+        for name in plugged:
+            print(f"{name:<22} {describe_tracker(name)}")
+    print("\nwhole trackers (testbed run --tracker NAME; not in scenario files' tracker.name):")
+    for t in whole_trackers().values():
+        print(f"{t.name:<22} {t.doc} [{t.source}]")
     return 0
 
 

@@ -69,11 +69,11 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     name = label or tracker_label(tracker, scn)
     trk = build_tracker(scn, tracker)  # before the traffic is set up: a bad tracker fails at once
     rngs = rng_streams(scn.seed)
-    sim, static, road = sensing_setup(scn, rngs, policy)
+    setup = _Setup(scn, rngs, policy)  # the traffic is set up when needed: not for a run read from the cache
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-    recorder = _recorder(scn, out / "run.rrd", name, sim, static) if out is not None and record else None
+    recorder = _recorder(scn, out / "run.rrd", name, *setup()[:2]) if out is not None and record else None
     tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(), diagnostics=diagnostics_log())
     watch = Stopwatch()
     state = _Progress()
@@ -82,9 +82,9 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         if sensing_cache is not None and policy is None:
             from .sensing.cache import SensingCache
 
-            frames = SensingCache(sensing_cache).frames(scn, sim, static, road, watch)
+            frames = SensingCache(sensing_cache).frames(scn, setup, watch)
         else:
-            frames = sense_simulation(scn, sim, static, road, rngs, watch)
+            frames = sense_simulation(scn, *setup(), rngs, watch)
         _frames(scn, trk, frames, recorder, tables, watch, state, overflows, on_frame)
         state.looping = False
         if recorder is not None:
@@ -105,6 +105,18 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     finally:
         overflows.report()
     return res
+
+
+class _Setup:
+    """``sensing_setup`` of a run, done once on the first call: () -> (sim, static, road)."""
+
+    def __init__(self, scn: Scenario, rngs: dict, policy: Callable | None):
+        self.args, self.done = (scn, rngs, policy), None
+
+    def __call__(self):
+        if self.done is None:
+            self.done = sensing_setup(*self.args)
+        return self.done
 
 
 @dataclass

@@ -20,19 +20,23 @@ from trackers.management import ManagementParams, initial_score, score_decide, s
 from trackers.models import (ConstantVelocity, CoordinatedTurn, PositionMeasurement, RangeBearing, cv_noise_gain,
                              cv_process_noise, cv_transition, measurement_noise, position_measurement_matrix)
 from trackers.params import ParamError
-from trackers.registry import (WRAPPERS, available_trackers, describe_tracker, make_tracker, named_trackers,
-                               parse_tracker_name, preset)
+from trackers.registry import (PAPER_TRACKERS, WRAPPERS, available_trackers, describe_tracker, make_tracker,
+                               named_trackers, parse_tracker_name, plugin_trackers, preset)
 from trackers.state import FilterState
 from trackers.tracker import ScanRecord, StepInfo, StepResult, Track, Tracker
 
 __all__ = [
-    "ASSOCIATORS", "AssociationInput", "AssociationParams", "AssociatorParams", "ConstantVelocity",
+    "ASSOCIATORS", "PAPER_TRACKERS", "AssociationInput", "AssociationParams", "AssociatorParams", "ConstantVelocity",
     "CoordinatedTurn", "ExtendedKalmanFilter", "FILTERS", "Filter", "FilterError", "FilterState",
     "JPDAOverflowError", "JPDAOverflowWarning", "KalmanFilter", "ManagementParams", "ParamError",
     "PositionMeasurement", "RangeBearing", "ScanRecord", "StepInfo", "StepResult", "Track", "Tracker", "WRAPPERS",
     "available_trackers", "describe_tracker", "cv_noise_gain", "cv_process_noise", "cv_transition", "gate", "gate_probability",
     "global_nearest_neighbour", "initial_score", "innovations", "jpda", "log_gaussian", "mahalanobis2",
     "mahalanobis2_and_log_gaussian", "make_filter", "make_tracker", "measurement_noise", "named_trackers", "nearest_neighbour",
-    "parse_tracker_name", "pda", "pda_covariance", "position_measurement_matrix", "preset", "score_decide",
+    "parse_tracker_name", "pda", "plugin_trackers", "pda_covariance", "position_measurement_matrix", "preset", "score_decide",
     "score_increment",
 ]
+
+from trackers import plugins as _plugins  # noqa: E402 - last: a plug-in may import anything above
+
+_plugins.load_all()  # installed filters and associators (entry points roadtrack.filters, roadtrack.associators)

@@ -52,15 +52,26 @@ def available_trackers() -> list[str]:
     return sorted(base + [f"{w}-{b}" for w in WRAPPERS for b in base])
 
 
-NAMED = ("nn-kf", "gnn-kf", "pda-kf", "an-kf", "jpda-kf", "pda-svsf", "jpda-svsf", "jpda-gvbl-svsf", "imm-pda-kf",
-         "imm-pda-svsf", "imm-jpda-gvbl-svsf", "apda-svsf", "apda-gvbl-svsf")
-"""The trackers of the papers (thesis §4.5 table, seed 001's AN): `testbed trackers` lists these."""
+PAPER_TRACKERS = ("nn-kf", "gnn-kf", "pda-kf", "an-kf", "jpda-kf", "pda-svsf", "jpda-svsf", "jpda-gvbl-svsf",
+                  "imm-pda-kf", "imm-pda-svsf", "imm-jpda-gvbl-svsf", "apda-svsf", "apda-gvbl-svsf")
+"""The trackers of the papers (thesis §4.5 table, seed 001's AN), a fixed list: `testbed trackers` lists these
+first; reproductions and tests name their own lists, so an installed plug-in never changes what they run."""
 
 
 def named_trackers(all_combinations: bool = False) -> list[str]:
-    """The papers' named trackers that are registered (or every combination)."""
-    every = available_trackers()
-    return every if all_combinations else [n for n in NAMED if n in every]
+    """The papers' named trackers (or every combination, plug-ins included)."""
+    return available_trackers() if all_combinations else list(PAPER_TRACKERS)
+
+
+def plugin_trackers() -> list[str]:
+    """The combinations of the installed plug-in filters with every associator and of the plug-in associators
+    with every filter (no wrapper), sorted (trackers.plugins)."""
+    from trackers.plugins import PLUGINS
+
+    filters = [f for f in FILTERS if f not in WRAPPERS]
+    names = {f"{a}-{f}" for a in ASSOCIATORS for f in PLUGINS["filter"]}
+    names |= {f"{a}-{f}" for a in PLUGINS["associator"] for f in filters}
+    return sorted(names)
 
 
 def describe_tracker(name: str) -> str:

@@ -79,12 +79,12 @@ class Settings:
 
 
 def settings(quick: bool) -> Settings:
-    from trackers import named_trackers
+    from trackers import PAPER_TRACKERS
 
     if quick:
         return Settings((Case("cut_in_out", "right", 12.0, 6.0, 1.5),), QUICK_TRACKERS, 1)
     return Settings((Case("cut_in_out", "right", 16.0, 8.0, 1.5), Case("convoy", "convoy2", 20.0, 10.0, 3.0)),
-                    tuple(named_trackers()), 4)
+                    PAPER_TRACKERS, 4)
 
 
 def variants(case: Case) -> dict[str, tuple[OutageSpec, ...]]:

@@ -10,7 +10,8 @@ may share a folder: the first to need an entry senses it while the others wait f
 
 An entry is a folder ``<key>/``: ``truth.parquet`` (the truth rows with each vehicle's visibility),
 ``detections.parquet`` (every field of the detections), ``ranges.parquet`` (per frame the sensor pose and the
-range image the occlusion-aware P_D reads, as ``ranges_for_pd`` makes it: 2 mm steps, uint16) and ``meta.json``
+range image the occlusion-aware P_D reads, as ``ranges_for_pd`` makes it: 2 mm steps, uint16), ``road.parquet``
+(the perception's road map, which that P_D reads too, so a cached run sets up no traffic) and ``meta.json``
 (written last: its presence marks the entry complete). Frames from the cache carry no point cloud and no
 perception internals (``scan.points`` is empty, ``perception`` is None): a tracker gets exactly what it gets live
 (tests/test_sensing_cache.py checks a tracker run from the cache is identical to one from scratch), a recording
@@ -40,7 +41,7 @@ from ..scenario import Scenario
 from ..simulation import TruthFrame
 from .frames import PD_RANGE_STEP_M, SensedFrame, occlusion_pd, rng_streams, sense_simulation, sensing_setup
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 NOT_SENSING = ("tracker", "scoring", "record", "moving_test", "name", "description")
 """Scenario keys that do not change what is sensed."""
 
@@ -99,18 +100,17 @@ class SensingCache:
         root = self.entry(scn) if scn is not None else self.folder
         return sum(f.stat().st_size for f in root.rglob("*") if f.is_file()) if root.exists() else 0
 
-    def frames(self, scn: Scenario, sim=None, static=None, road=None, watch=None) -> Iterator[SensedFrame]:
-        """The sensed frames of ``scn``: from the entry when it is complete, else sensed (on ``sim``, ``static``,
-        ``road`` from :func:`sensing_setup` when given) and stored. ``watch``: a Stopwatch or None."""
+    def frames(self, scn: Scenario, setup=None, watch=None) -> Iterator[SensedFrame]:
+        """The sensed frames of ``scn``: from the entry when it is complete, else sensed and stored. ``setup``: a
+        function of no argument giving (sim, static, road) as :func:`sensing_setup` does, called only when the
+        frames must be sensed (default: sensing_setup of the scenario); ``watch``: a Stopwatch or None."""
         make_folder(self.folder, "sensing cache")
         entry = self.entry(scn)
-        if sim is None:
-            sim, static, road = sensing_setup(scn, rng_streams(scn.seed))
         lock_path = self.folder / f".{entry.name}.lock"
         fd = None
         while True:
             if (entry / "meta.json").is_file():
-                frames = self._load(scn, entry, road, watch)
+                frames = self._load(scn, entry, watch)
                 if frames is not None:
                     if fd is not None:
                         unlock(fd, lock_path)
@@ -124,18 +124,23 @@ class SensingCache:
                 continue  # locked: look once more (it may have been finished meanwhile)
             break
         try:
+            sim, static, road = setup() if setup is not None else sensing_setup(scn, rng_streams(scn.seed))
             yield from self._sense_and_store(scn, entry, sim, static, road, watch)
         finally:
             unlock(fd, lock_path)
 
-    def _load(self, scn: Scenario, entry: Path, road, watch) -> Iterator[SensedFrame] | None:
-        """The entry's frames, or None (with one warning line, the entry removed) when it cannot be read."""
+    def _load(self, scn: Scenario, entry: Path, watch) -> Iterator[SensedFrame] | None:
+        """The entry's frames (decoded one by one), or None (with one warning line, the entry removed) when it
+        cannot be read. The range images are read only when the scenario's occlusion-aware P_D needs them."""
         try:
             meta = json.loads((entry / "meta.json").read_text(encoding="utf-8"))
             if meta.get("version") != CACHE_VERSION or meta.get("key") != entry.name:
                 raise ValueError("written by another version")
-            tables = {n: pq.read_table(entry / f"{n}.parquet") for n in ("truth", "detections", "ranges")}
-            frames = list(_decode(scn, meta, tables, road))
+            columns = None if scn.sensor.occlusion_pd else ["frame", "origin", "pose"]
+            tables = {n: pq.read_table(entry / f"{n}.parquet") for n in ("truth", "detections")}
+            tables["ranges"] = pq.read_table(entry / "ranges.parquet", columns=columns)
+            road = _road(pq.read_table(entry / "road.parquet")) if scn.sensor.occlusion_pd else None
+            frames = _decode(scn, meta, tables, road)  # checks the tables' sizes before the first frame
         except Exception as err:  # noqa: BLE001 - any damage: sense again
             warnings.warn(CacheWarning(f"sensing cache {entry}: damaged ({type(err).__name__}: "
                                        f"{str(err).splitlines()[0] if str(err) else ''}); sensing again"),
@@ -144,7 +149,7 @@ class SensingCache:
             return None
         if watch is not None:
             watch.lap("simulation")
-        return iter(frames)
+        return frames
 
     def _sense_and_store(self, scn, entry: Path, sim, static, road, watch) -> Iterator[SensedFrame]:
         rows = _Rows(range_dtype(scn.sensor.lidar.max_range_m))
@@ -156,7 +161,7 @@ class SensingCache:
         shutil.rmtree(tmp, ignore_errors=True)
         make_folder(tmp, "sensing cache entry")
         try:
-            for name, table in rows.tables().items():
+            for name, table in {**rows.tables(), "road": _road_table(road)}.items():
                 pq.write_table(table, tmp / f"{name}.parquet", compression="zstd")
             meta = dict(version=CACHE_VERSION, key=entry.name, frames=rows.n, settings=sensing_settings(scn),
                         azimuths=rows.azimuths, elevations=rows.elevations, shape=rows.shape,
@@ -167,6 +172,15 @@ class SensingCache:
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
+
+
+def _road_table(road: sensors.RoadMap) -> pa.Table:
+    return pa.table(dict(x=road.centre[:, 0], y=road.centre[:, 1], heading=road.heading, half_width=road.half_width))
+
+
+def _road(table: pa.Table) -> sensors.RoadMap:
+    col = {c: table.column(c).to_numpy() for c in table.column_names}
+    return sensors.RoadMap(np.column_stack([col["x"], col["y"]]), col["heading"], col["half_width"])
 
 
 class _Rows:
@@ -249,6 +263,8 @@ def _fixed(col: pa.ChunkedArray, shape: tuple[int, ...], dtype) -> np.ndarray:
 
 
 def _decode(scn: Scenario, meta: dict, tables: dict, road) -> Iterator[SensedFrame]:
+    """The frames of an entry's tables, decoded one at a time (a long run's range images are never all in memory);
+    ValueError before the first frame when the tables do not fit ``meta``."""
     n = int(meta["frames"])
     shape = tuple(meta["shape"])
     az, el = np.asarray(meta["azimuths"], np.float64), np.asarray(meta["elevations"], np.float64)
@@ -263,14 +279,22 @@ def _decode(scn: Scenario, meta: dict, tables: dict, road) -> Iterator[SensedFra
     rg = tables["ranges"]
     origins = _fixed(rg.column("origin"), (3,), np.float64)
     poses = _fixed(rg.column("pose"), (3,), np.float64)
-    blobs = rg.column("ranges").to_pylist()
     frames_col = rg.column("frame").to_numpy()
     if len(frames_col) != n or list(frames_col) != list(range(n)):
         raise ValueError(f"{len(frames_col)} frames, expected {n}")
+    blobs = rg.column("ranges") if "ranges" in rg.column_names else None
+    if blobs is not None and any(len(b) != int(np.prod(shape)) * dtype.itemsize
+                                 for b in blobs.combine_chunks().to_pylist()):
+        raise ValueError(f"a range image is not of shape {shape} {dtype.name}")
+    return _frames_of(scn, n, shape, az, el, dtype, tr, det, origins, poses, blobs, road)
+
+
+def _frames_of(scn, n, shape, az, el, dtype, tr, det, origins, poses, blobs, road) -> Iterator[SensedFrame]:
     t_bounds = np.searchsorted(tr["frame"], np.arange(n + 1))
     d_bounds = np.searchsorted(det["frame"], np.arange(n + 1))
     pd_for = occlusion_pd(scn, road) if scn.sensor.occlusion_pd else None
     empty3, empty_i = np.zeros((0, 3)), np.zeros(0, np.int64)
+    no_ranges = np.zeros((0, 0))
     for f in range(n):
         a, b = t_bounds[f], t_bounds[f + 1]
         truth = TruthFrame(frame=f, time=float(tr["time"][a]), ids=tr["vehicle_id"][a:b].astype(np.int64),
@@ -284,8 +308,11 @@ def _decode(scn: Scenario, meta: dict, tables: dict, road) -> Iterator[SensedFra
         c, e = d_bounds[f], d_bounds[f + 1]
         dets = sensors.Detections(det["z"][c:e], det["provenance"][c:e], det["n_points"][c:e], det["extent"][c:e],
                                   det["R"][c:e], det["centroid"][c:e], det["heading"][c:e], det["flags"][c:e])
-        steps = np.frombuffer(blobs[f], dtype=dtype).reshape(shape)
-        ranges = np.where(steps == np.iinfo(dtype).max, np.inf, steps.astype(np.float64) * PD_RANGE_STEP_M)
+        if blobs is not None:
+            steps = np.frombuffer(blobs[f].as_py(), dtype=dtype).reshape(shape)
+            ranges = np.where(steps == np.iinfo(dtype).max, np.inf, steps.astype(np.float64) * PD_RANGE_STEP_M)
+        else:  # the P_D is off: nothing reads the range image
+            ranges = no_ranges
         scan = sensors.Scan(points=empty3, source=empty_i, origin=origins[f], ranges=ranges, ray=empty_i,
                             azimuths=az, elevations=el, pose=poses[f])
         yield SensedFrame(truth, scan, None, dets, vis, pd_for(scan) if pd_for is not None else None, scan)

@@ -1,5 +1,6 @@
-"""Trackers by name: a built-in combination (``jpda-kf``, ``imm-pda-kf``, ...) or a user's class named on the
-command line (``--tracker my_module:MyTracker`` or ``--tracker path/to/file.py:MyTracker``)."""
+"""Trackers by name: a built-in combination (``jpda-kf``, ``imm-pda-kf``, ...), a named tracker (Stone Soup's,
+an installed plug-in's: testbed.tracking.registry) or a user's class named on the command line (``--tracker
+my_module:MyTracker`` or ``--tracker path/to/file.py:MyTracker``)."""
 from __future__ import annotations
 
 import inspect
@@ -9,12 +10,20 @@ from ..config import ConfigError
 from ..usercode import is_code_spec, load_object
 from .builtin import BuiltinTracker
 from .protocol import Tracker
+from .registry import is_named, named_factory
+
+
+def is_factory_spec(spec: Any) -> bool:
+    """Whether ``spec`` names a tracker factory (``module:Name``, ``file.py:Name`` or a named tracker) rather
+    than a built-in combination."""
+    return isinstance(spec, str) and (is_code_spec(spec) or is_named(spec))
 
 
 def load_tracker(spec: str) -> Any:
-    """The tracker factory named by ``spec`` (``module:Name`` or ``file.py:Name``): a class or function called
-    with the scenario (or with nothing when it takes no argument) to give a fresh tracker per run."""
-    obj = load_object(spec, "--tracker", "Class")
+    """The tracker factory named by ``spec`` (``module:Name``, ``file.py:Name`` or a named tracker such as
+    ``stonesoup-jpda-kf``): a class or function called with the scenario (or with nothing when it takes no
+    argument) to give a fresh tracker per run."""
+    obj = named_factory(spec) if is_named(spec) else load_object(spec, "--tracker", "Class")
     if not callable(obj):
         raise ConfigError("--tracker", f"{spec!r} is not a class or function")
     return obj
@@ -22,10 +31,11 @@ def load_tracker(spec: str) -> Any:
 
 def build_tracker(scenario, tracker: Any = None) -> Tracker:
     """A fresh protocol tracker for one run of ``scenario``. ``tracker``: None (the scenario's tracker), a
-    built-in name (``jpda-kf``), ``module:Name`` / ``file.py:Name`` (:func:`load_tracker`), a factory (class or
+    built-in name (``jpda-kf``), a named tracker (``stonesoup-jpda-kf``), ``module:Name`` / ``file.py:Name``
+    (:func:`load_tracker`), a factory (class or
     function of the scenario), or an object with ``step`` already built. ConfigError (one line) when it is none
     of these or the factory does not give an object with ``step``."""
-    if tracker is None or (isinstance(tracker, str) and not is_code_spec(tracker)):
+    if tracker is None or (isinstance(tracker, str) and not is_factory_spec(tracker)):
         return BuiltinTracker(scenario.tracker.build(tracker or scenario.tracker.name))
     factory = load_tracker(tracker) if isinstance(tracker, str) else tracker
     if isinstance(factory, Tracker) and not inspect.isclass(factory):

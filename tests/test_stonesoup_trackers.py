@@ -1,0 +1,70 @@
+"""Stone Soup's trackers (stonesoup-gnn-kf, stonesoup-jpda-kf) on the testbed's traffic, compared with ours.
+
+cut_in_out (20 s, 3 cars) is sensed once into a sensing cache and every tracker runs on the same detections with
+the scenario's jpda-kf settings (sigma_v 4 m/s^2, sigma_w 0.5 m, gate 16, P_D 0.9, clutter 1e-2 /m^2, 5 coasted
+scans, position std <= 7.5 m). Differences, by design of Stone Soup: its CV process noise is the continuous
+model (4/3 of our position term), a track is confirmed by its second detection (ours by the SPRT score), and
+Stone Soup ignores the occlusion-aware P_D. Measured: all four track the 3 cars with no false track; HOTA 0.833
+(ours, both) and 0.840 (Stone Soup, both).
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import testbed
+from testbed.tracking.stonesoup import RunDetectionReader, components
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("sensing")
+    scn = testbed.load_scenario("cut_in_out")
+    out = {}
+    for name in ("jpda-kf", "gnn-kf", "stonesoup-gnn-kf", "stonesoup-jpda-kf"):
+        folder = tmp_path_factory.mktemp(name)
+        out[name] = (testbed.run(scn, tracker=name, out=folder, record=False, sensing_cache=cache), folder)
+    return scn, out
+
+
+@pytest.mark.parametrize("ours, theirs", [("gnn-kf", "stonesoup-gnn-kf"), ("jpda-kf", "stonesoup-jpda-kf")])
+def test_stone_soup_tracks_the_same_traffic_as_ours_at_equal_settings(runs, ours, theirs):
+    _, out = runs
+    a, b = out[ours][0], out[theirs][0]
+    assert a.scores.cars_seen == b.scores.cars_seen == 3
+    assert b.scores.cars_tracked == a.scores.cars_tracked == 3 and b.scores.false_tracks == 0
+    assert abs(a.metrics["hota"] - b.metrics["hota"]) < 0.1, (a.metrics["hota"], b.metrics["hota"])
+    assert b.tracker == theirs
+    tracks = pd.read_parquet(out[theirs][1] / "tracks.parquet")
+    confirmed = tracks[tracks.status == "confirmed"]
+    assert len(confirmed) > 100 and np.isfinite(np.stack(confirmed["cov"].to_numpy())).all()
+    assert (tracks.status == "tentative").any()  # the initiator's held tracks, awaiting a second detection
+
+
+def test_a_stone_soup_script_reads_a_run_folder_with_the_detection_reader(runs):
+    scn, out = runs
+    folder = out["jpda-kf"][1]
+    parts = components(scn, "gnn")
+    scans = list(RunDetectionReader(folder, parts["model"]))
+    det = pd.read_parquet(folder / "detections.parquet")
+    assert len(scans) == scn.n_frames and sum(len(d) for _, d in scans) == len(det) > 0
+    first = det[det.frame == det.frame.min()]
+    t, dets = scans[int(first.frame.iloc[0])]
+    got = sorted(tuple(np.asarray(d.state_vector).ravel()) for d in dets)
+    assert np.allclose(got, sorted(map(tuple, first[["x", "y"]].to_numpy())))
+
+
+def test_without_stone_soup_the_tracker_is_refused_in_one_line_naming_the_extra():
+    code = ("import sys; sys.modules['stonesoup'] = None\n"
+            "from testbed.cli import main\n"
+            "sys.exit(main(['run', 'cut_in_out', '--tracker', 'stonesoup-jpda-kf', '--no-record', '--out', "
+            "'/nonexistent/x']))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: tracker: the Stone Soup trackers need Stone Soup 1.9.1")
+    assert lines[0].endswith("pip install 'roadtrack[stonesoup]'")
