@@ -1,4 +1,4 @@
-"""Time testbed.mot_metrics on a run-sized case: 200 frames, 5 truths and 10 confirmed tracks per frame.
+"""Time testbed.scoring.mot_metrics on a run-sized case: 200 frames, 5 truths and 10 confirmed tracks per frame.
 
     .venv/bin/python benchmarks/metrics.py [--frames 200] [--truths 5] [--tracks 10] [--repeats 20]
 
@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from testbed.mot_metrics import trackeval_metrics, mot_metrics
+from testbed.scoring.mot_metrics import trackeval_metrics, mot_metrics
 
 
 def make_case(n_frames: int, n_truth: int, n_tracks: int, seed: int = 0):

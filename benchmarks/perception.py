@@ -47,9 +47,9 @@ import time
 import numpy as np
 
 import sensors
-from testbed.roadside import roadside_boxes
-from testbed.pipeline import run_scenario
-from testbed.scenario import RoadsideSpec, load_scenario
+from testbed.world.roadside import roadside_boxes
+from testbed.pipeline.run import run_scenario
+from testbed.scenario.spec import RoadsideSpec, load_scenario
 
 BUDGET_MS = 100.0
 LANE = 4.0

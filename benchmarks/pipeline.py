@@ -20,11 +20,11 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 import numpy as np
 
 import sensors
-from testbed.roadside import boxes_near
-from testbed.pipeline import run_scenario
+from testbed.world.roadside import boxes_near
+from testbed.pipeline.run import run_scenario
 from testbed.sensing import rng_streams
-from testbed.scenario import load_scenario
-from testbed.simulation import Simulation, roadside_objects
+from testbed.scenario.spec import load_scenario
+from testbed.world.simulation import Simulation, roadside_objects
 
 BUDGET_MS = 100.0
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
-from testbed.scoring import assign_frames
+from testbed.scoring.rates import assign_frames
 
 GATE_BOUND_M2 = 1000.0
 WELL_DETECTED_FRAMES = 5

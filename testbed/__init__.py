@@ -17,9 +17,9 @@ from typing import TYPE_CHECKING, Any
 __all__ = ["Frame", "TrackSet", "load_scenario", "read_run", "run", "score", "sense", "track"]
 
 if TYPE_CHECKING:
-    from .evaluate import score
-    from .runfolder import read_run
-    from .scenario import load_scenario
+    from .scoring.evaluate import score
+    from .pipeline.runfolder import read_run
+    from .world import load_scenario
     from .tracking import Frame, TrackSet
 
 
@@ -33,8 +33,8 @@ def sense(scenario, policy=None):
 
 def track(frames, tracker, scenario):
     """Feed sensed ``frames`` to ``tracker`` (a built-in name, ``module:Name``, a factory or a tracker object):
-    an iterator of (SensedFrame, TrackSet) with the moving-object test's status (testbed.pipeline.track)."""
-    from .pipeline import track as _track
+    an iterator of (SensedFrame, TrackSet) with the moving-object test's status (testbed.pipeline.run.track)."""
+    from .pipeline.run import track as _track
 
     return _track(frames, tracker, _scenario(scenario))
 
@@ -43,30 +43,31 @@ def run(scenario, tracker=None, out=None, record: bool = True, policy=None, on_f
     """Run ``scenario`` end to end with ``tracker`` (default: the scenario's; a built-in or named tracker such as
     ``stonesoup-jpda-kf``, ``module:Name``, a factory or an object); with ``out`` write the run folder (tables,
     scores.json and, with ``record``, run.rrd); with ``sensing_cache`` (a folder) sense each traffic once and
-    track from it after (bit-identical). Returns the RunResult (testbed.pipeline.run_scenario)."""
-    from .pipeline import run_scenario
+    track from it after (bit-identical). Returns the RunResult (testbed.pipeline.run.run_scenario)."""
+    from .pipeline.run import run_scenario
 
     return run_scenario(_scenario(scenario), out_dir=out, record=record and out is not None, tracker=tracker,
                         on_frame=on_frame, policy=policy, sensing_cache=sensing_cache)
 
 
 def _scenario(scenario):
-    from .scenario import Scenario, load_scenario
+    from .scenario.spec import Scenario
+    from .world import load_scenario
 
     return scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
 
 
 def __getattr__(name: str) -> Any:  # the rest of the API, imported on first use (the CLI starts fast)
     if name == "load_scenario":
-        from .scenario import load_scenario
+        from .world import load_scenario
 
         return load_scenario
     if name == "read_run":
-        from .runfolder import read_run
+        from .pipeline.runfolder import read_run
 
         return read_run
     if name == "score":
-        from .evaluate import score
+        from .scoring.evaluate import score
 
         return score
     if name in ("Frame", "TrackSet"):

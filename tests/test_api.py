@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 import testbed
-from testbed.cli import main
+from testbed.cli.main import main
 from testbed.tracking import TrackSet
 
 REPO = Path(__file__).resolve().parent.parent
@@ -138,7 +138,7 @@ def test_score_on_plain_tables_and_its_errors(scn):
     ev = testbed.score(truth, tracks)
     assert ev.scores.cars_seen == 2 and ev.scores.cars_tracked == 1 and ev.scores.false_tracks == 0
     assert ev.scores.pos_rmse_m == pytest.approx(0.1)
-    from testbed.config import ConfigError
+    from testbed.config.strict import ConfigError
 
     with pytest.raises(ConfigError, match="tracks.x, tracks.y: 1 rows hold a non-finite position"):
         testbed.score(truth, tracks.assign(x=[0.1, np.nan]))

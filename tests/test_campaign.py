@@ -25,11 +25,11 @@ import pandas as pd
 import pytest
 
 from testbed.campaign import store
-from testbed.campaign.cli import add_campaign_parser, main as campaign_main
+from testbed.cli.campaign import add_campaign_parser, main as campaign_main
 from testbed.campaign.engine import EngineOptions, run_campaign
 from testbed.campaign.report import mean_sd_ci, write_report
 from testbed.campaign.spec import load_campaign, plan, run_seed
-from testbed.config import ConfigError
+from testbed.config.strict import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = dict(os.environ, RERUN_ANALYTICS="0")
@@ -269,7 +269,7 @@ def test_dask_local_cluster_gives_the_same_results_as_the_pool(reference, tmp_pa
 
 
 def _start(tmp_path: Path, *args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "testbed.campaign.cli", *args], cwd=REPO, env=ENV,
+    return subprocess.Popen([sys.executable, "-m", "testbed.cli.campaign", *args], cwd=REPO, env=ENV,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
 
 

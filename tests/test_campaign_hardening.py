@@ -23,10 +23,10 @@ import pyarrow.parquet as pq
 import pytest
 
 from testbed.campaign import store
-from testbed.campaign.cli import main as campaign_main
+from testbed.cli.campaign import main as campaign_main
 from testbed.campaign.engine import EngineOptions, run_campaign
 from testbed.campaign.spec import load_campaign
-from testbed.config import ConfigError
+from testbed.config.strict import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent
 CAMPAIGN = """\

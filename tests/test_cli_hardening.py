@@ -19,8 +19,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from testbed import outdir
-from testbed.cli import main
+from testbed.pipeline import outdir
+from testbed.cli.main import main
 
 REPO = Path(__file__).resolve().parent.parent
 FAST = ["--set", "sensor.lidar.azimuth_step_deg=1.0", "--quiet"]  # 11,520 rays per scan instead of 72,000
@@ -61,12 +61,12 @@ def test_usage_errors_are_one_line_exit_2(capsys):
 
 
 def test_an_unexpected_exception_is_one_line_and_debug_shows_its_traceback(capsys, monkeypatch):
-    import testbed.scenario
+    import testbed.scenario.spec
 
     def broken():
         raise ZeroDivisionError("division by zero")
 
-    monkeypatch.setattr(testbed.scenario, "list_scenarios", broken)
+    monkeypatch.setattr(testbed.scenario.spec, "list_scenarios", broken)
     code, _, err = _cli(capsys, "scenarios")
     assert code == 1 and len(err) == 1 and "Traceback" not in "".join(err)
     assert err[0].startswith("error: internal error, ZeroDivisionError: division by zero")
@@ -78,12 +78,12 @@ def test_an_unexpected_exception_is_one_line_and_debug_shows_its_traceback(capsy
 # --- output folders ------------------------------------------------------------------------------------------
 
 def test_unusable_out_is_refused_before_any_simulation(capsys, tmp_path, monkeypatch):
-    import testbed.pipeline
+    import testbed.pipeline.run
 
     def never(*args, **kwargs):
         raise AssertionError("a simulation ran")
 
-    monkeypatch.setattr(testbed.pipeline, "run_scenario", never)
+    monkeypatch.setattr(testbed.pipeline.run, "run_scenario", never)
     a_file = tmp_path / "a_file"
     a_file.write_text("mine\n")
     user = tmp_path / "user"
@@ -125,19 +125,19 @@ def test_a_rerun_replaces_the_folder_and_a_failure_marks_it_incomplete(capsys, t
 
 
 def test_failures_outside_the_frame_loop_say_what_was_kept(capsys, tmp_path, monkeypatch):
-    import testbed.pipeline
+    import testbed.pipeline.run
 
     def boom(*args, **kwargs):
         raise RuntimeError("boom")
 
     out = tmp_path / "r"
-    monkeypatch.setattr(testbed.pipeline, "score_tables", boom)  # after the last frame
+    monkeypatch.setattr(testbed.pipeline.run, "score_tables", boom)  # after the last frame
     code, _, err = _cli(capsys, *_run(out, "--no-record"))
     assert code == 1 and len(err) == 1 and "(;" not in err[0]
     assert err[0] == f"error: RuntimeError: boom (the run had done its 4 frames; the tables of the frames before " \
                      f"it are in {out}/, marked INCOMPLETE)"
     assert (out / "truth.parquet").is_file() and (out / "INCOMPLETE").is_file()
-    monkeypatch.setattr(testbed.pipeline, "sensing_setup", boom)  # before the first frame: nothing written
+    monkeypatch.setattr(testbed.pipeline.run, "sensing_setup", boom)  # before the first frame: nothing written
     code, _, err = _cli(capsys, *_run(out, "--no-record"))
     assert code == 1 and len(err) == 1
     assert err[0] == f"error: RuntimeError: boom (nothing was written ({out} is unchanged))"
@@ -145,7 +145,7 @@ def test_failures_outside_the_frame_loop_say_what_was_kept(capsys, tmp_path, mon
 
 
 def test_a_full_disk_is_one_last_line_and_leaves_no_half_written_file(capsys, tmp_path, monkeypatch):
-    from testbed.tables import TableLog
+    from testbed.pipeline.tables import TableLog
 
     def full(self, path):
         Path(path).write_bytes(b"PAR1 half")  # what a writer leaves when the disk fills mid-file
@@ -176,13 +176,13 @@ def test_a_full_disk_under_rerun_ends_with_our_line(tmp_path):
     is the last line and names the cause, within CLOSE_STALL_S (and the run's last frames) of rerun's first
     error: rerun 0.41 sometimes blocks forever in flush() or disconnect() once its file writer died (seen in
     fresh-clone CI), and the recording is then given up on instead of hanging the run."""
-    from testbed.recording import CLOSE_STALL_S
+    from testbed.recording.recorder import CLOSE_STALL_S
 
     probe = subprocess.run(["unshare", "-rm", "sh", "-c", f"mount -t tmpfs -o size=1m tmpfs {tmp_path}"],
                            capture_output=True)
     if probe.returncode != 0:
         pytest.skip("no private tmpfs mount here")
-    script = (f"mount -t tmpfs -o size=256k tmpfs {tmp_path} && cd {REPO} && {sys.executable} -m testbed.cli "
+    script = (f"mount -t tmpfs -o size=256k tmpfs {tmp_path} && cd {REPO} && {sys.executable} -m testbed.cli.main "
               f"{' '.join(_run(tmp_path / 'r', duration=1.0))}; echo rc=$?; ls -a {tmp_path}/r")
     # generous timeout: on a fresh checkout this may be the first run that compiles the numba kernels (20-60 s)
     child = subprocess.Popen(["unshare", "-rm", "sh", "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -230,7 +230,7 @@ def test_ctrl_c_keeps_the_tables_and_a_readable_recording(tmp_path):
     from rerun.chunk import RrdReader
 
     out = tmp_path / "r"
-    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli", *_run(out, duration=20.0)], cwd=REPO,
+    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli.main", *_run(out, duration=20.0)], cwd=REPO,
                             env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     rrd = tmp_path / f".r.partial-{proc.pid}" / "run.rrd"
     deadline = time.monotonic() + 60
@@ -336,7 +336,7 @@ def test_view_leaves_no_server_behind(tmp_path, recording, signum):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli", "view", str(recording), "--port", str(port)],
+    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli.main", "view", str(recording), "--port", str(port)],
                             cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert _wait(lambda: _serving(port), 30), "the viewer did not start"
@@ -373,7 +373,7 @@ def test_check_validates_scenarios_and_campaigns(capsys, tmp_path):
 
 def test_jpda_overflows_are_counted_once_per_run():
     """The run's counter: warnings of each oversize cluster swallowed, one summary warning at the end."""
-    from testbed.pipeline import JPDAOverflows
+    from testbed.pipeline.run import JPDAOverflows
     from trackers import JPDAOverflowWarning
 
     def step(sizes):

@@ -13,9 +13,9 @@ import pytest
 
 import sensors
 from sensors.clustering import ClusterConfig, scan_line_links
-from testbed.characterise import detection_owners
-from testbed.pipeline import run_scenario
-from testbed.scenario import load_scenario
+from testbed.perception.characterise import detection_owners
+from testbed.pipeline.run import run_scenario
+from testbed.scenario.spec import load_scenario
 
 L, W, H = 5.0, 2.0, 1.5  # the convoy scenario's cars
 ORIGIN = np.array([0.0, 0.0, 1.9])  # constructed returns at its height: on the horizontal beam
@@ -57,7 +57,7 @@ def test_a_1m_convoy_is_not_chained_into_one_long_object():
     """At 1 m gaps one beam cannot tell a bumper gap from a side: the links only attach noise points, while the
     object stays car-long, so no object grows past a car's length and the convoy keeps at least its detections
     (a few of the neighbour's side returns may join a car's detection, as the cells alone sometimes merge cars
-    at 1 m: testbed.characterise.merge_curve)."""
+    at 1 m: testbed.perception.characterise.merge_curve)."""
     with_links, without = np.zeros(9, int), np.zeros(9, int)
     for (s, p), (_, ref) in zip(_perceive(_convoy_boxes(1.0), 5), _perceive(_convoy_boxes(1.0), 5, links=False)):
         assert np.all(p.detections.extent[:, 0] <= 8.0)

@@ -15,9 +15,9 @@ import pandas as pd
 import pytest
 from rerun.chunk import RrdReader
 
-from testbed.recording import METRICS
-from testbed.pipeline import run_scenario
-from testbed.scenario import load_scenario
+from testbed.recording.recorder import METRICS
+from testbed.pipeline.run import run_scenario
+from testbed.scenario.spec import load_scenario
 
 BASELINE = Path(__file__).parent / "baselines" / "cut_in_out_10s.json"
 REPO = Path(__file__).resolve().parent.parent
@@ -173,7 +173,7 @@ def test_another_seed_changes_the_noise_not_the_traffic(recorded):
 
 def test_cli_run_prints_the_score_table(tmp_path):
     out = tmp_path / "cli"
-    proc = subprocess.run([sys.executable, "-m", "testbed.cli", "run", "cut_in_out", "--set", "duration_s=2",
+    proc = subprocess.run([sys.executable, "-m", "testbed.cli.main", "run", "cut_in_out", "--set", "duration_s=2",
                            "--out", str(out), "--quiet"], capture_output=True, text=True, cwd=REPO, timeout=300,
                           env=dict(os.environ, RERUN_ANALYTICS="0"))
     assert proc.returncode == 0, proc.stderr

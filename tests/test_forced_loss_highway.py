@@ -4,7 +4,7 @@ The key: one-line validation errors; a whole-sensor outage empties the scan (no 
 occlusion-aware P_D) without shifting the noise streams; a named vehicle vanishes from the scan (no points, no
 shadow) while the other rays are untouched; no outage by default. Then a short seeded cut_in_out run with the car
 "right" lost from t0: its track's regime reaches track-lost within the KS window and the deleters act when stated.
-The cached-sensing loop of testbed/reproduce/seed002_highway.py is checked against run_scenario, table by table.
+The cached-sensing loop of testbed/reproduce/seed002/highway.py is checked against run_scenario, table by table.
 """
 from __future__ import annotations
 
@@ -14,11 +14,11 @@ import math
 import numpy as np
 import pytest
 
-from testbed.config import ConfigError
-from testbed.reproduce import seed002_highway as hw
-from testbed.pipeline import Stopwatch, run_scenario
+from testbed.config.strict import ConfigError
+from testbed.reproduce.seed002 import highway as hw
+from testbed.pipeline.run import Stopwatch, run_scenario
 from testbed.sensing import occlusion_pd, rng_streams, sense_frame, sensing_setup, visibility
-from testbed.scenario import OutageSpec, load_scenario
+from testbed.scenario.spec import OutageSpec, load_scenario
 
 CAR = "right"
 T0_S = 4.0  # the car's track is confirmed and 'tracking' (a full n = 30 window) well before

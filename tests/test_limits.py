@@ -1,5 +1,5 @@
 """Resource limits, seeds, folder names, unreadable files and overlapping vehicles: every bad input to the
-scenario and campaign loaders is refused up front with ONE line naming the file or key (testbed/limits.py,
+scenario and campaign loaders is refused up front with ONE line naming the file or key (testbed/config/limits.py,
 docs/limits.md)."""
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from testbed import limits  # noqa: E402
+from testbed.config import limits  # noqa: E402
 from testbed.campaign.spec import load_campaign, plan, run_seed  # noqa: E402
-from testbed.config import ConfigError  # noqa: E402
-from testbed.limits import LIMITS, SEED_MAX, check_folder_name  # noqa: E402
-from testbed.scenario import LANE_WIDTH_M, list_scenarios, load_scenario  # noqa: E402
+from testbed.config.strict import ConfigError  # noqa: E402
+from testbed.config.limits import LIMITS, SEED_MAX, check_folder_name  # noqa: E402
+from testbed.scenario.spec import LANE_WIDTH_M, list_scenarios, load_scenario  # noqa: E402
 
 CAMPAIGNS = sorted((REPO / "campaigns").glob("*.toml"))
 
@@ -65,7 +65,7 @@ def test_every_shipped_campaign_loads_with_margin_and_its_run_seeds_are_uint32(t
 
 def test_docs_limits_md_lists_every_limit():
     assert limits.markdown_table() in (REPO / "docs" / "limits.md").read_text(), \
-        "docs/limits.md is stale: paste testbed.limits.markdown_table() into it"
+        "docs/limits.md is stale: paste testbed.config.limits.markdown_table() into it"
 
 
 def test_a_limit_variable_that_is_not_a_positive_number_is_refused(monkeypatch):
@@ -324,7 +324,7 @@ def test_a_file_without_read_permission_gives_one_line(tmp_path):
 
 # ------------------------------------------------------------------ overlapping vehicles
 def test_lane_width_matches_the_simulation():
-    from testbed.simulation import LANE_WIDTH
+    from testbed.world.simulation import LANE_WIDTH
 
     assert LANE_WIDTH_M == LANE_WIDTH
 
@@ -364,7 +364,7 @@ def test_vehicles_that_only_touch_or_drive_side_by_side_are_accepted(over):
 
 # ------------------------------------------------------------------ through the command line: exit 2, one line
 def cli(args: list[str]) -> tuple[int, list[str]]:
-    from testbed.cli import main
+    from testbed.cli.main import main
 
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):

@@ -1,6 +1,6 @@
 """Paper 000's pieces: the mixed-measurement sensor (sensors/mixed.py), the windowed KS integral test
 (trackers/trackloss/ks_integral.py) and the convoy-of-point-targets scenario with its EKF/PDAF loop
-(testbed/convoy_points.py). The paper's claims are in tests/test_reproduce_seed000.py."""
+(testbed/reproduce/seed000/convoy_points.py). The paper's claims are in tests/test_reproduce_seed000.py."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 from scipy.stats import ks_2samp
 
 from sensors.mixed import mixed_measurements, wrong_steps
-from testbed import convoy_points as cp
+from testbed.reproduce.seed000 import convoy_points as cp
 from trackers.association.params import AssociationParams
 from trackers.association.pda import pda
 from trackers.gating import log_gaussian

@@ -1,4 +1,4 @@
-"""testbed.mot_metrics against Stone Soup 1.9.1 (GOSPA oracle), real TrackEval 1.3.0 and hand arithmetic."""
+"""testbed.scoring.mot_metrics against Stone Soup 1.9.1 (GOSPA oracle), real TrackEval 1.3.0 and hand arithmetic."""
 from __future__ import annotations
 
 import datetime
@@ -9,7 +9,7 @@ from stonesoup.metricgenerator.ospametric import GOSPAMetric
 from stonesoup.types.array import StateVector
 from stonesoup.types.state import State
 
-from testbed.mot_metrics import METRIC_KEYS, trackeval_metrics, gospa, mot_metrics, visible_truth
+from testbed.scoring.mot_metrics import METRIC_KEYS, trackeval_metrics, gospa, mot_metrics, visible_truth
 
 T0 = datetime.datetime(2024, 1, 1)
 N_ALPHA = 19  # HOTA alphas 0.05, 0.10, ..., 0.95

@@ -1,12 +1,12 @@
-"""Moving-object test (testbed/moving.py) and the sensor pipeline preset (testbed/scenario.py)."""
+"""Moving-object test (testbed/tracking/moving.py) and the sensor pipeline preset (testbed/scenario/spec.py)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from testbed.config import ConfigError
-from testbed.moving import MovingTest, MovingTestSpec
-from testbed.scenario import load_scenario
+from testbed.config.strict import ConfigError
+from testbed.tracking.moving import MovingTest, MovingTestSpec
+from testbed.scenario.spec import load_scenario
 
 
 def test_a_static_track_is_never_reported_and_a_moving_one_is_after_its_window():

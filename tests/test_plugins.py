@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -17,14 +18,16 @@ import pandas as pd
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-TESTBED = [sys.executable, "-m", "testbed.cli"]
+TESTBED = [sys.executable, "-m", "testbed.cli.main"]
 
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory) -> Path:
     target = tmp_path_factory.mktemp("plugin-site")
+    source = tmp_path_factory.mktemp("plugin-source") / "demo_plugin"  # the build leaves build/ beside its source
+    shutil.copytree(REPO / "tests" / "fixtures" / "demo_plugin", source)
     subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--no-index",
-                    "--target", str(target), str(REPO / "tests" / "fixtures" / "demo_plugin")],
+                    "--target", str(target), str(source)],
                    check=True, capture_output=True, text=True, timeout=300)
     return target
 

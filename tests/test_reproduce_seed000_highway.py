@@ -1,4 +1,4 @@
-"""Paper 000 on the highway (testbed.reproduce.seed000_highway): a close LiDAR-seen convoy, one measurement per
+"""Paper 000 on the highway (testbed.reproduce.seed000.highway): a close LiDAR-seen convoy, one measurement per
 frame of unknown origin, gating and the KS integral test; the quick report.
 
 Measured on the quick run (seed 0, 1 run of 51 frames per gap and pipeline, gaps 0.25 and 4 m): at 4 m no
@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed.reproduce import seed000_highway as h
+from testbed.reproduce.seed000 import highway as h
 from trackers.filters.kalman import KalmanFilter
 from trackers.models import ConstantVelocity, PositionMeasurement
 

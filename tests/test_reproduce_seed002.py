@@ -1,11 +1,11 @@
-"""Paper 002's forced-loss example (testbed.forced_loss) and its reproduction (testbed.reproduce.seed002): the
+"""Paper 002's forced-loss example (testbed.reproduce.seed002.forced_loss) and its reproduction (testbed.reproduce.seed002.study): the
 scenario kind, the detection delay after the loss, the false alarms while tracking, the quick report."""
 
 import numpy as np
 import pytest
 
-from testbed import forced_loss as fl
-from testbed.reproduce import seed002
+from testbed.reproduce.seed002 import forced_loss as fl
+from testbed.reproduce.seed002 import study as seed002
 from trackers.trackloss.regime import RegimeConfig, assess_window
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from testbed.reproduce import REPRODUCTIONS, entry
-from testbed.reproduce import seed003
+from testbed.reproduce.seed003 import study as seed003
 
 FULL = bool(os.environ.get("ROADTRACK_FULL"))
 FIGURES = ("fig1_single_run.png", "fig2_rmse_target1.png", "rmse_all_targets.png", "rmse_two_targets.png")

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from testbed.scoring import format_table, score_run
+from testbed.scoring.rates import format_table, score_run
 
 
 def _truth(n_frames=20, visible=None):

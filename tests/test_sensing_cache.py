@@ -8,8 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from testbed.pipeline import run_scenario
-from testbed.scenario import load_scenario
+from testbed.pipeline.run import run_scenario
+from testbed.scenario.spec import load_scenario
 from testbed.sensing.cache import CacheWarning, SensingCache, sensing_key
 
 SHORT = {"duration_s": 3.0}

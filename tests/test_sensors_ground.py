@@ -2,7 +2,7 @@
 
 Scenes: a 3- or 4-lane road, straight, a 300 m curve (straight_curve) or a 40 m U-turn, with cars, 4 m trucks,
 0.75 m guard rails 1.5 m beyond both edges, posts, sign panels, trees (trunk + crown) and bushes, like
-testbed/roadside.py makes them; the sensor car in the middle or the right lane. The ego's pitch and roll are
+testbed/world/roadside.py makes them; the sensor car in the middle or the right lane. The ego's pitch and roll are
 drawn per scan (LidarConfig.pitch_std_deg / roll_std_deg): the road then appears tilted.
 """
 

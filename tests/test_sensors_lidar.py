@@ -298,7 +298,7 @@ def test_default_config_is_the_hdl32e_preset_and_explicit_fields_override():
 
 
 def test_presets_load_from_a_scenario_table():
-    from testbed.config import from_dict, to_dict
+    from testbed.config.strict import from_dict, to_dict
 
     cfg = from_dict(LidarConfig, {"preset": "vlp16", "max_range_m": 80.0})
     assert cfg == LidarConfig(preset="vlp16", max_range_m=80.0) and cfg.n_beams == 16

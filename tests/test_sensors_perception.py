@@ -361,7 +361,7 @@ def test_one_face_completion_moves_a_rear_view_to_the_car_centre(x):
 
 
 # --- issue 8: the full pipeline -------------------------------------------------------------------------
-# Roadside objects as testbed/roadside.py builds them (sizes copied: sensors tests do not import testbed).
+# Roadside objects as testbed/world/roadside.py builds them (sizes copied: sensors tests do not import testbed).
 ROAD_EDGE = 7.0  # |y| of the road edges of LANES
 RAIL = (4.0, 0.3, 0.75)  # guard-rail segments end to end, 1.5 m beyond the road edge
 POST = (0.2, 0.2, 1.2)  # 0.5 m behind the rail line

@@ -80,7 +80,7 @@ def test_road_map_queries_reject_bad_arguments():
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_bush_beside_the_road_is_rejected_with_the_map_and_kept_without(seed):
-    # a vehicle-sized bush 1 m beyond a 1.5 m shoulder (testbed/roadside.py places them so); a car on the
+    # a vehicle-sized bush 1 m beyond a 1.5 m shoulder (testbed/world/roadside.py places them so); a car on the
     # road and one straddling the road edge (its centre 0.4 m beyond the outer lane) are kept either way
     rng = np.random.default_rng(seed)
     size = rng.uniform([2.0, 1.6, 1.2], [3.5, 2.5, 2.0])

@@ -4,7 +4,7 @@ closed terminal keep the frames (or runs) done, marked INCOMPLETE, with one stde
 no worker and no resource-tracker noise (no "leaked semaphore" warning, no traceback), and resumes.
 
 The runs are real (convoy, 30 s of simulated time: 301 frames, several seconds of work) started as
-``python -m testbed.cli`` subprocesses, signalled in their frame loop: once the recording holds frames, or
+``python -m testbed.cli.main`` subprocesses, signalled in their frame loop: once the recording holds frames, or
 (``--no-record``) once open3d, which the first scan imports, is loaded and the sensors' numba kernels are
 compiled (a fresh clone compiles them in its first frames), 2 s later.
 """
@@ -23,8 +23,8 @@ import pandas as pd
 import pytest
 
 from testbed.campaign import store
-from testbed.cli import main
-from testbed.errors import STOP_SIGNALS, Terminated, guarded
+from testbed.cli.main import main
+from testbed.common.errors import STOP_SIGNALS, Terminated, guarded
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals and /proc are Linux's")
 
@@ -43,7 +43,7 @@ duration_s = 0.5
 
 
 def _start(*args: str, new_session: bool = False) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "testbed.cli", *args], cwd=REPO,
+    return subprocess.Popen([sys.executable, "-m", "testbed.cli.main", *args], cwd=REPO,
                             env=dict(os.environ, RERUN_ANALYTICS="0"), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=new_session)
 
@@ -241,8 +241,8 @@ def test_an_ignored_hangup_stays_ignored(capsys):
 def test_a_frame_cut_short_between_its_tables_is_dropped_from_all_of_them(tmp_path, monkeypatch):
     """A signal (or Ctrl-C) can land after a frame's truth rows are logged and before the frame is counted;
     the tables written then hold exactly the frames the stop line counts, none of them half-logged."""
-    import testbed.pipeline as run_mod
-    from testbed.scenario import load_scenario
+    import testbed.pipeline.run as run_mod
+    from testbed.scenario.spec import load_scenario
 
     real = run_mod.log_diagnostics
 
@@ -259,3 +259,32 @@ def test_a_frame_cut_short_between_its_tables_is_dropped_from_all_of_them(tmp_pa
     for name in ("truth", "detections", "tracks", "diagnostics"):
         frames = set(pd.read_parquet(tmp_path / "r" / f"{name}.parquet").frame)
         assert max(frames) == 4 and frames <= set(range(5)), name  # no track exists at frame 0
+
+
+def test_a_signal_raised_inside_compiled_code_is_still_an_interruption(tmp_path):
+    """A handler that raises while numba's dispatcher runs surfaces as "SystemError: ... returned a result with an
+    exception set", the interruption as its cause (seen once in a SIGHUP test): the run keeps its frames and
+    re-raises the interruption itself, so the command says "terminated" and exits 128 + the signal."""
+    import signal as sig
+
+    import numpy as np
+
+    from testbed import TrackSet
+    from testbed.common.errors import Terminated
+    from testbed.pipeline.run import run_scenario
+    from testbed.scenario.spec import load_scenario
+
+    class StopsAtFrame3:
+        def step(self, frame):
+            if frame.index == 3:
+                try:
+                    raise Terminated(sig.SIGHUP)
+                except Terminated as err:
+                    raise SystemError("CPUDispatcher(assemble) returned a result with an exception set") from err
+            return TrackSet(ids=np.zeros(0, dtype=np.int64), xy=np.zeros((0, 2)))
+
+    scn = load_scenario("cut_in_out", {"duration_s": 1.0})
+    with pytest.raises(Terminated) as info:
+        run_scenario(scn, out_dir=tmp_path, record=False, tracker=StopsAtFrame3())
+    assert info.value.signum == sig.SIGHUP and "frame 3" in " ".join(getattr(info.value, "__notes__", []))
+    assert sorted(pd.read_parquet(tmp_path / "truth.parquet").frame.unique()) == [0, 1, 2]

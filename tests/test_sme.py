@@ -1,5 +1,5 @@
 """Paper 003, symmetric measurement equations: the sensors' noise moments (sensors.symmetric), the joint EKF and
-its labelling (trackers.sme), the crossing-targets scenario (testbed.sme_targets), and the paper's claims on a
+its labelling (trackers.sme), the crossing-targets scenario (testbed.reproduce.seed003.sme_targets), and the paper's claims on a
 reduced seeded Monte Carlo.
 
 ROADTRACK_FULL=1 runs the paper's 100-run Monte Carlo (marked slow; about 10 s of one core), which adds the
@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from sensors.symmetric import SymmetricSensor, monte_carlo_moments
-from testbed import sme_targets as st
-from testbed.reproduce import seed003 as s3
+from testbed.reproduce.seed003 import sme_targets as st
+from testbed.reproduce.seed003 import study as s3
 from trackers.filters import ExtendedKalmanFilter
 from trackers.sme import (SMEState, SMETracker, SymmetricMeasurement, label_permutation, permutations, relabel,
                           symmetric_g, symmetric_h, symmetric_jacobian, symmetric_noise_covariance,

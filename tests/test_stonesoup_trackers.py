@@ -60,7 +60,7 @@ def test_a_stone_soup_script_reads_a_run_folder_with_the_detection_reader(runs):
 
 def test_without_stone_soup_the_tracker_is_refused_in_one_line_naming_the_extra():
     code = ("import sys; sys.modules['stonesoup'] = None\n"
-            "from testbed.cli import main\n"
+            "from testbed.cli.main import main\n"
             "sys.exit(main(['run', 'cut_in_out', '--tracker', 'stonesoup-jpda-kf', '--no-record', '--out', "
             "'/nonexistent/x']))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
@@ -68,3 +68,22 @@ def test_without_stone_soup_the_tracker_is_refused_in_one_line_naming_the_extra(
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: tracker: the Stone Soup trackers need Stone Soup 1.9.1")
     assert lines[0].endswith("pip install 'roadtrack[stonesoup]'")
+
+
+def test_a_campaign_compares_stone_soup_with_ours_on_traffic_sensed_once(tmp_path):
+    from testbed.campaign import store
+    from testbed.campaign.engine import EngineOptions, run_campaign
+    from testbed.campaign.spec import load_campaign
+    from testbed.sensing.cache import SensingCache
+
+    spec = tmp_path / "ss.toml"
+    spec.write_text('name = "ss"\nscenarios = ["cut_in_out"]\ntrackers = ["jpda-kf", "stonesoup-jpda-kf"]\n'
+                    'seeds = 1\n\n[overrides]\nduration_s = 4.0\n\n[grid]\n"tracker.filter.sigma_v" = [2.0, 4.0]\n')
+    outcome = run_campaign(load_campaign(spec), tmp_path / "out", EngineOptions(workers=1), quiet=True)
+    assert not outcome.failed
+    res = pd.read_parquet(tmp_path / "out" / store.RESULTS_FILE)
+    assert sorted(res.tracker.unique()) == ["jpda-kf", "stonesoup-jpda-kf"] and (res.status == "ok").all()
+    assert len(res) == 4 and len(list((tmp_path / "out" / store.SENSING_DIR).glob("*/meta.json"))) == 1
+    ss = res[res.tracker == "stonesoup-jpda-kf"].sort_values("tracker.filter.sigma_v")
+    assert ss["cars_seen"].tolist() == [3, 3] and (ss["cars_tracked"] >= 2).all()
+    assert SensingCache(tmp_path / "out" / store.SENSING_DIR).size_bytes() > 0

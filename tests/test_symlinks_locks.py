@@ -16,10 +16,11 @@ from pathlib import Path
 
 import pytest
 
-from testbed import outdir, safe_io
+from testbed.pipeline import outdir
+from testbed.common import safe_io
 from testbed.campaign import store
-from testbed.cli import main
-from testbed.config import ConfigError
+from testbed.cli.main import main
+from testbed.config.strict import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent
 FAST = ["--set", "sensor.lidar.azimuth_step_deg=1.0", "--quiet"]  # 11,520 rays per scan instead of 72,000
@@ -73,12 +74,12 @@ def _refused(code: int, err: list[str], link: str, target: str, exit_code: int =
 
 @pytest.fixture
 def no_simulation(monkeypatch):
-    import testbed.pipeline
+    import testbed.pipeline.run
 
     def never(*args, **kwargs):
         raise AssertionError("a simulation ran")
 
-    monkeypatch.setattr(testbed.pipeline, "run_scenario", never)
+    monkeypatch.setattr(testbed.pipeline.run, "run_scenario", never)
 
 
 # --- run folders ----------------------------------------------------------------------------------------------
@@ -123,7 +124,7 @@ def test_a_link_at_the_lock_or_staged_folder_name_is_refused(capsys, tmp_path, n
 
 
 def test_a_link_planted_at_incomplete_during_a_run_is_left_alone(capsys, tmp_path, monkeypatch):
-    import testbed.pipeline
+    import testbed.pipeline.run
 
     victim = _victim(tmp_path)
     out = tmp_path / "r"
@@ -133,7 +134,7 @@ def test_a_link_planted_at_incomplete_during_a_run_is_left_alone(capsys, tmp_pat
         Path(out_dir, outdir.INCOMPLETE).symlink_to(victim)
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(testbed.pipeline, "run_scenario", planting)
+    monkeypatch.setattr(testbed.pipeline.run, "run_scenario", planting)
     code, _, err = _cli(capsys, *_run(out))
     stage = tmp_path / f".r.partial-{os.getpid()}"
     line = _refused(code, err, str(stage / outdir.INCOMPLETE), str(victim), exit_code=1)
@@ -159,7 +160,7 @@ def test_write_atomic_refuses_a_link_at_its_temporary_and_final_name(tmp_path):
 
 
 def test_the_recording_is_never_written_through_a_link(tmp_path):
-    from testbed.recording import Recorder
+    from testbed.recording.recorder import Recorder
 
     victim = _victim(tmp_path)
     (tmp_path / "run.rrd").symlink_to(victim)
@@ -169,8 +170,8 @@ def test_the_recording_is_never_written_through_a_link(tmp_path):
 
 
 def test_write_settings_never_follows_a_link(tmp_path):
-    from testbed.perception_report import write_settings
-    from testbed.scenario import SCENARIO_DIR, read_toml
+    from testbed.perception.report import write_settings
+    from testbed.scenario.spec import SCENARIO_DIR, read_toml
 
     data = read_toml(SCENARIO_DIR / "cut_in_out.toml")
     earlier = tmp_path / "earlier.toml"
@@ -264,7 +265,7 @@ def _wait_for_pid(path: Path, pid: int, proc: subprocess.Popen, timeout: float =
 
 def test_a_second_run_into_a_folder_being_written_is_refused(capsys, tmp_path):
     out = tmp_path / "r"
-    first = subprocess.Popen([sys.executable, "-m", "testbed.cli", *_run(out, duration=6.0)], cwd=REPO,
+    first = subprocess.Popen([sys.executable, "-m", "testbed.cli.main", *_run(out, duration=6.0)], cwd=REPO,
                              env=dict(os.environ, PYTHONPATH=str(REPO), RERUN_ANALYTICS="0"),
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -288,7 +289,7 @@ def test_a_second_run_into_a_folder_being_written_is_refused(capsys, tmp_path):
 
 
 def test_a_killed_writer_leaves_no_stale_lock(tmp_path):
-    code = ("import sys, time\nfrom testbed.outdir import Staging\nstage = Staging(sys.argv[1])\n"
+    code = ("import sys, time\nfrom testbed.pipeline.outdir import Staging\nstage = Staging(sys.argv[1])\n"
             "print('locked', flush=True)\ntime.sleep(60)\n")
     holder = subprocess.Popen([sys.executable, "-c", code, str(tmp_path / "r")], cwd=REPO, stdout=subprocess.PIPE,
                               text=True)

@@ -1,4 +1,4 @@
-"""The seeded single-target harness testbed.synthetic: truth geometry, sensor statistics, stream independence,
+"""The seeded single-target harness testbed.reproduce.thesis.synthetic: truth geometry, sensor statistics, stream independence,
 the tracking loop and the metrics."""
 
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from testbed import synthetic as sy
+from testbed.reproduce.thesis import synthetic as sy
 from trackers.filters import make_filter
 
 

@@ -165,7 +165,7 @@ def test_a_truck_seen_from_behind_has_the_nominal_pd_at_its_centre():
     from sensors import LidarConfig, RoadMap
     from sensors.lidar import scan
     from testbed.sensing import occlusion_pd
-    from testbed.scenario import load_scenario
+    from testbed.scenario.spec import load_scenario
 
     scn = load_scenario("highway_benchmark")
     truck = np.array([[-20.0, -4.0, 14.9, 2.5, 3.8, 0.0, 0.0]])

@@ -100,8 +100,8 @@ def test_values_beyond_the_bounds_are_refused_in_one_line(role, key, value, word
 
 def test_check_refuses_an_overflowing_sigma_v_that_used_to_pass(tmp_path):
     """`testbed check` accepts exactly what `run` can run: sigma_v = 1e308 passed check and overflowed at frame 2."""
-    from testbed.check import cmd_check
-    from testbed.config import ConfigError
+    from testbed.cli.check import cmd_check
+    from testbed.config.strict import ConfigError
     import argparse
 
     with pytest.raises(ConfigError) as info:

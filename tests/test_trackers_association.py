@@ -1,5 +1,5 @@
 """Associators against independent brute force, PDA closed form, hand-worked AN (seed 001) and APDA (thesis
-ch. 5) cases, the registry contract with hypothesis, and the thesis §5.6.1 APDA claim on testbed.synthetic.
+ch. 5) cases, the registry contract with hypothesis, and the thesis §5.6.1 APDA claim on testbed.reproduce.thesis.synthetic.
 Claims tests assert what does happen with the stated parameters."""
 
 import dataclasses
@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from testbed import synthetic as sy
+from testbed.reproduce.thesis import synthetic as sy
 from trackers import (ASSOCIATORS, AssociationInput, AssociationParams, JPDAOverflowError, JPDAOverflowWarning,
                       global_nearest_neighbour, jpda, nearest_neighbour, pda)
 from trackers.association.an import all_neighbours
@@ -395,7 +395,7 @@ def s51_rmse(n_runs, seed):
     NCV / CT 0.2 rad/s / NCV / CT 0.4 / NCV / CT 0.2 (70, 70, 30, 30, 40, 60 scans), filter sigma_v^2 = 36
     ("62" read 6^2), sigma_w^2 = 1 m^2, lambda = 1 / m^2. Not stated, chosen here [D]: P_D = 0.9, alpha = 16,
     gamma = 0.1 (the ch. 4 value), psi_max = 2 sigma_w (the ch. 4 value, 20 m, would make APDA equal PDA), truth white acceleration 0.5 m/s^2 on the NCV pieces, CT turns counter-clockwise,
-    clutter uniform in a 20 m square centred on the true target (testbed.synthetic default), estimate started
+    clutter uniform in a 20 m square centred on the true target (testbed.reproduce.thesis.synthetic default), estimate started
     at the truth with the two-point P0. The APDA layer is the GVBL filter's (min(|Psi_z| of the previous
     update, psi_max)); APDA in its default ("consistent") form."""
     segments = (sy.Segment(70), sy.Segment(70, omega=0.2), sy.Segment(30), sy.Segment(30, omega=0.4),

@@ -11,7 +11,7 @@ import os
 import numpy as np
 import pytest
 
-from testbed import synthetic as sy
+from testbed.reproduce.thesis import synthetic as sy
 from trackers import make_tracker
 from trackers.filters import FILTERS, KalmanFilter, make_filter
 from trackers.filters.gvbl import GVBLSVSF

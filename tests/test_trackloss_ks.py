@@ -10,7 +10,7 @@ import pytest
 from scipy.special import gammaln, kolmogorov
 from scipy.stats import kstwo, poisson
 
-from testbed import synthetic as syn
+from testbed.reproduce.thesis import synthetic as syn
 from trackers import ManagementParams, ParamError, make_tracker
 from trackers.trackloss import ks
 from trackers.trackloss import regime as rg

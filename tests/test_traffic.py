@@ -1,4 +1,4 @@
-"""Background traffic (``[traffic]``, testbed/traffic.py), the motorway road and the highway benchmark.
+"""Background traffic (``[traffic]``, testbed/world/traffic.py), the motorway road and the highway benchmark.
 
 Every run here steps the real highway-env; each test takes a few seconds.
 """
@@ -7,14 +7,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed import simulation
-from testbed.config import ConfigError
-from testbed.roadside import roadside_boxes
-from testbed.pipeline import run_scenario
+from testbed.world import simulation
+from testbed.config.strict import ConfigError
+from testbed.world.roadside import roadside_boxes
+from testbed.pipeline.run import run_scenario
 from testbed.sensing import rng_streams
-from testbed.scenario import RoadsideSpec, RoadSpec, TrafficSpec, load_scenario, parse_scenario
-from testbed.simulation import Simulation, build_network, road_edges
-from testbed.traffic import (IDM_C, TRAFFIC_STREAM, TrafficNetwork, TrafficRoad, entry_flux, idm_fit_speed,
+from testbed.scenario.spec import RoadsideSpec, RoadSpec, TrafficSpec, load_scenario, parse_scenario
+from testbed.world.simulation import Simulation, build_network, road_edges
+from testbed.world.traffic import (IDM_C, TRAFFIC_STREAM, TrafficNetwork, TrafficRoad, entry_flux, idm_fit_speed,
                              sample_entry)
 
 
@@ -328,7 +328,7 @@ def test_clear_of_lanes_keeps_rails_beside_a_lane_and_drops_boxes_on_it():
     """One straight lane along x (centre y = 0, 4 m wide). A guard rail 0.3 m wide parallel to it at
     y = 2.3 m (0.15 m clear of the edge) stays; the same rail at y = 2.1 m, a 2 m sign panel turned
     across the lane at y = 2.8 m (reaches y = 1.8 m) and a bush on the centre line are left out."""
-    from testbed.roadside import clear_of_lanes
+    from testbed.world.roadside import clear_of_lanes
 
     s = np.arange(0.0, 101.0)
     centre = np.column_stack([s, np.zeros_like(s)])

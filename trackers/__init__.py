@@ -39,4 +39,4 @@ __all__ = [
 
 from trackers import plugins as _plugins  # noqa: E402 - last: a plug-in may import anything above
 
-_plugins.load_all()  # installed filters and associators (entry points roadtrack.filters, roadtrack.associators)
+_plugins.load_all(WRAPPERS)  # installed filters and associators (entry points roadtrack.filters, roadtrack.associators)

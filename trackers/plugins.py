@@ -83,13 +83,13 @@ PLUGINS: dict[str, tuple[str, ...]] = {"filter": (), "associator": ()}
 """The plug-in names registered at import, per role (``testbed trackers`` lists their combinations)."""
 
 
-def load_all() -> None:
-    """Register the installed filter and associator plug-ins (called once, when ``trackers`` is imported)."""
+def load_all(wrappers) -> None:
+    """Register the installed filter and associator plug-ins (called once, when ``trackers`` is imported);
+    ``wrappers``: the wrapper names (trackers.registry.WRAPPERS), which no plug-in may take."""
     from trackers.association.roles import ASSOCIATORS, AssociatorKind
     from trackers.filters import FILTERS
     from trackers.filters.params import FilterKind
-    from trackers.registry import WRAPPERS
 
-    taken = set(WRAPPERS)
+    taken = set(wrappers)
     PLUGINS["filter"] = tuple(register(FILTERS, "filter", FilterKind, taken | set(FILTERS)))
     PLUGINS["associator"] = tuple(register(ASSOCIATORS, "associator", AssociatorKind, taken | set(ASSOCIATORS)))

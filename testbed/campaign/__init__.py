@@ -4,7 +4,7 @@
 * :mod:`testbed.campaign.engine`: one run in a worker, the local process pool and Dask backends;
 * :mod:`testbed.campaign.store`: the results directory (one atomic parquet file per finished run);
 * :mod:`testbed.campaign.report`: mean / sd / 95 % CI tables and plots, ``report.md``;
-* :mod:`testbed.campaign.cli`: ``testbed campaign run|resume|report``.
+* :mod:`testbed.cli.campaign`: ``testbed campaign run|resume|report``.
 
 This package imports nothing heavy at import time: worker processes are started with ``spawn`` and set
 their thread limits before numpy, open3d or highway-env load (see :func:`engine.init_worker`).

@@ -39,9 +39,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..config import ConfigError, one_line
-from ..errors import RunError, describe_os_error
+from ..common.errors import RunError, describe_os_error
 from . import store
-from .spec import Campaign, RunSpec, for_tracker, plan
+from .spec import Campaign, RunSpec, for_tracker, plan, settings_tracker
 
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -133,7 +133,7 @@ def make_task(campaign: Campaign, run: RunSpec, out_dir: str | Path | None, sens
               ) -> dict[str, Any]:
     """Everything a worker needs for one run, as plain picklable data. ``sensing_cache``: read and store the
     sensed frames in ``out_dir``/sensing (testbed.sensing.cache), so each traffic is sensed once."""
-    from ..scenario import apply_overrides
+    from ..scenario.spec import apply_overrides
 
     src = next(s for s in campaign.scenarios if s.name == run.scenario)
     record_dir = None
@@ -174,7 +174,7 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     os.environ.setdefault("RERUN_ANALYTICS", "0")
     import numpy as np
 
-    from ..scenario import apply_overrides, parse_scenario
+    from ..scenario.spec import apply_overrides, parse_scenario
 
     row: dict[str, Any] = dict(run_id=task["run_id"], run_index=task["run_index"], campaign=task["campaign"],
                                scenario=task["scenario"], tracker=task["tracker"])
@@ -186,16 +186,20 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     n_frames, dt, series = 0, float("nan"), np.zeros(0)
     caught: list[warnings.WarningMessage] = []
     try:
-        from ..pipeline import run_scenario
+        from ..pipeline.run import run_scenario
 
-        data = apply_overrides(task["scenario_data"], {**for_tracker(task["params"], task["tracker"]),
-                                                       "tracker.name": task["tracker"], "seed": task["seed"]})
+        from ..tracking.registry import is_named
+
+        name = task["tracker"]
+        data = apply_overrides(task["scenario_data"], {**for_tracker(task["params"], name),
+                                                       "tracker.name": settings_tracker(name), "seed": task["seed"]})
         scn = parse_scenario(data)
         dt = scn.dt
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             res = run_scenario(scn, out_dir=task["record_dir"], record=task["record_dir"] is not None,
-                               sensing_cache=task.get("sensing_cache"))
+                               sensing_cache=task.get("sensing_cache"), tracker=name if is_named(name) else None,
+                               label=name)
         summary = {k: _scalar(v) for k, v in res.summary().items()}
         n_frames = res.n_frames
         series = np.full(n_frames, np.nan)
@@ -534,13 +538,14 @@ def _submit_order(runs: list[RunSpec], campaign: Campaign | None = None) -> list
 
 def _sensing_key(campaign: Campaign, run: RunSpec) -> str:
     """The sensing key of a run (testbed.sensing.cache), or its run id when its scenario does not load."""
-    from ..scenario import apply_overrides, parse_scenario
+    from ..scenario.spec import apply_overrides, parse_scenario
     from ..sensing.cache import sensing_key
 
     task = make_task(campaign, run, None)
     try:
         data = apply_overrides(task["scenario_data"], {**for_tracker(task["params"], task["tracker"]),
-                                                       "tracker.name": task["tracker"], "seed": task["seed"]})
+                                                       "tracker.name": settings_tracker(task["tracker"]),
+                                                       "seed": task["seed"]})
         return sensing_key(parse_scenario(data))
     except Exception:  # noqa: BLE001 - the run will report its own error
         return run.run_id
@@ -552,7 +557,7 @@ STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 class _StopOnSignals:
     """From the main thread: Ctrl-C (SIGINT), SIGTERM and SIGHUP set ``stop`` and keep the first one's number
     in ``signum``; that signal then gets its previous handler back, so a second one interrupts the clean-up
-    (KeyboardInterrupt, or :class:`~testbed.errors.Terminated` under ``testbed``). An ignored SIGTERM or SIGHUP
+    (KeyboardInterrupt, or :class:`~testbed.common.errors.Terminated` under ``testbed``). An ignored SIGTERM or SIGHUP
     (``nohup``) stays ignored. :meth:`restore` puts every previous handler back."""
 
     def __init__(self, stop: threading.Event):

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import safe_io
+from ..common import safe_io
 from . import store
 
 BOUNDS = {"tp_pct": (0.0, 100.0), "fp_pct": (0.0, math.inf), "breakup_pct": (0.0, 100.0),

@@ -4,7 +4,7 @@ A campaign is scenarios x trackers x grid points x seeds. Every scenario or trac
 its dotted path (``sensor.clutter.density_per_m2``, ``convoy.gap_m``, ``tracker.filter.sigma_v``); TOML
 lets it be written bare (``sensor.clutter.density_per_m2 = [...]``, a nested table) or quoted, both mean
 the same. :func:`load_campaign` loads every scenario with every override and grid value before any run,
-so a bad key or value fails at once with a one-line :class:`~testbed.config.ConfigError` naming the
+so a bad key or value fails at once with a one-line :class:`~testbed.config.strict.ConfigError` naming the
 campaign file and the dotted key, e.g.
 ``campaigns/x.toml: grid."sensor.clutter.density_per_m2"[2]: sensor.clutter.density_per_m2: -1.0 is not
 allowed; must be >= 0 (scenario cut_in_out, tracker jpda-kf)``.
@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from ..config import ConfigError, field, find_file, from_dict, one_line, positive, read_toml_file, to_dict
-from ..limits import at_most, check_campaign_size, check_folder_name, seed_field
+from ..config.limits import at_most, check_campaign_size, check_folder_name, seed_field
 
 CAMPAIGN_DIR = Path(__file__).resolve().parent.parent.parent / "campaigns"
 
@@ -54,7 +54,7 @@ class RecordOptions:
 
 @dataclass(frozen=True)
 class CampaignFile:
-    """What a campaign TOML file holds (validated key by key by :func:`testbed.config.from_dict`)."""
+    """What a campaign TOML file holds (validated key by key by :func:`testbed.config.strict.from_dict`)."""
 
     scenarios: tuple[str, ...] = field(doc="shipped scenario names or scenario files (relative to the campaign "
                                        "file)", check=(lambda v: len(v) > 0, "a non-empty list"))
@@ -195,6 +195,16 @@ def _address_error(resolved: dict, key: str) -> str | None:
 
 
 TRACKER_TABLES = ("tracker.filter.", "tracker.associator.", "tracker.management.")
+NAMED_SETTINGS = "jpda-kf"
+"""The combination whose tracker tables configure a named tracker's runs (Stone Soup's read jpda-kf's settings)."""
+
+
+def settings_tracker(tracker: str) -> str:
+    """The built-in combination a run of ``tracker`` sets as ``tracker.name``: ``tracker`` itself, or for a named
+    tracker (Stone Soup's, an installed plug-in's: testbed.tracking.registry) :data:`NAMED_SETTINGS`."""
+    from ..tracking.registry import is_named
+
+    return NAMED_SETTINGS if is_named(tracker) else tracker
 
 
 def for_tracker(params: dict[str, Any], tracker: str) -> dict[str, Any]:
@@ -202,7 +212,7 @@ def for_tracker(params: dict[str, Any], tracker: str) -> dict[str, Any]:
     grid over, e.g., ``tracker.associator.max_events`` can compare JPDA with GNN (GNN runs without the key)."""
     from trackers.registry import known_keys
 
-    known = known_keys(tracker)
+    known = known_keys(settings_tracker(tracker))
     out = {}
     for key, value in params.items():
         table = next((t for t in TRACKER_TABLES if key.startswith(t)), None)
@@ -215,7 +225,7 @@ def _check_tracker_keys(keys: list[tuple[str, str]], trackers: tuple[str, ...]) 
     """A tracker-table key must belong to at least one of the campaign's trackers."""
     from trackers.registry import known_keys
 
-    known = [known_keys(t) for t in trackers]
+    known = [known_keys(settings_tracker(t)) for t in trackers]
     for where, key in keys:
         table = next((t for t in TRACKER_TABLES if key.startswith(t)), None)
         if table is None:
@@ -231,9 +241,11 @@ def _check_tracker_keys(keys: list[tuple[str, str]], trackers: tuple[str, ...]) 
 
 
 def _scenario(data: dict, overrides: dict[str, Any], tracker: str):
-    from ..scenario import apply_overrides, parse_scenario
+    from ..scenario.spec import apply_overrides
+    from ..world import parse_scenario
 
-    return parse_scenario(apply_overrides(data, {**for_tracker(overrides, tracker), "tracker.name": tracker}))
+    return parse_scenario(apply_overrides(data, {**for_tracker(overrides, tracker),
+                                                 "tracker.name": settings_tracker(tracker)}))
 
 
 def column_values(values: tuple) -> tuple:
@@ -255,7 +267,8 @@ def _safe(text: str) -> str:
 def _load_sources(spec: "CampaignFile", base_dir: Path | None,
                   scenario_data: dict[str, dict] | None) -> list[ScenarioSource]:
     """Each scenario entry loaded as it is (a broken scenario file is reported at its entry)."""
-    from ..scenario import parse_scenario, read_toml
+    from ..scenario.spec import read_toml
+    from ..world import parse_scenario
 
     sources: list[ScenarioSource] = []
     for i, entry in enumerate(spec.scenarios):
@@ -289,11 +302,20 @@ def _is_file(path: Path) -> bool:
 
 
 def _check_trackers(trackers: tuple[str, ...]) -> None:
+    """Each a built-in combination or a named tracker (Stone Soup's, a plug-in's), loadable now, and once."""
     from trackers import parse_tracker_name
+
+    from ..tracking.registry import is_named
+    from ..tracking.user import load_tracker
 
     for i, tracker in enumerate(trackers):
         try:
-            parse_tracker_name(tracker)
+            if is_named(tracker):
+                load_tracker(tracker)  # a missing Stone Soup is this entry's one-line error
+            else:
+                parse_tracker_name(tracker)
+        except ConfigError as err:
+            raise ConfigError(f"trackers[{i}]", str(err)) from None
         except ValueError as err:
             raise ConfigError(f"trackers[{i}]", one_line(err) or type(err).__name__) from None
         if tracker in trackers[:i]:
@@ -321,7 +343,7 @@ def _context(src: ScenarioSource, tracker: str) -> str:
 
 def _check_overrides(sources: list[ScenarioSource], overrides: dict[str, Any], trackers: tuple[str, ...]) -> None:
     """Each override alone (precise blame), then all together, for every scenario and tracker."""
-    from ..scenario import parse_scenario
+    from ..scenario.spec import parse_scenario
 
     for src in sources:
         resolved = to_dict(parse_scenario(src.data))
@@ -344,7 +366,7 @@ def _check_overrides(sources: list[ScenarioSource], overrides: dict[str, Any], t
 def _check_grid(sources: list[ScenarioSource], overrides: dict[str, Any], grid: dict[str, Any],
                 trackers: tuple[str, ...]) -> None:
     """Each grid value alone on top of the overrides, then (if not too many) every combination."""
-    from ..scenario import apply_overrides, parse_scenario
+    from ..scenario.spec import apply_overrides, parse_scenario
 
     for src in sources:
         resolved = to_dict(parse_scenario(apply_overrides(src.data, for_tracker(overrides, trackers[0]))))

@@ -17,14 +17,14 @@ Layout of ``DIR``::
 
 No file of the folder is written through a symbolic link: a link at any name the campaign writes (the lock,
 a run file, a temporary, a recording, a report file) is refused in one line naming it, before any run
-(:func:`refuse_links`), and every writer opens its files with ``O_NOFOLLOW`` (:mod:`testbed.safe_io`).
+(:func:`refuse_links`), and every writer opens its files with ``O_NOFOLLOW`` (:mod:`testbed.common.safe_io`).
 
 A killed campaign (Ctrl-C, SIGKILL, power loss) loses at most the runs that were in flight: it never
 leaves a half-written run file that counts as finished, and never writes a run twice.
 
 Damage (a disk that lies, a hand edit, a partial copy) is reported in one line naming the file:
 ``campaign.toml``, ``scenarios.json`` or ``meta.json`` missing, unreadable or malformed is a
-:class:`~testbed.config.ConfigError` (nothing runs); a damaged run file is a missing run: ``resume``
+:class:`~testbed.config.strict.ConfigError` (nothing runs); a damaged run file is a missing run: ``resume``
 sets it aside as ``runs/<run_id>.parquet.damaged`` and runs it again, ``report`` leaves it out, each with
 a warning line; ``results.parquet`` is derived from the run files and simply rebuilt.
 """
@@ -40,7 +40,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from .. import safe_io
+from ..common import safe_io
 from ..config import ConfigError
 
 CAMPAIGN_FILE = "campaign.toml"
@@ -122,7 +122,7 @@ def create(out_dir: str | Path, campaign_path: str | Path, campaign) -> Path:
         raise ConfigError("", f"{out}: cannot create the results folder ({_strerror(err)}): choose another "
                           "--out") from None
     try:
-        from ..jsonio import json_text
+        from ..common.jsonio import json_text
 
         atomic_write_bytes(out / SCENARIOS_FILE, (json_text(
             {s.entry: s.data for s in campaign.scenarios}, indent=1, default=str) + "\n").encode())
@@ -185,7 +185,7 @@ def read_meta(out_dir: str | Path) -> dict:
 def read_scenarios(out_dir: str | Path, entries: list[str]) -> dict[str, dict]:
     """``scenarios.json`` of a campaign folder: scenario entry -> scenario dict, for every entry of the
     campaign file (checked: each one present and a valid scenario)."""
-    from ..scenario import parse_scenario
+    from ..scenario.spec import parse_scenario
 
     path = Path(out_dir) / SCENARIOS_FILE
     data = _read_json_object(path, "scenarios the campaign started with")

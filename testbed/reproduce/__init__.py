@@ -16,17 +16,17 @@ from typing import Callable
 
 # name -> (module, one-line description); modules are imported on use.
 REPRODUCTIONS: dict[str, tuple[str, str]] = {
-    "seed-000": ("testbed.reproduce.seed000", "paper 000: one car in a convoy with mixed measurements; gating, "
+    "seed-000": ("testbed.reproduce.seed000.points", "paper 000: one car in a convoy with mixed measurements; gating, "
                  "PDAF and the windowed KS integral test"),
-    "seed-002": ("testbed.reproduce.seed002", "paper 002 (Powers & Pao): track-loss detection by KS tests on "
+    "seed-002": ("testbed.reproduce.seed002.study", "paper 002 (Powers & Pao): track-loss detection by KS tests on "
                  "gated-measurement counts"),
-    "seed-000-highway": ("testbed.reproduce.seed000_highway", "paper 000 on the highway: one car of a close "
+    "seed-000-highway": ("testbed.reproduce.seed000.highway", "paper 000 on the highway: one car of a close "
                          "LiDAR-seen convoy (gaps 0.25-4 m, full and thesis pipelines); mixing fraction, gating and "
                          "the KS integral test"),
-    "seed-002-highway": ("testbed.reproduce.seed002_highway", "paper 002's KS track regime detector on the highway: "
+    "seed-002-highway": ("testbed.reproduce.seed002.highway", "paper 002's KS track regime detector on the highway: "
                          "delay after a forced loss and a sensor dropout, false alarms while tracking, per tracker, "
                          "against the track score's deletion"),
-    "seed-003": ("testbed.reproduce.seed003", "paper 003: symmetric measurement equations (sum of powers, sum of "
+    "seed-003": ("testbed.reproduce.seed003.study", "paper 003: symmetric measurement equations (sum of powers, sum of "
                  "products) with an EKF, 2 and 3 targets"),
 }
 

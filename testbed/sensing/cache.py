@@ -4,7 +4,7 @@
 exists, else senses them live and writes the entry once the last frame is done (an interrupted sensing writes
 nothing). The key (:func:`sensing_key`) hashes the scenario without the keys that do not change sensing
 (``tracker``, ``scoring``, ``record``, ``moving_test``, ``name``, ``description``) together with the source code
-of the sensing stages (sensors/, testbed's simulation, traffic, roadside, env source and sensing), so changing a
+of the sensing stages (sensors/, testbed's scenario, world and sensing packages), so changing a
 sensing key or that code makes a new entry. A damaged entry is re-sensed with one warning line. Several processes
 may share a folder: the first to need an entry senses it while the others wait for it (a lock per key).
 
@@ -35,10 +35,10 @@ import pyarrow.parquet as pq
 import sensors
 
 from ..config import to_dict
-from ..jsonio import json_text
-from ..safe_io import make_folder, try_lock, unlock, write_text
-from ..scenario import Scenario
-from ..simulation import TruthFrame
+from ..common.jsonio import json_text
+from ..common.safe_io import make_folder, try_lock, unlock, write_text
+from ..scenario.spec import Scenario
+from ..world.simulation import TruthFrame
 from .frames import PD_RANGE_STEP_M, SensedFrame, occlusion_pd, rng_streams, sense_simulation, sensing_setup
 
 CACHE_VERSION = 2
@@ -46,8 +46,7 @@ NOT_SENSING = ("tracker", "scoring", "record", "moving_test", "name", "descripti
 """Scenario keys that do not change what is sensed."""
 
 WAIT_POLL_S = 0.5
-_CODE = ("sensors", "testbed/sensing", "testbed/simulation.py", "testbed/traffic.py", "testbed/roadside.py",
-         "testbed/envsource.py", "testbed/envcheck.py", "testbed/scenario.py")
+_CODE = ("sensors", "testbed/sensing", "testbed/world", "testbed/scenario")
 _fingerprint: str | None = None
 
 

@@ -13,9 +13,9 @@ import numpy as np
 
 import sensors
 
-from ..roadside import boxes_near
-from ..scenario import Scenario
-from ..simulation import lane_centres, roadside_objects
+from ..world.roadside import boxes_near
+from ..scenario.spec import Scenario
+from ..world.simulation import lane_centres, roadside_objects
 
 STREAMS = ("roadside", "lidar", "clutter")
 PD_RANGE_STEP_M = 0.002
@@ -26,7 +26,7 @@ PD_RANGE_STEP_M = 0.002
 class SensedFrame:
     """One frame of sensing.
 
-    truth: the simulator's frame (testbed.simulation.Frame: ids, names, xy, velocity, heading, size, ...; row 0 the
+    truth: the simulator's frame (testbed.world.simulation.Frame: ids, names, xy, velocity, heading, size, ...; row 0 the
     ego). scan: the LiDAR turn (sensors.Scan). perception: its sensors.PerceptionResult. detections: the
     sensors.Detections the tracker gets (perception's, then the added clutter). visibility: (n_points (K,) int64
     LiDAR points on each vehicle of truth, in_range (K,) bool centre within the LiDAR's range). pd: the
@@ -100,7 +100,7 @@ def sensing_setup(scn: Scenario, rngs: dict[str, np.random.Generator], policy: C
     """The traffic source of ``scn`` (a highway-env environment with ``[env]``, its ego driven by ``policy`` when
     given, else our scripted traffic), its roadside boxes (K, 7) drawn from ``rngs["roadside"]`` and the
     perception's road map."""
-    from ..envsource import make_simulation
+    from ..world.envsource import make_simulation
 
     sim = make_simulation(scn, policy)
     static = roadside_objects(sim.network, scn.roadside, rngs["roadside"])

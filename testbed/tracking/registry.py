@@ -11,7 +11,7 @@ from typing import Any
 from trackers.plugins import NAME, TRACKER_GROUP, PluginWarning, entry_points, origin
 
 from ..config import ConfigError
-from ..usercode import load_object
+from ..common.usercode import load_object
 
 
 @dataclass(frozen=True)

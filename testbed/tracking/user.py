@@ -7,7 +7,7 @@ import inspect
 from typing import Any
 
 from ..config import ConfigError
-from ..usercode import is_code_spec, load_object
+from ..common.usercode import is_code_spec, load_object
 from .builtin import BuiltinTracker
 from .protocol import Tracker
 from .registry import is_named, named_factory

@@ -32,7 +32,8 @@ FILTERS: dict[str, FilterKind] = {
     "ekf": FilterKind(EKFParams, lambda p: ExtendedKalmanFilter(p.motion_model(), p.measurement_model(),
                                                                  p.second_order),
                       "extended Kalman filter, first or second order (thesis (1.11); seed 000 §3)"),
-    "imm": FilterKind(IMMParams, build_imm, "interacting multiple model filter over mode filters (thesis §2.3.4)"),
+    "imm": FilterKind(IMMParams, lambda p: build_imm(p, FILTERS, build_filter),
+                      "interacting multiple model filter over mode filters (thesis §2.3.4)"),
 }
 
 

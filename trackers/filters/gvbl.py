@@ -31,7 +31,7 @@ parameters of `GVBLSVSF`:
 * How often it switches: with psi_max = 20 m and the ch. 4 parameters the robust regime engages when a
   position innovation exceeds about 4-5 m (the NCV steady state: |Psi_z| is about 4.2 |e_j|); `info["regime"]` records it per scan
   (1 robust, 0 optimal), so a run's switching rate is the mean of that column. Measured on the thesis §4.6.1
-  cars (testbed.synthetic, tests/test_trackers_svsf.py): 21-24 % of the scans with clutter 1e-4 /m^2, and
+  cars (testbed.reproduce.thesis.synthetic, tests/test_trackers_svsf.py): 21-24 % of the scans with clutter 1e-4 /m^2, and
   never with the printed 1e-2 /m^2 (the PDA-shrunk combined innovation and the clutter-inflated P keep
   |Psi_z| below psi_max, so the filter is exactly the KF); "all_any" is robust on 99 % of the scans.
   With psi_max = None (no limit) the filter is the Kalman filter exactly.

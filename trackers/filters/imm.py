@@ -313,22 +313,22 @@ class IMMParams:
                      np.array(self.mu0, dtype=np.float64) if self.mu0 else mu0, r)
 
 
-def build_imm(p: IMMParams) -> IMMFilter:
-    """IMMFilter from its parameters; ParamError paths relative to the IMM table ("modes[1].sigma_v")."""
-    from trackers.filters import FILTERS, build_filter  # late import: the registry imports this module
-
+def build_imm(p: IMMParams, registry: dict, build_filter) -> IMMFilter:
+    """IMMFilter from its parameters, its modes built by the filter registry (``registry`` = ``FILTERS`` and
+    ``build_filter`` of trackers.filters, passed in by the registry's entry); ParamError paths relative to the
+    IMM table ("modes[1].sigma_v")."""
     filters = []
     for i, table in enumerate(p.modes):
         path = f"modes[{i}]"
         kind = table.get("kind")
         if not isinstance(kind, str):
             raise ParamError(f"{path}.kind", f"missing or not a string ({kind!r}); allowed: "
-                             f"{', '.join(sorted(k for k in FILTERS if k != 'imm'))}")
+                             f"{', '.join(sorted(k for k in registry if k != 'imm'))}")
         if kind == "imm":
             raise ParamError(f"{path}.kind", "an IMM mode must be a single-model filter, not 'imm'")
         data = {k: v for k, v in table.items() if k != "kind"}
-        if kind in FILTERS:
-            keys = {f.name for f in dataclasses.fields(FILTERS[kind].params) if f.init}
+        if kind in registry:
+            keys = {f.name for f in dataclasses.fields(registry[kind].params) if f.init}
             for key in ("sigma_v", "sigma_w"):
                 if getattr(p, key) is not None and key in keys:
                     data.setdefault(key, getattr(p, key))  # shared scenario value; a mode's own value wins

@@ -1,0 +1,1 @@
+"""Command line: argument parsing of every `testbed` command; the work is done by the stages."""

@@ -1,0 +1,6 @@
+"""``python -m testbed.cli``: the ``testbed`` command."""
+import sys
+
+from .main import main
+
+sys.exit(main())

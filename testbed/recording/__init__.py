@@ -1,0 +1,1 @@
+"""Recording: the rerun recording of a run and the viewer."""

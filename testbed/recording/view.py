@@ -1,0 +1,204 @@
+"""``testbed view RUN [--web] [--port N]``: the rerun viewer on a run's recording.
+
+The recording is read back first (a corrupt or truncated file is one line, exit 2); the port is checked free;
+the viewer process dies with testbed (PR_SET_PDEATHSIG) and SIGTERM / SIGINT / SIGHUP are passed on to it.
+On a machine's first use, rerun's analytics are switched off (``rerun analytics disable``) so its banner does
+not appear; an existing choice is left alone.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import warnings
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from ..config import ConfigError
+from ..common.errors import one_line
+
+def cmd_view(args: argparse.Namespace) -> int:
+    path = Path(args.run_dir)
+    rrd = path if path.suffix == ".rrd" else path / "run.rrd"
+    if not rrd.is_file():
+        raise ConfigError("", f"{rrd}: no recording (run `testbed run SCENARIO --out {path}` first)")
+    _check_recording(rrd)
+    incomplete = rrd.parent / "INCOMPLETE"
+    if incomplete.is_file():
+        reason = one_line(incomplete.read_text(errors="replace")) or "no reason recorded"
+        print(f"note: {rrd.parent} holds an incomplete run ({reason})", file=sys.stderr)
+    headless = sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    web = args.web or headless
+    exe = _rerun_exe()
+    if web:
+        port = args.port if args.port is not None else WEB_VIEWER_PORT
+        _require_free_port(port)
+        cmd = [exe, "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(port), "--port",
+               str(_free_port()), str(rrd)]
+    else:
+        if args.port is not None:
+            _require_free_port(args.port)
+        cmd = [exe, *(["--port", str(args.port)] if args.port is not None else []), str(rrd)]
+    if headless and not args.web:
+        print("no display found: serving the web viewer on 127.0.0.1 instead (open the URL rerun prints; "
+              "Ctrl-C to stop)", file=sys.stderr)
+    env = dict(os.environ)
+    _rerun_analytics_off(exe, env)
+    return _supervise(cmd, env)
+
+
+WEB_VIEWER_PORT = 9090  # rerun's default web viewer port
+STOP_SIGNALS = ("SIGTERM", "SIGINT", "SIGHUP")
+STOP_GRACE_S = 5.0  # seconds the viewer is given to exit after SIGTERM before it is killed
+
+
+def _check_recording(rrd: Path) -> None:
+    """ConfigError unless ``rrd`` reads back as a rerun recording with data (rerun's own reader; a whole
+    file is streamed, about 50 ms per 100 MB)."""
+    from rerun.chunk import RrdReader
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "no footer/manifest": a long run's recording, readable
+            chunks = sum(1 for _ in RrdReader(str(rrd)).stream())
+    except BaseException as err:  # noqa: BLE001 - rerun raises RuntimeError, ValueError, PanicException
+        if isinstance(err, KeyboardInterrupt | SystemExit):
+            raise
+        raise ConfigError("", f"{rrd}: not a readable rerun recording ({one_line(err) or type(err).__name__}); "
+                          f"run the scenario again") from None
+    if chunks == 0:
+        raise ConfigError("", f"{rrd}: the recording holds no data; run the scenario again")
+
+
+def _rerun_exe() -> str:
+    """The rerun viewer binary itself: the ``rerun`` script of the venv is a Python wrapper that would sit
+    between us and the server, and does not pass signals on."""
+    if os.environ.get("RERUN_CLI_PATH"):
+        return os.environ["RERUN_CLI_PATH"]
+    try:
+        import rerun_cli
+
+        exe = Path(rerun_cli.__file__).parent / ("rerun.exe" if sys.platform.startswith("win") else "rerun")
+        if exe.is_file():
+            return str(exe)
+    except ImportError:
+        pass
+    import shutil
+
+    return shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
+
+
+def port_arg(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number 1-65535, got {text!r}") from None
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a port number 1-65535, got {value}")
+    return value
+
+
+def _require_free_port(port: int) -> None:
+    """ConfigError if something listens on 127.0.0.1:``port`` (bound as rerun binds it, SO_REUSEADDR)."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            raise ConfigError("--port", f"port {port} is in use (another `testbed view`?): pass --port with "
+                              f"a free one") from None
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _rerun_config_dir() -> Path | None:
+    if sys.platform.startswith("linux"):
+        return Path(os.environ.get("XDG_CONFIG_HOME") or Path.home() / ".config") / "rerun"
+    if sys.platform == "darwin":
+        return Path.home() / "Library" / "Application Support" / "rerun"
+    return None
+
+
+def _rerun_analytics_off(exe: str, env: dict) -> None:
+    """rerun 0.41 reads no RERUN_ANALYTICS variable: the first time its CLI runs (no analytics.json in its
+    config folder) it prints a 20-line analytics banner and turns analytics on. The first time, opt out as
+    `rerun analytics disable` does (its banner swallowed) and say so in one line; a choice already made (the
+    file exists) is left alone."""
+    folder = _rerun_config_dir()
+    if folder is None or (folder / "analytics.json").exists():
+        return
+    try:
+        subprocess.run([exe, "analytics", "disable"], env=env, capture_output=True, timeout=30, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return
+    print("rerun analytics turned off (`rerun analytics enable` turns them on)", file=sys.stderr)
+
+
+def _die_with_parent():
+    """A preexec_fn for Linux: the kernel SIGKILLs the child when we die, even by SIGKILL (libc loaded
+    here, before the fork)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+    import signal
+
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    parent = os.getpid()
+
+    def preexec() -> None:
+        prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG = 1
+        if os.getppid() != parent:  # we died before the request took effect
+            os._exit(1)
+
+    return preexec
+
+
+def _supervise(cmd: list[str], env: dict) -> int:
+    """Run the viewer ``cmd`` until it exits. SIGTERM, SIGINT and SIGHUP to us are passed on as SIGTERM and
+    the viewer is waited for (killed after ``STOP_GRACE_S``); if we are killed, the kernel kills it. Returns
+    128 + the signal, or 1 with one line if the viewer failed."""
+    import signal
+    import time
+
+    proc = subprocess.Popen(cmd, env=env, preexec_fn=_die_with_parent())
+    got: list[tuple[int, float]] = []  # (signal, when)
+
+    def forward(signum, _frame) -> None:
+        got.append((signum, time.monotonic()))
+        with contextlib.suppress(ProcessLookupError):
+            proc.send_signal(signal.SIGTERM)
+
+    sigs = [getattr(signal, name) for name in STOP_SIGNALS if hasattr(signal, name)]
+    previous = {sig: signal.signal(sig, forward) for sig in sigs}
+    try:
+        while True:
+            try:
+                rc = proc.wait(timeout=0.5)
+                break
+            except subprocess.TimeoutExpired:
+                if got and time.monotonic() - got[0][1] > STOP_GRACE_S:
+                    proc.kill()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if got:
+        if got[0][0] == signal.SIGINT:
+            print("interrupted: viewer stopped", file=sys.stderr)
+        return 128 + got[0][0]
+    if rc != 0:
+        print(f"error: the rerun viewer exited with code {rc} (its messages are above)", file=sys.stderr)
+        return 1
+    return 0
+

@@ -1,0 +1,1 @@
+"""Paper 003: symmetric measurement equations for crossing point targets."""

@@ -1,0 +1,1 @@
+"""The thesis's abstract single-target studies (no highway-env, no LiDAR)."""
