@@ -192,17 +192,6 @@ def body_reaches(z, u, required, bin_m, starts, n):
 
 
 @njit(cache=True)
-def cell_minimum(ix, iy, ny, z, size):
-    """(size,) the lowest z (N,) of each cell ix * ny + iy (N,), inf where empty."""
-    out = np.full(size, np.inf)
-    for i in range(len(z)):
-        c = ix[i] * ny + iy[i]
-        if z[i] < out[c]:
-            out[c] = z[i]
-    return out
-
-
-@njit(cache=True)
 def cell_lowest(pts, z, inv, fx0, fy0, ny, size):
     """(size,) the lowest z (N,) in each BEV cell (floor(x inv) - fx0) * ny + floor(y inv) - fy0 of the points
     (N, 3) (sensors/grid.bev_cells numbering), inf where empty."""

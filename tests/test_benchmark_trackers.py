@@ -1,4 +1,4 @@
-"""benchmarks/trackers.py --quick: correctness only (our JPDA marginals equal Stone Soup 1.9.1's to 1e-9, the
+"""benchmarks/bench_trackers.py --quick: correctness only (our JPDA marginals equal Stone Soup 1.9.1's to 1e-9, the
 event count equals brute force, the script runs and prints its ratios). Timings are never asserted."""
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pytest
 
 pytest.importorskip("stonesoup")
 
-PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "trackers.py"
+PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_trackers.py"
 TOL = 1e-9
 
 
@@ -66,7 +66,7 @@ def test_quick_run_agrees_and_prints_ratios(bench, capsys):
 
 
 def test_script_imports_the_trackers_package_not_itself():
-    """Run as a script, benchmarks/ is sys.path[0] and benchmarks/trackers.py would shadow `trackers`."""
+    """Run as a script, benchmarks/ is sys.path[0] and benchmarks/bench_trackers.py would shadow `trackers`."""
     proc = subprocess.run([sys.executable, str(PATH), "--help"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert "--quick" in proc.stdout

@@ -16,8 +16,8 @@ worker writes ``DIR/recordings/<run_id>/`` at the same path on its own machine).
 
 Threads: open3d runs parts of a scan on OpenMP threads and builds the ray-casting scene on a TBB thread
 pool, by default on every core, so one "single-threaded" run uses ~1.2 cores. A local-pool worker
-therefore gets ``OMP_NUM_THREADS = cores // workers`` (at least 1; an ``OMP_NUM_THREADS`` already set
-wins) and, when ``workers x threads <= cores``, its own block of cores by CPU affinity, which TBB follows
+therefore gets ``OMP_NUM_THREADS = cores // workers`` (at least 1; an ``OMP_NUM_THREADS`` the user set
+wins, the command line's own default of 1 does not: testbed/common/threads.py) and, when ``workers x threads <= cores``, its own block of cores by CPU affinity, which TBB follows
 (``sensors/lidar.py`` passes no ``nthreads`` to ``cast_rays``; affinity makes that knob unnecessary).
 LocalCluster workers get ``OMP_NUM_THREADS=1`` from Dask's nanny and one core each. Results do not
 depend on any of it.
@@ -40,10 +40,10 @@ from typing import Any, Callable
 
 from ..config import ConfigError, one_line
 from ..common.errors import RunError, describe_os_error
+from ..common.threads import THREAD_VARS, set_by_user
 from . import store
 from .spec import Campaign, RunSpec, for_tracker, plan, settings_tracker
 
-THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def usable_cores() -> int:
@@ -116,7 +116,8 @@ def init_worker(threads: int | None, counter=None, parent_pid: int | None = None
     affinity; death with the parent (pid ``parent_pid``)."""
     if threads is not None:
         for var in THREAD_VARS:
-            os.environ.setdefault(var, str(threads))
+            if not set_by_user(var):  # the command line's default of 1 gives way to the worker's share
+                os.environ[var] = str(threads)
     if counter is not None and threads and hasattr(os, "sched_setaffinity"):
         with counter.get_lock():
             k = counter.value

@@ -15,6 +15,7 @@ import traceback
 import warnings
 from pathlib import Path
 
+from ..common.threads import one_thread_per_process
 from ..config import ConfigError, parse_sets
 from .check import cmd_check
 from ..common.errors import (describe_os_error, exit_code, guarded, interruption, interruption_behind,
@@ -408,6 +409,7 @@ def main(argv: list[str] | None = None) -> int:
     for Ctrl-C (130), SIGTERM (143) and SIGHUP (129), which keep the finished work like Ctrl-C (see
     :mod:`testbed.common.errors`); ``--debug`` adds the traceback."""
     replace_unencodable_output()
+    one_thread_per_process()  # before numpy and open3d are imported (testbed/common/threads.py)
     os.environ.setdefault("RERUN_ANALYTICS", "0")  # before rerun is imported (rerun 0.41 ignores it, see view)
     try:
         args = build_parser().parse_args(argv)

@@ -21,7 +21,7 @@ class TableLog:
     allocates O(F / chunk_rows) blocks. Keeping one small array per column per frame instead (thousands of
     small long-lived blocks, allocated between each frame's large freed LiDAR temporaries) fragments the C
     heap: the small blocks pin the freed space so the next frame's large temporaries do not fit in it, and
-    a run's RSS grew by 0.5-0.7 MB per frame (benchmarks/memory.py).
+    a run's RSS grew by 0.5-0.7 MB per frame (benchmarks/bench_memory.py).
     """
 
     def __init__(self, columns: dict[str, type], chunk_rows: int = CHUNK_ROWS):

@@ -1,6 +1,6 @@
 """Per-stage cost of the whole loop on cut_in_out, pinned to one core, against the 100 ms of a 10 Hz LiDAR.
 
-    .venv/bin/python benchmarks/pipeline.py [--scenario cut_in_out] [--duration 16] [--cores 1]
+    .venv/bin/python benchmarks/bench_pipeline.py [--scenario cut_in_out] [--duration 16] [--cores 1]
 
 Prints ms per frame per stage (simulation, ray casting, ground, clustering, rest of perception, tracking,
 recording) and the ratio of the loop to the real-time budget. The loop is timed twice in one process:

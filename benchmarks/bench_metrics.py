@@ -1,6 +1,6 @@
 """Time testbed.scoring.mot_metrics on a run-sized case: 200 frames, 5 truths and 10 confirmed tracks per frame.
 
-    .venv/bin/python benchmarks/metrics.py [--frames 200] [--truths 5] [--tracks 10] [--repeats 20]
+    .venv/bin/python benchmarks/bench_metrics.py [--frames 200] [--truths 5] [--tracks 10] [--repeats 20]
 
 Prints the one-off TrackEval import + construction time and the median / min / max of mot_metrics.
 """

@@ -1,7 +1,7 @@
 """Track life cycle of finished runs: the thesis's scores, the largest gate any confirmed track reached, and why
 cars were missed or relabelled (issue 17's diagnosis, from a run folder's tables alone).
 
-    python benchmarks/track_life.py runs/highway_benchmark [more run folders ...]
+    python benchmarks/bench_track_life.py runs/highway_benchmark [more run folders ...]
 
 Per run folder (written by `testbed run`, tables kept): TP / FP / break-ups in the thesis's form (per car
 seen, scores.json), the largest gate area [m^2] of a confirmed track and how many confirmed tracks passed
@@ -96,10 +96,11 @@ def diagnose(run: Path) -> dict:
 
 
 def main(argv: list[str]) -> int:
-    if not argv:
-        print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
-        return 2
-    rows = [diagnose(Path(a)) for a in argv]
+    import argparse
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("runs", nargs="+", help="run folders written by `testbed run` (tables kept)")
+    rows = [diagnose(Path(a)) for a in p.parse_args(argv).runs]
     keys = list(rows[0])
     print("| " + " | ".join(keys) + " |")
     print("|" + "---|" * len(keys))

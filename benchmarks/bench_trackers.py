@@ -1,6 +1,6 @@
 """Per-scan cost of our JPDA against Stone Soup's on identical problems, and of whole trackers in dense traffic.
 
-    .venv/bin/python benchmarks/trackers.py [--quick] [--repeats 5] [--budget 2] [--seed 0]
+    .venv/bin/python benchmarks/bench_trackers.py [--quick] [--repeats 5] [--budget 2] [--seed 0]
                                             [--vehicles 50] [--scans 40] [--warmup 30]
                                             [--trackers jpda-kf,nn-kf,...] [--ss-max-events 30000]
 
@@ -58,7 +58,7 @@ from __future__ import annotations
 import os
 import sys
 
-if __name__ == "__main__":  # this file's folder would be sys.path[0], and this file shadow the `trackers` package
+if __name__ == "__main__":  # run as a script: the checkout first on sys.path (the benchmarks folder after it)
     _here = os.path.dirname(os.path.abspath(__file__))
     sys.path[:] = [os.path.dirname(_here)] + [p for p in sys.path if os.path.abspath(p or ".") != _here]
 

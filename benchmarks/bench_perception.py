@@ -1,6 +1,6 @@
 """Perception cost per frame and stage with 10, 30 and 60 vehicles in view, against the 100 ms of a 10 Hz scan.
 
-    .venv/bin/python benchmarks/perception.py [--frames 40] [--cores 1] [--loop-seconds 20]
+    .venv/bin/python benchmarks/bench_perception.py [--frames 40] [--cores 1] [--loop-seconds 20]
 
 Part 1, the perception stack on synthetic motorway scenes (8 lanes, guard rails, posts and trees as in the
 highway benchmark, N vehicles within 60 m of the sensor car): ms per frame for ray casting, ground
@@ -35,7 +35,7 @@ def _pin(argv: list[str]) -> None:
         os.sched_setaffinity(0, set(sorted(os.sched_getaffinity(0))[:cores]))
 
 
-if __name__ == "__main__":  # this file's folder would be sys.path[0], and benchmarks/trackers.py shadow `trackers`
+if __name__ == "__main__":  # run as a script: the checkout first on sys.path (the benchmarks folder after it)
     _here = os.path.dirname(os.path.abspath(__file__))
     sys.path[:] = [os.path.dirname(_here)] + [p for p in sys.path if os.path.abspath(p or ".") != _here]
     _pin(sys.argv[1:])

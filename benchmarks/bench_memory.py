@@ -1,6 +1,6 @@
 """Peak memory of a long run against a short one: a run's memory must not grow with its length.
 
-    .venv/bin/python benchmarks/memory.py [--scenario convoy] [--short 60] [--long 1200]
+    .venv/bin/python benchmarks/bench_memory.py [--scenario convoy] [--short 60] [--long 1200]
                                           [--recording both|on|off] [--sample-every 100]
 
 Runs ``run_scenario`` for ``--short`` and ``--long`` simulated seconds of the same scenario (same road,

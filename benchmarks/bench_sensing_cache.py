@@ -1,7 +1,7 @@
 """Sense once, track many: a campaign's wall time with and without the sensing cache, and a tracker-only run of the
 full highway benchmark from a warm cache, measured in one run on this machine.
 
-    .venv/bin/python benchmarks/sensing_cache.py [--campaign campaigns/named_trackers_highway.toml]
+    .venv/bin/python benchmarks/bench_sensing_cache.py [--campaign campaigns/named_trackers_highway.toml]
                                                  [--workers 2] [--skip-full] [--skip-full-stack]
 
 1. The campaign (default: the papers' 13 named trackers x 2 seeds x 60 s of the highway benchmark) runs twice into

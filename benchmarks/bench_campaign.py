@@ -1,6 +1,6 @@
 """Campaign throughput: runs per second on 1 and 2 local workers and on a 2-worker Dask LocalCluster.
 
-    .venv/bin/python benchmarks/campaign.py [--runs 16] [--duration 2.0] [--repeat 3]
+    .venv/bin/python benchmarks/bench_campaign.py [--runs 16] [--duration 2.0] [--repeat 3]
 
 A fixed small campaign (cut_in_out shortened to ``--duration`` s, jpda-kf and gnn-kf, ``--runs`` / 2
 seeds, scores only) runs on warm workers: every engine is started and warmed up first (two short runs per
