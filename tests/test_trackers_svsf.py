@@ -462,3 +462,53 @@ def test_claim_s41_gvbl_vs_kf_three_cars():
                             10, 410 + car)
         ratio = mc["gvbl"].rmse()[:2] / mc["kf"].rmse()[:2]
         assert np.all(ratio > 0.99) and np.all(ratio < 1.05), (car, ratio)
+
+
+# ---------------------------------------------------------------- batched paths against the per-track reference
+BATCHED = [("svsf", {}), ("svsf", {"psi_v": 2.0}), ("svsf", {"gamma": 0.0, "psi": 0.2}),
+           ("gvbl-svsf", {}), ("gvbl-svsf", {"psi_max": 0.5}), ("gvbl-svsf", {"psi_max": 0.5, "switch": "per_partition"}),
+           ("gvbl-svsf", {"psi_max": 0.5, "switch": "all_any", "robust_lower": "psi_max"}),
+           ("gvbl-svsf", {"psi_max": 0.5, "ey_memory": "a_posteriori"})]
+
+
+def _fields(s) -> dict:
+    out = {k: v for k, v in vars(s).items() if k not in ("info", "F")}
+    out.update({f"info.{k}": v for k, v in s.info.items()})
+    return out
+
+
+@pytest.mark.parametrize("kind, params", BATCHED, ids=[f"{k}-{'-'.join(map(str, p.values())) or 'default'}"
+                                                        for k, p in BATCHED])
+def test_the_batched_predict_and_update_equal_the_per_track_ones_to_1e_12(kind, params):
+    """predict_many / update_many over 40 tracks and 10 scans (random gates, weights, misses, first updates
+    without z_prev) against the per-track predict / update (ModelFilter.update_many's loop): every field, the
+    layers and diagnostics included, equal to 1e-12 (relative, or absolute near 0)."""
+    from trackers.filters.base import ModelFilter
+
+    flt = make_filter(kind, sigma_v=2.0, sigma_w=0.5, **params)
+    rng = np.random.default_rng(3)
+    states = [flt.initial_state(rng.normal(size=4) * [50, 5, 10, 2], np.diag([0.5, 0.5, 25.0, 25.0]))
+              for _ in range(40)]
+    robust = 0
+    for _ in range(10):
+        batch, single = flt.predict_many(states, 0.1), [flt.predict(s, 0.1) for s in states]
+        T, M = len(batch), 6
+        nu = rng.normal(size=(T, M, 2)) * rng.choice([0.3, 3.0], size=(T, 1, 1))
+        W = rng.random((T, M)) * (rng.random((T, M)) < 0.4)
+        w0 = rng.random(T) * 0.6
+        total = W.sum(axis=1, keepdims=True)
+        W = np.where(total > 0, W / np.where(total > 0, total, 1.0) * (1.0 - w0)[:, None], 0.0)
+        w0 = np.where(W.sum(axis=1) > 0, w0, 1.0)
+        a, b = flt.update_many(batch, nu, W, w0), ModelFilter.update_many(flt, single, nu, W, w0)
+        for u, v in zip(a, b):
+            fu, fv = _fields(u), _fields(v)
+            assert set(fu) == set(fv)
+            for k in fu:
+                if fu[k] is None or fv[k] is None:
+                    assert fu[k] is None and fv[k] is None, k
+                    continue
+                np.testing.assert_allclose(fu[k], fv[k], rtol=1e-12, atol=1e-12, err_msg=k)
+            robust += int(u.info.get("regime", 0.0) == 1.0)
+        states = a
+    if kind == "gvbl-svsf" and params.get("psi_max") == 0.5:
+        assert robust > 0  # the robust (SVSF) gain was exercised, not only the KF one

@@ -31,7 +31,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from trackers.errors import FilterError
-from trackers.state import FilterState
+from trackers.state import FilterState, derive
 
 
 @runtime_checkable
@@ -91,7 +91,18 @@ class ModelFilter:
 
     # Batched forms used by the tracker; a filter may override them with vectorised code (the KF does).
     def predict_many(self, states: list[FilterState], dt: float) -> list[FilterState]:
-        return [self.predict(s, dt) for s in states]
+        """`predict` of T tracks at once: vectorised for a linear motion model, else the per-track loop."""
+        dt = float(dt)
+        if not math.isfinite(dt) or dt < 0:
+            raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
+        if not states or not self.motion.linear or type(self).predict is not ModelFilter.predict:
+            return [self.predict(s, dt) for s in states]  # a subclass's own predict is its reference
+        A, Q = self.motion.transition(dt), self.motion.process_noise(dt)
+        X = np.array([s.x for s in states]) @ A.T  # (4.24) x = A x
+        P = A @ np.array([s.P for s in states]) @ A.T + Q  # (4.26) P = A P A^T + Q
+        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+        check_covariance(P, "predicted covariance P")
+        return [derive(s, x=X[t], P=P[t], F=A, info={}) for t, s in enumerate(states)]
 
     def predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
         """z_hat (T, m) and S (T, m, m) of T predicted states."""

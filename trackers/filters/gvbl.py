@@ -56,7 +56,7 @@ from trackers.filters.svsf import (EY_MEMORY, GAMMA, Partition, promote_state, g
                                    svsf_gain_factor)
 from trackers.filters.params import ModelParams
 from trackers.params import POSITIVE, ParamError, param
-from trackers.state import FilterState
+from trackers.state import FilterState, derive
 
 SWITCH_RULES = ("z_any", "all_any", "per_partition")
 ROBUST_LOWER = ("optimal", "psi_max")
@@ -164,6 +164,90 @@ class GVBLSVSF(ModelFilter):
                 "chatter": np.maximum(0.0, np.abs(e) - layer)}  # (5.37) chattering against the effective layer
         return replace(s, x=x, P=P_post, e_post=e - H @ (K @ e), F=None, info=info, psi_layer=layer)  # (3.65)
 
+
+    def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
+                    w0: np.ndarray) -> list[FilterState]:
+        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,) (the per-track update is the reference,
+        tests/test_trackers_svsf.py checks them equal to 1e-12). A linear measurement and one transition
+        Jacobian for all tracks (the tracker predicts them together), else the per-track loop."""
+        out = list(preds)
+        T = len(preds)
+        active = np.flatnonzero((w0 < 1.0) & (W > 0.0).any(axis=1)) if T else np.zeros(0, dtype=np.int64)
+        if active.size == 0:
+            return out
+        ss = [promote_state(GVBLState, preds[t]) for t in active]
+        F = ss[0].F
+        if (not self.measurement.linear or F is None
+                or any(s.F is not F and not np.array_equal(s.F, F) for s in ss)):
+            return ModelFilter.update_many(self, preds, nu, W, w0)
+        Wa, b0 = np.asarray(W[active], dtype=np.float64), np.asarray(w0[active], dtype=np.float64)
+        nua = np.where((Wa > 0.0)[..., None], nu[active], 0.0)  # (A, M, m): what the per-track update is given
+        if not (np.isfinite(nua).all() and np.isfinite(Wa).all() and np.isfinite(b0).all()):
+            raise ValueError("update got non-finite innovations or weights")
+        if np.any(Wa < 0.0) or np.any(b0 < 0.0) or np.any(np.abs(b0 + Wa.sum(axis=1) - 1.0) > 1e-9):
+            raise ValueError("update weights must be >= 0 and sum to 1")
+        H, R = self.measurement.matrix(self.motion), self.measurement.R
+        part = Partition.of(H)
+        Mm, Phi12_pinv = part.maps(F)
+        X = np.array([s.x for s in ss])
+        P = np.array([s.P for s in ss])
+        e_post = np.array([s.e_post for s in ss])
+        S = H @ P @ H.T + R
+        S = 0.5 * (S + np.swapaxes(S, 1, 2))  # (5.10) S = H1 P11 H1^T + R
+        try:
+            np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            raise FilterError("innovation covariance S is not positive definite") from None
+        e = np.einsum("aj,ajm->am", Wa, nua)  # (2.27)/(4.28) e_{z,k|k-1} := combined innovation
+        E_z = np.abs(e) + self.gamma * np.abs(e_post)  # (4.30)
+        e_y = e @ Mm.T  # (3.37)
+        mem = e if self.ey_memory == "a_priori" else e_post
+        E_y = np.abs(e_y) + self.gamma_y * np.abs(mem @ Phi12_pinv.T)  # (4.34) E_y
+        u, l, H1 = part.u, part.l, part.H1
+        A_ = H1 @ P[:, u][:, :, u] @ H1.T
+        Psi_z = S @ np.linalg.solve(A_, _diag(E_z))  # (4.61)
+        M_pinv = np.broadcast_to(np.linalg.pinv(Mm), (len(ss),) + Mm.T.shape)
+        Xl = P[:, l][:, :, u] @ H1.T @ np.linalg.solve(S, M_pinv)  # P21 H1^T S^-1 (Phi22 Phi12^-1)^-1
+        Psi_y = np.linalg.pinv(Xl) @ _diag(E_y)  # (4.68), pseudo-inverse [D]
+        psi_z = np.abs(np.diagonal(Psi_z, axis1=1, axis2=2))
+        psi_y = np.abs(np.diagonal(Psi_y, axis1=1, axis2=2))
+        trip_z, trip_y = np.any(psi_z > self.psi_max, axis=1), np.any(psi_y > self.psi_max, axis=1)  # §4.5.1 step 2
+        robust_u = trip_z | (trip_y if self.switch == "all_any" else False)
+        robust_l = trip_y if self.switch == "per_partition" else robust_u
+        K = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)  # (4.73) the Kalman gain, (A, n, m)
+        if robust_u.any():
+            g = svsf_gain_factor(E_z, e, np.full(e.shape, self.psi_max))
+            K_u = np.linalg.solve(np.broadcast_to(H1, (len(ss),) + H1.shape), _diag(g))  # (4.39)
+            K[np.ix_(robust_u, u)] = K_u[robust_u]
+        if self.robust_lower == "psi_max" and robust_l.any():
+            g_y = svsf_gain_factor(E_y, e_y, np.full(e_y.shape, self.psi_max))
+            K[np.ix_(robust_l, l)] = (g_y[:, :, None] * Mm[None])[robust_l]  # (4.40)
+        KHP = K @ H @ P
+        P_star = P - KHP - np.swapaxes(KHP, 1, 2) + K @ S @ np.swapaxes(K, 1, 2)  # (4.37)
+        P_star = 0.5 * (P_star + np.swapaxes(P_star, 1, 2))
+        spread = np.einsum("aj,aji,ajk->aik", Wa, nua, nua) - np.einsum("ai,ak->aik", e, e)
+        Pn = b0[:, None, None] * P + (1.0 - b0)[:, None, None] * P_star + K @ spread @ np.swapaxes(K, 1, 2)  # (4.16)
+        Pn = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
+        Ke = np.einsum("anm,am->an", K, e)
+        Xn = X + Ke  # (4.35)
+        if not np.isfinite(Xn).all():
+            raise FilterError("GVBL-SVSF updated state x is not finite")
+        check_covariance(Pn, "GVBL-SVSF updated covariance P")
+        post = e - Ke @ H.T  # (3.65)
+        layer = np.minimum(psi_z, self.psi_max)  # [D] effective layer
+        for i, t in enumerate(active):
+            info = {"psi_z": psi_z[i], "psi_y": psi_y[i], "regime": float(robust_u[i]),
+                    "regime_y": float(robust_l[i]), "chatter": np.maximum(0.0, np.abs(e[i]) - layer[i])}  # (5.37)
+            out[t] = derive(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info, psi_layer=layer[i])
+        return out
+
+
+def _diag(v: np.ndarray) -> np.ndarray:
+    """(A, k, k) diagonal matrices of the rows of v (A, k)."""
+    out = np.zeros(v.shape + (v.shape[-1],))
+    idx = np.arange(v.shape[-1])
+    out[:, idx, idx] = v
+    return out
 
 # ------------------------------------------------------------------------------- registry parameters
 

@@ -41,7 +41,7 @@ from trackers.filters.base import (ModelFilter, check_covariance, check_weights,
                                    pda_covariance, symmetrise)
 from trackers.filters.params import ModelParams
 from trackers.params import POSITIVE, ParamError, param
-from trackers.state import FilterState
+from trackers.state import FilterState, derive
 
 EY_MEMORY = ("a_priori", "a_posteriori")
 COVARIANCES = ("mse", "joseph", "short")
@@ -285,6 +285,106 @@ class SVSF(ModelFilter):
         return replace(s, x=x, P=P, e_post=e_post[:m], e_vel=e_post[m:] if with_vel else np.zeros(m),
                        z_prev=z_a, tau=0.0, F=None, info=info)
 
+
+    # ---- batched forms (the same equations over T tracks at once; the per-track update is their reference,
+    # tests/test_trackers_svsf.py checks them equal to 1e-12)
+    def predict_many(self, states: list[FilterState], dt: float) -> list[FilterState]:
+        """`predict` of T tracks at once (a linear motion model; otherwise the per-track loop)."""
+        dt = float(dt)
+        if not math.isfinite(dt) or dt < 0:
+            raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
+        if not states or not self.motion.linear:
+            return [self.predict(s, dt) for s in states]
+        states = [promote_state(SVSFState, s) for s in states]
+        A, Q = self.motion.transition(dt), self.motion.process_noise(dt)
+        X = np.array([s.x for s in states]) @ A.T  # (2.7) x = A x
+        P = A @ np.array([s.P for s in states]) @ A.T + Q  # (2.8) P = A P A^T + Q
+        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+        check_covariance(P, "predicted covariance P")
+        return [derive(s, x=X[t], P=P[t], F=A, info={}, tau=s.tau + dt) for t, s in enumerate(states)]
+
+    def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
+                    w0: np.ndarray) -> list[FilterState]:
+        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,); the default settings (artificial
+        velocity measurements, "mse" covariance, a linear measurement), else the per-track loop."""
+        if self.unmeasured != "artificial" or self.covariance != "mse" or not self.measurement.linear:
+            return ModelFilter.update_many(self, preds, nu, W, w0)
+        out = list(preds)
+        T = len(preds)
+        active = np.flatnonzero((w0 < 1.0) & (W > 0.0).any(axis=1)) if T else np.zeros(0, dtype=np.int64)
+        if active.size == 0:
+            return out
+        m = self.measurement.ndim
+        Wa, b0 = np.asarray(W[active], dtype=np.float64), np.asarray(w0[active], dtype=np.float64)
+        used = Wa > 0.0
+        nua = np.where(used[..., None], nu[active], 0.0)  # (A, M, m): what the per-track update is given
+        if not (np.isfinite(nua).all() and np.isfinite(Wa).all() and np.isfinite(b0).all()):
+            raise ValueError("update got non-finite innovations or weights")
+        if np.any(Wa < 0.0) or np.any(b0 < 0.0) or np.any(np.abs(b0 + Wa.sum(axis=1) - 1.0) > 1e-9):
+            raise ValueError("update weights must be >= 0 and sum to 1")
+        ss = [promote_state(SVSFState, preds[t]) for t in active]
+        X = np.array([s.x for s in ss])
+        P = np.array([s.P for s in ss])
+        e_post = np.array([s.e_post for s in ss])
+        e_vel = np.array([s.e_vel if s.e_vel is not None else np.zeros(m) for s in ss])
+        z_prev = np.array([s.z_prev if s.z_prev is not None else np.full(m, np.nan) for s in ss])
+        tau = np.array([s.tau for s in ss])
+        H0, R0 = self.measurement.matrix(self.motion), self.measurement.R
+        Hv = np.zeros((m, X.shape[1]))
+        Hv[range(m), self.motion.velocity] = 1.0
+        z_hat = X @ H0.T
+        z_a = z_hat + np.einsum("aj,ajm->am", Wa, nua)  # (2.32) projected measurement
+        vel = (tau > 0.0) & np.isfinite(z_prev).all(axis=1)
+        t_v = np.where(vel, tau, 1.0)
+        nu_v = ((z_hat[:, None, :] + nua - np.where(vel[:, None], z_prev, 0.0)[:, None, :]) / t_v[:, None, None]
+                - (X @ Hv.T)[:, None, :])  # [17] artificial velocity innovations
+        nu_bar = np.concatenate([nua, np.where(used[..., None], nu_v, 0.0)], axis=2)  # (A, M, 2m)
+        nu_c = np.einsum("aj,ajm->am", Wa, nu_bar)  # (2.27) e_{z,k|k-1} := combined innovation
+        e_prev = np.concatenate([e_post, e_vel], axis=1)
+        psi_p = np.array(self.psi, dtype=np.float64)
+        psi_v = (np.broadcast_to(float(self.psi_v), (len(ss), m)) if self.psi_v is not None
+                 else 3.0 * np.sqrt(2.0 * np.diag(R0)[None, :] / t_v[:, None] ** 2))  # §2.3 [D] 3 sigma of z_v
+        psi = np.concatenate([np.broadcast_to(psi_p, (len(ss), m)), psi_v], axis=1)
+        E = np.abs(nu_c) + self.gamma * np.abs(e_prev)  # (2.10) |e_{k|k-1}| + gamma |e_{k-1|k-1}|
+        g = svsf_gain_factor(E, nu_c, psi)
+        g_p = svsf_gain_factor(E[:, :m], nu_c[:, :m], psi_p)  # a first update (no z_prev): the position rows
+        H_bar = np.vstack([H0, Hv])
+        K_v = np.linalg.pinv(H_bar)[None] * g[:, None, :]  # (2.30) K = H^+ diag(E o sat(e/psi)) diag(e)^-1
+        K_p = np.linalg.pinv(H0)[None] * g_p[:, None, :]
+        dx = np.where(vel[:, None], np.einsum("anm,am->an", K_v, nu_c),
+                      np.einsum("anm,am->an", K_p, nu_c[:, :m]))
+        Xn = X + dx  # (2.29)
+        if not np.isfinite(Xn).all():
+            raise FilterError("SVSF updated state x is not finite")
+        Pn = _estimate_mse_many(P, H0, R0, X, Xn, nua, Wa, b0)  # [R] MSE about x given the innovations
+        check_covariance(Pn, "SVSF updated covariance P")
+        post_v = nu_c - np.einsum("in,an->ai", H_bar, np.einsum("anm,am->an", K_v, nu_c))  # (2.34)/(3.65)
+        post_p = nu_c[:, :m] - np.einsum("in,an->ai", H0, np.einsum("anm,am->an", K_p, nu_c[:, :m]))
+        for i, t in enumerate(active):
+            if vel[i]:
+                psi_i, ep, ev = psi[i], post_v[i, :m], post_v[i, m:]
+                info = {"psi_z": psi_i[:m], "chatter": np.maximum(0.0, np.abs(nu_c[i, :m]) - psi_i[:m]),
+                        "psi_v": psi_i[m:]}  # (5.37) chattering
+            else:
+                ep, ev = post_p[i], np.zeros(m)
+                info = {"psi_z": psi_p.copy(), "chatter": np.maximum(0.0, np.abs(nu_c[i, :m]) - psi_p)}
+            out[t] = derive(ss[i], x=Xn[i], P=Pn[i], e_post=ep.copy(), e_vel=ev.copy(), z_prev=z_a[i], tau=0.0,
+                            F=None, info=info)
+        return out
+
+
+def _estimate_mse_many(P, H, R, x_pred, x, nu, W, w0) -> np.ndarray:
+    """`estimate_mse` of A tracks at once: P (A, n, n), x_pred and x (A, n), nu (A, M, m), W (A, M), w0 (A,)."""
+    S = H @ P @ H.T + R
+    S = 0.5 * (S + np.swapaxes(S, 1, 2))
+    K_kf = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)  # (4.73): the Kalman gain
+    P_kf = P - K_kf @ S @ np.swapaxes(K_kf, 1, 2)
+    P_kf = 0.5 * (P_kf + np.swapaxes(P_kf, 1, 2))
+    d0 = x - x_pred
+    D = d0[:, None, :] - np.einsum("ajm,anm->ajn", nu, K_kf)  # (A, M, n)
+    out = (w0[:, None, None] * (P + np.einsum("ai,ak->aik", d0, d0)) + (1.0 - w0)[:, None, None] * P_kf
+           + np.einsum("aj,aji,ajk->aik", W, D, D))
+    return 0.5 * (out + np.swapaxes(out, 1, 2))
 
 # ------------------------------------------------------------------------------- generalised (CM-) SVSF
 @dataclass(frozen=True)
