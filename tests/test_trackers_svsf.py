@@ -468,7 +468,8 @@ def test_claim_s41_gvbl_vs_kf_three_cars():
 BATCHED = [("svsf", {}), ("svsf", {"psi_v": 2.0}), ("svsf", {"gamma": 0.0, "psi": 0.2}),
            ("gvbl-svsf", {}), ("gvbl-svsf", {"psi_max": 0.5}), ("gvbl-svsf", {"psi_max": 0.5, "switch": "per_partition"}),
            ("gvbl-svsf", {"psi_max": 0.5, "switch": "all_any", "robust_lower": "psi_max"}),
-           ("gvbl-svsf", {"psi_max": 0.5, "ey_memory": "a_posteriori"})]
+           ("gvbl-svsf", {"psi_max": 0.5, "ey_memory": "a_posteriori"}),
+           ("gc-svsf", {}), ("ekf", {}), ("kf", {})]  # the last three: the generic (or KF) batched predict
 
 
 def _fields(s) -> dict:
