@@ -176,6 +176,20 @@ def check_weights(nu: np.ndarray, beta: np.ndarray, beta0: float, m: int) -> tup
     return nu, beta, beta0
 
 
+def batch_weights(nu: np.ndarray, W: np.ndarray, w0: np.ndarray, active: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`check_weights` of the active tracks of a batched update: (nu (A, M, m) with the ungated entries zeroed,
+    W (A, M), w0 (A,)) of the rows ``active`` (A,) of nu (T, M, m), W (T, M), w0 (T,); ValueError as the
+    per-track check (non-finite values, negative weights, rows not summing to 1)."""
+    Wa, b0 = np.asarray(W[active], dtype=np.float64), np.asarray(w0[active], dtype=np.float64)
+    nua = np.where((Wa > 0.0)[..., None], nu[active], 0.0)  # what the per-track update is given
+    if not (np.isfinite(nua).all() and np.isfinite(Wa).all() and np.isfinite(b0).all()):
+        raise ValueError("update got non-finite innovations or weights")
+    if np.any(Wa < 0.0) or np.any(b0 < 0.0) or np.any(np.abs(b0 + Wa.sum(axis=1) - 1.0) > 1e-9):
+        raise ValueError("update weights must be >= 0 and sum to 1")
+    return nua, Wa, b0
+
+
 def combined_innovation(nu: np.ndarray, beta: np.ndarray) -> np.ndarray:
     """Combined innovation sum_i beta_i nu_i (m,)."""
     return beta @ nu  # (4.15) combined innovation

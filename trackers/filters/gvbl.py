@@ -50,8 +50,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from trackers.errors import FilterError
-from trackers.filters.base import (ModelFilter, check_covariance, check_weights, cholesky, combined_innovation,
-                                   pda_covariance, symmetrise)
+from trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
+                                   combined_innovation, pda_covariance, symmetrise)
 from trackers.filters.svsf import (EY_MEMORY, GAMMA, Partition, promote_state, generalised_covariance, lower_error,
                                    svsf_gain_factor)
 from trackers.filters.params import ModelParams
@@ -180,12 +180,7 @@ class GVBLSVSF(ModelFilter):
         if (not self.measurement.linear or F is None
                 or any(s.F is not F and not np.array_equal(s.F, F) for s in ss)):
             return ModelFilter.update_many(self, preds, nu, W, w0)
-        Wa, b0 = np.asarray(W[active], dtype=np.float64), np.asarray(w0[active], dtype=np.float64)
-        nua = np.where((Wa > 0.0)[..., None], nu[active], 0.0)  # (A, M, m): what the per-track update is given
-        if not (np.isfinite(nua).all() and np.isfinite(Wa).all() and np.isfinite(b0).all()):
-            raise ValueError("update got non-finite innovations or weights")
-        if np.any(Wa < 0.0) or np.any(b0 < 0.0) or np.any(np.abs(b0 + Wa.sum(axis=1) - 1.0) > 1e-9):
-            raise ValueError("update weights must be >= 0 and sum to 1")
+        nua, Wa, b0 = batch_weights(nu, W, w0, active)  # (A, M, m), (A, M), (A,)
         H, R = self.measurement.matrix(self.motion), self.measurement.R
         part = Partition.of(H)
         Mm, Phi12_pinv = part.maps(F)
@@ -204,13 +199,7 @@ class GVBLSVSF(ModelFilter):
         mem = e if self.ey_memory == "a_priori" else e_post
         E_y = np.abs(e_y) + self.gamma_y * np.abs(mem @ Phi12_pinv.T)  # (4.34) E_y
         u, l, H1 = part.u, part.l, part.H1
-        A_ = H1 @ P[:, u][:, :, u] @ H1.T
-        Psi_z = S @ np.linalg.solve(A_, _diag(E_z))  # (4.61)
-        M_pinv = np.broadcast_to(np.linalg.pinv(Mm), (len(ss),) + Mm.T.shape)
-        Xl = P[:, l][:, :, u] @ H1.T @ np.linalg.solve(S, M_pinv)  # P21 H1^T S^-1 (Phi22 Phi12^-1)^-1
-        Psi_y = np.linalg.pinv(Xl) @ _diag(E_y)  # (4.68), pseudo-inverse [D]
-        psi_z = np.abs(np.diagonal(Psi_z, axis1=1, axis2=2))
-        psi_y = np.abs(np.diagonal(Psi_y, axis1=1, axis2=2))
+        psi_z, psi_y = _optimal_layer_diagonals(P, S, part, Mm, E_z, E_y)
         trip_z, trip_y = np.any(psi_z > self.psi_max, axis=1), np.any(psi_y > self.psi_max, axis=1)  # §4.5.1 step 2
         robust_u = trip_z | (trip_y if self.switch == "all_any" else False)
         robust_l = trip_y if self.switch == "per_partition" else robust_u
@@ -240,6 +229,19 @@ class GVBLSVSF(ModelFilter):
                     "regime_y": float(robust_l[i]), "chatter": np.maximum(0.0, np.abs(e[i]) - layer[i])}  # (5.37)
             out[t] = derive(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info, psi_layer=layer[i])
         return out
+
+
+def _optimal_layer_diagonals(P: np.ndarray, S: np.ndarray, part: Partition, M: np.ndarray, E_z: np.ndarray,
+                             E_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """|diag Psi_z| (A, m) and |diag Psi_y| (A, n-m) of `optimal_layers` for A tracks at once: P (A, n, n),
+    S (A, m, m), E_z (A, m), E_y (A, n-m)."""
+    u, l, H1 = part.u, part.l, part.H1
+    A_ = H1 @ P[:, u][:, :, u] @ H1.T
+    Psi_z = S @ np.linalg.solve(A_, _diag(E_z))  # (4.61) Psi_z = (E_z^-1 H1 P11 H1^T S^-1)^-1
+    M_pinv = np.broadcast_to(np.linalg.pinv(M), (len(P),) + M.T.shape)
+    X = P[:, l][:, :, u] @ H1.T @ np.linalg.solve(S, M_pinv)  # P21 H1^T S^-1 (Phi22 Phi12^-1)^-1
+    Psi_y = np.linalg.pinv(X) @ _diag(E_y)  # (4.68), pseudo-inverse [D]
+    return np.abs(np.diagonal(Psi_z, axis1=1, axis2=2)), np.abs(np.diagonal(Psi_y, axis1=1, axis2=2))
 
 
 def _diag(v: np.ndarray) -> np.ndarray:

@@ -37,8 +37,8 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from trackers.errors import FilterError
-from trackers.filters.base import (ModelFilter, check_covariance, check_weights, cholesky, combined_innovation,
-                                   pda_covariance, symmetrise)
+from trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
+                                   combined_innovation, pda_covariance, symmetrise)
 from trackers.filters.params import ModelParams
 from trackers.params import POSITIVE, ParamError, param
 from trackers.state import FilterState, derive
@@ -315,13 +315,8 @@ class SVSF(ModelFilter):
         if active.size == 0:
             return out
         m = self.measurement.ndim
-        Wa, b0 = np.asarray(W[active], dtype=np.float64), np.asarray(w0[active], dtype=np.float64)
+        nua, Wa, b0 = batch_weights(nu, W, w0, active)  # (A, M, m), (A, M), (A,)
         used = Wa > 0.0
-        nua = np.where(used[..., None], nu[active], 0.0)  # (A, M, m): what the per-track update is given
-        if not (np.isfinite(nua).all() and np.isfinite(Wa).all() and np.isfinite(b0).all()):
-            raise ValueError("update got non-finite innovations or weights")
-        if np.any(Wa < 0.0) or np.any(b0 < 0.0) or np.any(np.abs(b0 + Wa.sum(axis=1) - 1.0) > 1e-9):
-            raise ValueError("update weights must be >= 0 and sum to 1")
         ss = [promote_state(SVSFState, preds[t]) for t in active]
         X = np.array([s.x for s in ss])
         P = np.array([s.P for s in ss])
