@@ -103,13 +103,15 @@ def sensing_setup(scn: Scenario, rngs: dict[str, np.random.Generator], policy: C
     from ..world.envsource import make_simulation
 
     sim = make_simulation(scn, policy)
-    static = roadside_objects(sim.network, scn.roadside, rngs["roadside"])
-    return sim, static, road_map(sim.network)
+    centres = lane_centres(sim.network)  # sampled once for the roadside objects and the road map
+    static = roadside_objects(sim.network, scn.roadside, rngs["roadside"], centres)
+    return sim, static, road_map(sim.network, centres)
 
 
-def road_map(network) -> sensors.RoadMap:
-    """The perception's road map (lane centre lines and half widths) of a highway-env road network."""
-    return sensors.RoadMap(*lane_centres(network))
+def road_map(network, centres: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> sensors.RoadMap:
+    """The perception's road map (lane centre lines and half widths) of a highway-env road network; ``centres``:
+    its lane_centres when the caller has them already."""
+    return sensors.RoadMap(*(centres if centres is not None else lane_centres(network)))
 
 
 TRUCK_BOX_M = (15.4, 2.5, 3.5)

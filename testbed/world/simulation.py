@@ -163,6 +163,22 @@ def build_network(spec: RoadSpec) -> tuple[RoadNetwork, tuple[str, str]]:
     return net, ("a", "b")
 
 
+def lane_points(lane: AbstractLane, s: np.ndarray, side: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points (P, 2) [m] ``side`` lane widths to the left of the centre line at the arc lengths s (P,) [m], with
+    the lane's heading (P,) [rad] and width (P,) [m] there: ``lane.position(s_i, side * lane.width_at(s_i))``.
+    A StraightLane at once, with highway-env's own expression (start + s dir + lateral dir_lat, the same
+    operations per element, so the same numbers); any other lane point by point."""
+    s = np.asarray(s, dtype=np.float64)
+    if type(lane) is StraightLane:
+        width = np.full(len(s), float(lane.width))
+        lateral = side * width
+        pts = lane.start + s[:, None] * lane.direction + lateral[:, None] * lane.direction_lateral
+        return pts.reshape(-1, 2), np.full(len(s), float(lane.heading)), width
+    width = np.array([lane.width_at(si) for si in s], dtype=np.float64)
+    pts = np.array([lane.position(si, side * w) for si, w in zip(s, width)], dtype=np.float64)
+    return pts.reshape(-1, 2), np.array([lane.heading_at(si) for si in s], dtype=np.float64), width
+
+
 def lane_polylines(net: RoadNetwork, step_m: float = 2.0) -> list[np.ndarray]:
     """Lane border lines (both sides of every lane), each (P, 2) [m], for drawing the road."""
     lines = []
@@ -171,29 +187,30 @@ def lane_polylines(net: RoadNetwork, step_m: float = 2.0) -> list[np.ndarray]:
             for lane in lane_list:
                 s = np.arange(0.0, lane.length + step_m, step_m).clip(max=lane.length)
                 for side in (-0.5, 0.5):
-                    lines.append(np.array([lane.position(si, side * lane.width_at(si)) for si in s]))
+                    lines.append(lane_points(lane, s, side)[0])
     return lines
 
 
 def lane_centres(net: RoadNetwork, step_m: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centre lines of every lane, sampled every ``step_m``: points (P, 2) [m], heading (P,) [rad] and
     half width (P,) [m]."""
-    pts, heads, half = [], [], []
+    pts, heads, half = [np.zeros((0, 2))], [np.zeros(0)], [np.zeros(0)]
     for lanes in net.graph.values():
         for lane_list in lanes.values():
             for lane in lane_list:
-                s = np.append(np.arange(0.0, lane.length, step_m), lane.length)
-                pts += [lane.position(si, 0.0) for si in s]
-                heads += [lane.heading_at(si) for si in s]
-                half += [lane.width_at(si) / 2 for si in s]
-    return (np.asarray(pts, dtype=np.float64).reshape(-1, 2), np.asarray(heads, dtype=np.float64),
-            np.asarray(half, dtype=np.float64))
+                p, h, w = lane_points(lane, np.append(np.arange(0.0, lane.length, step_m), lane.length), 0.0)
+                pts.append(p)
+                heads.append(h)
+                half.append(w / 2)
+    return np.concatenate(pts), np.concatenate(heads), np.concatenate(half)
 
 
-def roadside_objects(net: RoadNetwork, spec: RoadsideSpec, rng: np.random.Generator) -> np.ndarray:
-    """The roadside boxes ``(K, 7)`` of a road network (testbed/world/roadside.py), none of them on a lane."""
+def roadside_objects(net: RoadNetwork, spec: RoadsideSpec, rng: np.random.Generator,
+                     centres: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """The roadside boxes ``(K, 7)`` of a road network (testbed/world/roadside.py), none of them on a lane;
+    ``centres``: the network's :func:`lane_centres` when the caller has them already."""
     boxes = roadside_boxes(road_edges(net), spec, rng)
-    return boxes[clear_of_lanes(boxes, *lane_centres(net))]
+    return boxes[clear_of_lanes(boxes, *(centres if centres is not None else lane_centres(net)))]
 
 
 def road_edges(net: RoadNetwork, step_m: float = 1.0) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -203,9 +220,7 @@ def road_edges(net: RoadNetwork, step_m: float = 1.0) -> list[tuple[np.ndarray, 
         for lane_list in lanes.values():
             for idx, sign in ((0, -1.0), (len(lane_list) - 1, 1.0)):
                 lane: AbstractLane = lane_list[idx]
-                s = np.arange(0.0, lane.length, step_m)
-                pts = np.array([lane.position(si, sign * lane.width_at(si) / 2) for si in s])
-                heads = np.array([lane.heading_at(si) for si in s])
+                pts, heads, _ = lane_points(lane, np.arange(0.0, lane.length, step_m), sign / 2)
                 normal = sign * np.column_stack([-np.sin(heads), np.cos(heads)])
                 edges.append((pts.reshape(-1, 2), normal.reshape(-1, 2)))
     return edges
