@@ -56,8 +56,8 @@ def test_listings():
 
 @pytest.mark.parametrize("args, message", [
     (["run", "nowhere.toml"], "error: nowhere.toml: no such scenario file (shipped: convoy, cut_in_out,"),
-    (["run", "cut_in_out", "--tracker", "jpda-ukf"], "error: tracker.name: unknown tracker name 'jpda-ukf'"),
-    (["run", "cut_in_out", "--tracker", ""], "error: tracker.name: unknown tracker name ''"),  # not ignored
+    (["run", "cut_in_out", "--tracker", "jpda-ukf"], "error: --tracker: unknown tracker 'jpda-ukf': a combination"),
+    (["run", "cut_in_out", "--tracker", ""], "error: --tracker: unknown tracker '': a combination"),  # not ignored
     (["run", "cut_in_out", "--set", "sensor.lidar.max_range_m=-3"],
      "error: sensor.lidar.max_range_m: expected a finite number > 0, got -3.0"),
     (["run", "cut_in_out", "--set", "tracker.filter.sigma_q=1"], "error: tracker.filter.sigma_q: unknown key; allowed: motion, "),

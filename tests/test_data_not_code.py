@@ -95,7 +95,7 @@ def test_env_config_numbers_are_finite_and_bounded_and_refused_at_once(config, w
 
 def test_every_env_accepts_its_own_default_config():
     from testbed.scenario.envcheck import check_env_config
-    from testbed.world.envsource import env_class, env_ids
+    from testbed.scenario.env import env_class, env_ids
 
     for env_id in env_ids():
         defaults = env_class(env_id).default_config()

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from testbed.config.strict import ConfigError
-from testbed.world.envsource import EnvSimulation, EnvSpec, EpisodeEndWarning, env_config, env_ids, vehicle_height
+from testbed.scenario.env import EnvSpec, env_ids
+from testbed.world.envsource import EnvSimulation, EpisodeEndWarning, env_config, vehicle_height
 from testbed.world.roadside import roadside_boxes
 from testbed.pipeline.run import run_scenario
 from testbed.sensing import rng_streams

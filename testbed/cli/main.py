@@ -39,6 +39,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     overrides = parse_sets(args.set or [])
     user = is_factory_spec(args.tracker)  # --tracker my_module:MyTracker or a named one (stonesoup-jpda-kf)
     if args.tracker is not None and not user:
+        _check_combination(args.tracker)
         overrides["tracker.name"] = args.tracker  # "" is refused by the loader, not silently ignored
     if args.seed is not None:
         overrides["seed"] = args.seed
@@ -54,6 +55,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
     _commit(stage)
     _print_run(res, args, stage.shown)
     return 0
+
+
+def _check_combination(name: str) -> None:
+    """``--tracker NAME`` that is not a named tracker must be a built-in combination: one line listing both."""
+    from trackers import parse_tracker_name
+
+    from ..tracking.registry import unknown_tracker
+
+    try:
+        parse_tracker_name(name)
+    except ValueError:
+        raise ConfigError("--tracker", unknown_tracker(name)) from None
 
 
 def _policy(text: str, scn):

@@ -4,6 +4,7 @@ object with ``step(frame)``, like ``--tracker module:Class``). ``testbed tracker
 --tracker NAME`` and ``testbed.run(scn, tracker=NAME)`` run them."""
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass
 from typing import Any
@@ -40,10 +41,11 @@ def _first_line(obj: Any) -> str:
     return doc.splitlines()[0] if doc else ""
 
 
+@functools.lru_cache(maxsize=1)
 def named_trackers() -> dict[str, NamedTracker]:
-    """The Stone Soup trackers and the installed ``roadtrack.trackers`` plug-ins, by name. A plug-in whose name
-    is invalid, taken (a Stone Soup tracker's or a built-in combination's) or that cannot be imported is
-    skipped with one PluginWarning."""
+    """The Stone Soup trackers and the installed ``roadtrack.trackers`` plug-ins, by name (read once per process;
+    do not modify the dict). A plug-in whose name is invalid, taken (a Stone Soup tracker's or a built-in
+    combination's) or that cannot be imported is skipped with one PluginWarning."""
     from trackers import parse_tracker_name
 
     out = dict(STONESOUP)
@@ -75,10 +77,16 @@ def is_named(name: Any) -> bool:
     return isinstance(name, str) and (name in STONESOUP or name in named_trackers())
 
 
+def unknown_tracker(name: str) -> str:
+    """The one-line message for a tracker name that is neither a combination nor a named tracker."""
+    return (f"unknown tracker {name!r}: a combination [<wrapper>-]<associator>-<filter> (e.g. jpda-kf), a named "
+            f"tracker ({', '.join(named_trackers())}) or module:Class; see `testbed trackers`")
+
+
 def named_factory(name: str) -> Any:
     """The factory of the named tracker ``name`` (imported now: a missing Stone Soup is a one-line
     ConfigError saying which extra to install)."""
     known = named_trackers()
     if name not in known:
-        raise ConfigError("--tracker", f"unknown tracker {name!r}; see `testbed trackers`")
+        raise ConfigError("--tracker", unknown_tracker(name))
     return load_object(known[name].factory, "--tracker", "Class")

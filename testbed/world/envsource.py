@@ -49,7 +49,7 @@ import numpy as np
 
 from ..common.errors import RunError
 from ..config import ConfigError
-from ..scenario.env import EnvSpec, env_class, env_ids, gymnasium_with_envs  # noqa: F401 - EnvSpec, env_ids: re-exported
+from ..scenario.env import env_class, gymnasium_with_envs
 from ..common.usercode import load_object
 
 if TYPE_CHECKING:
