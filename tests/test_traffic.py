@@ -5,6 +5,7 @@ Every run here steps the real highway-env; each test takes a few seconds.
 from __future__ import annotations
 
 import numpy as np
+from highway_env.road.road import Road
 import pytest
 
 from testbed.world import simulation
@@ -68,7 +69,8 @@ def test_no_traffic_by_default_keeps_highway_env_road():
     scn = load_scenario("cut_in_out", {"duration_s": 1.0})
     assert not scn.traffic.enabled and scn.traffic == TrafficSpec()
     sim = Simulation(scn)
-    assert sim.traffic is None and type(sim.road).__name__ == "Road"
+    # highway-env's Road, stepped all at once with its numbers (tests/test_stepping.py), no background traffic
+    assert sim.traffic is None and type(sim.road).__name__ == "BatchRoad" and type(sim.road).__mro__[1] is Road
     frames = list(sim.frames())
     assert all(len(f.ids) == 4 for f in frames)
     np.testing.assert_array_equal(frames[-1].ids, [0, 1, 2, 3])

@@ -317,6 +317,12 @@ class EnvSimulation:
         except Exception:
             self.close()
             raise
+        from highway_env.road.road import Road
+
+        from .stepping import BatchRoad
+
+        if type(u.road) is Road:  # the env's tick for all vehicles at once: the same numbers (world/stepping.py)
+            u.road.__class__ = BatchRoad
         self.network = u.road.network
         # id(vehicle) -> (stable id, the vehicle): holding the vehicle keeps id() from being reused
         self._ids: dict[int, tuple[int, Any]] = {}

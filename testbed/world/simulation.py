@@ -27,6 +27,7 @@ from highway_env.vehicle.controller import ControlledVehicle
 
 from .roadside import clear_of_lanes, roadside_boxes
 from ..scenario.spec import RoadsideSpec, RoadSpec, Scenario, TrafficSpec, VehicleSpec
+from .stepping import BatchRoad
 from .traffic import (BackgroundTraffic, Carriageway, TrafficNetwork, TrafficRoad, jitter_specs, make_carriageway,
                       traffic_rngs)
 
@@ -265,9 +266,9 @@ class Simulation:
         self.network, first = build_network(scenario.road)
         spec = scenario.traffic
         # np_random is only used by highway-env to break ties between several successor lanes; our road
-        # graphs have one successor per lane, but seed it anyway. TrafficRoad only with background traffic,
-        # so that scripted scenarios stay exactly as they were.
-        road_cls = TrafficRoad if spec.enabled else Road
+        # graphs have one successor per lane, but seed it anyway. Both roads step all vehicles at once with
+        # highway-env's numbers (stepping.py); TrafficRoad adds the vectorised neighbour search of MOBIL.
+        road_cls = TrafficRoad if spec.enabled else BatchRoad
         if spec.enabled:
             self.network = TrafficNetwork.of(self.network)
         self.road = road_cls(network=self.network, np_random=np.random.RandomState(scenario.seed))

@@ -47,6 +47,7 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 
 from ..scenario.spec import TrafficSpec, VehicleSpec
+from .stepping import BatchRoad, BumperGapIDM, LaneTable
 
 TRAFFIC_STREAM = 3  # child index of SeedSequence(seed) (run.py's STREAMS use 0..2)
 IDM_C = 2.0 * float(np.sqrt(IDMVehicle.COMFORT_ACC_MAX * -IDMVehicle.COMFORT_ACC_MIN))  # 2 sqrt(a b) [m/s]
@@ -78,32 +79,22 @@ def jitter_specs(specs: tuple[VehicleSpec, ...], spec: TrafficSpec, road_length_
     return tuple(out)
 
 
-class TrafficVehicle(IDMVehicle):
-    """IDM car or truck of the background traffic.
+class TrafficVehicle(BumperGapIDM):
+    """IDM car or truck of the background traffic: IDM gaps bumper to bumper (``DISTANCE_WANTED`` [m], per
+    instance), so a car does not run into an 18 m truck (testbed/world/stepping.py)."""
 
-    ``DISTANCE_WANTED`` (per instance) is the jam gap bumper to bumper [m]: highway-env measures IDM gaps
-    centre to centre with a 10 m jam distance for 5 m cars, which would let a car run into an 18 m truck.
-    """
-
-    DISTANCE_WANTED = 5.0  # [m] bumper to bumper
     HEIGHT = 1.5  # [m]
 
-    def desired_gap(self, ego_vehicle, front_vehicle=None, projected: bool = True) -> float:
-        """IDM desired centre-to-centre distance: jam gap + half lengths + v T + v dv / (2 sqrt(a b)) [m]."""
-        gap = super().desired_gap(ego_vehicle, front_vehicle, projected)
-        return gap + 0.5 * (ego_vehicle.LENGTH + front_vehicle.LENGTH)
 
+class TrafficRoad(BatchRoad):
+    """highway-env ``Road`` stepped for all vehicles at once (testbed/world/stepping.py: the same numbers as
+    highway-env's per-vehicle loop), with a vectorised neighbour search for the per-vehicle MOBIL decisions.
 
-class TrafficRoad(Road):
-    """highway-env ``Road`` with a vectorised neighbour search and collision pre-check.
-
-    ``Road.neighbour_vehicles`` projects every vehicle on the lane in a Python loop and ``Road.step`` hands
-    every pair to ``handle_collisions``: O(N^2) Python calls per tick. Here the projections on a straight
-    lane are one NumPy expression over the positions cached at the start of :meth:`act` (vehicles do not
-    move while they decide), and only the pairs that may touch within the tick (:meth:`_may_touch`) are
-    handed to ``handle_collisions``, in the same order. Same results as ``Road`` (up to rounding, and which of
-    two vehicles at exactly the same distance is the neighbour); curved lanes and road objects fall back
-    to it.
+    ``Road.neighbour_vehicles`` projects every vehicle on the lane in a Python loop: O(N^2) Python calls per
+    tick. Here the projections on a straight lane are one NumPy expression over the positions cached at the
+    start of :meth:`act` (vehicles do not move while they decide), with highway-env's arithmetic (``np.dot`` of
+    2-vectors), so the same vehicles are found (which of two vehicles at exactly the same distance is the
+    neighbour aside); curved lanes and road objects fall back to it.
     """
 
     def __init__(self, *args, **kwargs):
@@ -130,9 +121,10 @@ class TrafficRoad(Road):
         if lane_index in self._proj:
             return self._proj[lane_index]
         pos = self._pos if self._pos is not None else self.positions()
-        delta = pos - lane.start
-        s_v = delta @ lane.direction
-        on = ((np.abs(delta @ lane.direction_lateral) <= lane.width / 2 + 1.0)
+        d0, d1 = pos[:, 0] - lane.start[0], pos[:, 1] - lane.start[1]
+        s_v = d0 * lane.direction[0] + d1 * lane.direction[1]  # np.dot(delta, direction), as lane.py
+        lat = d0 * lane.direction_lateral[0] + d1 * lane.direction_lateral[1]
+        on = ((np.abs(lat) <= lane.width / 2 + 1.0)
               & (s_v >= -lane.VEHICLE_LENGTH) & (s_v < lane.length + lane.VEHICLE_LENGTH))
         if self._pos is not None:
             self._proj[lane_index] = (s_v, on)
@@ -158,38 +150,6 @@ class TrafficRoad(Road):
         front = self.vehicles[i] if np.isfinite(ahead[i]) else None
         rear = self.vehicles[k] if np.isfinite(behind[k]) else None
         return front, rear
-
-    def step(self, dt: float) -> None:
-        """Move every vehicle by ``dt`` [s], then check collisions of the pairs that can touch."""
-        if self.objects:
-            return super().step(dt)
-        for vehicle in self.vehicles:
-            vehicle.step(dt)
-        for i, j in zip(*np.nonzero(np.triu(self._may_touch(dt), k=1))):
-            self.vehicles[i].handle_collisions(self.vehicles[j], dt)
-        return None
-
-    def _may_touch(self, dt: float) -> np.ndarray:
-        """(N, N) bool: pairs whose boxes may overlap now or after moving ``dt`` [s].
-
-        False only where ``RoadObject._is_colliding`` is sure to find nothing: centres farther apart than its
-        own spherical pre-check, or a gap along either vehicle's lateral axis (a separating axis of the
-        polygon test) wider than the relative lateral motion in ``dt``; 1 mm margin for rounding.
-        """
-        vs = self.vehicles
-        pos = self.positions()
-        length, width, diag, speed, heading = (np.array([getattr(v, k) for v in vs], dtype=np.float64)
-                                               for k in ("LENGTH", "WIDTH", "diagonal", "speed", "heading"))
-        vel = speed[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
-        d = pos[None, :, :] - pos[:, None, :]  # (N, N, 2) from i to j
-        far = np.hypot(d[..., 0], d[..., 1]) > 0.5 * (diag[:, None] + diag[None, :]) + np.abs(speed)[:, None] * dt
-        normal = np.column_stack([-np.sin(heading), np.cos(heading)])  # (N, 2) lateral axis of i
-        rel = heading[None, :] - heading[:, None]
-        half_j = 0.5 * (length[None, :] * np.abs(np.sin(rel)) + width[None, :] * np.abs(np.cos(rel)))
-        lat_gap = (np.abs(np.einsum("ijk,ik->ij", d, normal)) - 0.5 * width[:, None] - half_j
-                   - np.abs(np.einsum("ijk,ik->ij", vel[None, :, :] - vel[:, None, :], normal)) * dt)
-        apart = (lat_gap > 1e-3) | (lat_gap.T > 1e-3)
-        return ~(far | apart)
 
 
 class TrafficNetwork(RoadNetwork):
@@ -263,6 +223,20 @@ def chain_coordinate(net: RoadNetwork, cw: Carriageway, lane_index, position: np
         return None
     k = cw.segments.index(lane_index[:2])
     return float(cw.starts[k] + net.get_lane((*cw.segments[k], 0)).local_coordinates(position)[0])
+
+
+def chain_coordinates(net: RoadNetwork, cw: Carriageway, lane_indices: list, P: np.ndarray) -> np.ndarray:
+    """:func:`chain_coordinate` of n vehicles at once: lane indices (n,), centres P (n, 2) [m]; S (n,) [m], nan
+    where a vehicle is not on ``cw`` (the same numbers: stepping.LaneTable.coords is lane.local_coordinates)."""
+    table = LaneTable.of(net)
+    seg = {s: k for k, s in enumerate(cw.segments)}
+    k = np.array([seg.get(tuple(li[:2]), -1) if li is not None else -1 for li in lane_indices], dtype=np.int64)
+    out = np.full(len(k), np.nan)
+    on = np.flatnonzero(k >= 0)
+    if len(on):
+        rows = np.array([table.row[(*cw.segments[k[i]], 0)] for i in on], dtype=np.int64)
+        out[on] = cw.starts[k[on]] + table.coords(np.asarray(P, dtype=np.float64)[on].reshape(-1, 2), rows)[0]
+    return out
 
 
 def project(net: RoadNetwork, cw: Carriageway, position: np.ndarray) -> float:
@@ -498,11 +472,16 @@ class BackgroundTraffic:
         """Drop background vehicles more than REMOVE_MARGIN_M outside their window or the road; return the
         number of background vehicles inside the window per (carriageway, lane)."""
         net, keep, counts = self.road.network, [], {}
-        for v in self.road.vehicles:
+        vs = self.road.vehicles
+        S = np.full(len(vs), np.nan)
+        for k, cw in enumerate(self.cws):  # every background vehicle's chain coordinate on its carriageway
+            mine = [i for i, v in enumerate(vs) if isinstance(v, TrafficVehicle) and v.carriageway == k]
+            if mine:
+                S[mine] = chain_coordinates(net, cw, [vs[i].lane_index for i in mine], [vs[i].position for i in mine])
+        for v, s in zip(vs, S.tolist()):
             if isinstance(v, TrafficVehicle):
                 cw, (lo, hi) = self.cws[v.carriageway], wins[v.carriageway]
-                s = chain_coordinate(net, cw, v.lane_index, v.position)
-                if s is None or not max(lo, 0.0) - REMOVE_MARGIN_M <= s <= min(hi, cw.total) + REMOVE_MARGIN_M:
+                if np.isnan(s) or not max(lo, 0.0) - REMOVE_MARGIN_M <= s <= min(hi, cw.total) + REMOVE_MARGIN_M:
                     continue
                 if max(lo, 0.0) <= s <= min(hi, cw.total):
                     key = (v.carriageway, v.lane_index[2])
