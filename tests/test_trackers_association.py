@@ -114,6 +114,43 @@ def test_single_track_thesis_form_differs_from_pda_by_the_pg_term():
     assert abs(w0[0] - (1 - P.pd) / (1 - P.pd + L.sum())) <= 1e-12
 
 
+@pytest.mark.parametrize("kind, table", [("pda", {}), ("jpda", {"use_pg": True}), ("apda", {})])
+@pytest.mark.parametrize("pg", [None, 0.5, 1.0])
+def test_gate_probability_reaches_the_weights_and_the_score_by_hand(kind, table, pg):
+    """One confirmed track at x = 0, P = I, dt = 0 (no process noise), sigma_w = 1: S = 2 I; one measurement at
+    (1, 0): d2 = 1/2, N = exp(-1/4) / (4 pi), L = P_D N / lambda = 0.8 N / 0.1 = 2 exp(-1/4) / pi = 0.49580.
+    beta0 = (1 - P_D P_G) / (1 - P_D P_G + L) (4.10)-(4.13) and the score increment ln(1 - P_D P_G + L) (1.35),
+    with P_G = pg, or 1 - exp(-8) = 0.99966 (the alpha = 16 gate's chi-square mass) when pg is None. The
+    single-track P_D P_G-form JPDA is the PDA; APDA is the PDA when no layer is given (kf: nothing chatters)."""
+    from trackers import make_tracker
+    from trackers.state import FilterState
+    from trackers.tracker import Track
+
+    extra = {} if pg is None else {"pg": pg}
+    trk = make_tracker(f"{kind}-kf", sigma_w=1.0, pd=0.8, clutter_density=0.1, associator={**table, **extra})
+    P_G = 1.0 - math.exp(-8.0) if pg is None else pg
+    assert trk.pg == pytest.approx(P_G, rel=1e-15)
+    track = Track(id=1, state=FilterState(x=np.zeros(4), P=np.eye(4), e_post=np.zeros(2)), score=5.0, max_score=5.0,
+                  confirmed=True, age=5, hits=5, misses_in_a_row=0)
+    res = trk.step((track,), np.array([[1.0, 0.0]]), 0.0, 2)
+    L = 2.0 * math.exp(-0.25) / math.pi
+    miss = 1.0 - 0.8 * P_G
+    assert res.info.w0[0] == pytest.approx(miss / (miss + L), rel=1e-12)
+    assert res.info.W[0, 0] == pytest.approx(L / (miss + L), rel=1e-12)
+    assert res.info.diagnostics["score"][0] - 5.0 == pytest.approx(math.log(miss + L), rel=1e-12)
+
+
+@pytest.mark.parametrize("value, words", [(0.0, "0.0 is not allowed; must be in (0, 1]"),
+                                          (1.5, "1.5 is not allowed; must be in (0, 1]"),
+                                          ("high", "expected float or NoneType, got 'high'")])
+def test_a_bad_gate_probability_is_a_one_line_error(value, words):
+    from trackers import ParamError, make_tracker
+
+    with pytest.raises(ParamError) as info:
+        make_tracker("jpda-kf", associator={"pg": value})
+    assert str(info.value) == f"associator.pg: {words}"
+
+
 def brute_force_gnn(log_lik, gated, p):
     T, M = log_lik.shape
     best = max(brute_force_events(log_lik, gated, p), key=lambda e: e[1])[0]

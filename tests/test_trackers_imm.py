@@ -126,6 +126,29 @@ def test_missed_scan_returns_the_prediction_with_predicted_mode_probabilities():
     np.testing.assert_array_equal(sp.info["mu"], sp.mu)
 
 
+def test_missed_scan_resets_the_svsf_mode_memories_when_the_modes_say_so():
+    """imm-pda-svsf with memory_after_miss = "reset" in its svsf (CV) and gvbl-svsf (CT) mode tables: a missed scan
+    returns the prediction (x, P, mu unchanged) with every mode memory and the combined e_post at 0; with the
+    default "keep" it is the prediction itself."""
+    for mode in ("keep", "reset"):
+        table = {"memory_after_miss": mode}
+        imm = make_tracker("imm-pda-svsf", filter={"svsf": table, "gvbl-svsf": table}, sigma_w=1.0).filter
+        sp = imm.predict(imm.initial_state(X0, P0), 0.1)
+        s = imm.update(sp, np.array([[1.5, -0.5]]), np.ones(1), 0.0)
+        sp = imm.predict(s, 0.1)
+        assert all(np.abs(m.e_post).max() > 0.1 for m in sp.modes)
+        out = imm.update(sp, np.zeros((0, 2)), np.zeros(0), 1.0)
+        if mode == "keep":
+            assert out is sp
+            continue
+        for m in out.modes:
+            np.testing.assert_array_equal(m.e_post, 0.0)
+        np.testing.assert_array_equal(out.e_post, 0.0)
+        np.testing.assert_array_equal(out.mu, sp.mu)
+        np.testing.assert_allclose(out.x, sp.x, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(out.P, sp.P, rtol=0, atol=1e-14)
+
+
 # ----------------------------------------------------------------------------------------- manoeuvre
 DT_M, SPEED, OMEGA = 0.5, 20.0, 0.2
 STRAIGHT, TURN = 40, 16

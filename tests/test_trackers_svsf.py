@@ -469,6 +469,8 @@ BATCHED = [("svsf", {}), ("svsf", {"psi_v": 2.0}), ("svsf", {"gamma": 0.0, "psi"
            ("gvbl-svsf", {}), ("gvbl-svsf", {"psi_max": 0.5}), ("gvbl-svsf", {"psi_max": 0.5, "switch": "per_partition"}),
            ("gvbl-svsf", {"psi_max": 0.5, "switch": "all_any", "robust_lower": "psi_max"}),
            ("gvbl-svsf", {"psi_max": 0.5, "ey_memory": "a_posteriori"}),
+           ("svsf", {"artificial_pda": "combined"}), ("svsf", {"memory_after_miss": "reset"}),
+           ("gvbl-svsf", {"psi_max": 0.5, "memory_after_miss": "reset", "apda_layer": "psi_max"}),
            ("gc-svsf", {}), ("ekf", {}), ("kf", {})]  # the last three: the generic (or KF) batched predict
 
 
@@ -513,3 +515,145 @@ def test_the_batched_predict_and_update_equal_the_per_track_ones_to_1e_12(kind, 
         states = a
     if kind == "gvbl-svsf" and params.get("psi_max") == 0.5:
         assert robust > 0  # the robust (SVSF) gain was exercised, not only the KF one
+
+
+# ---------------------------------------------------------------- the open choices of issue 21 (thesis silent)
+def _svsf_prior(flt, x=(0.0, 0.0, 0.0, 0.0), z_prev=(-1.0, 0.0), tau=1.0, e_post=(0.0, 0.0)):
+    """A predicted SVSFState by hand: x, P = I, projected measurement z_prev of the last update tau seconds ago."""
+    from trackers.filters.svsf import SVSFState
+
+    return SVSFState(x=np.array(x), P=np.eye(4), e_post=np.array(e_post), F=ConstantVelocity(1.0).transition(tau),
+                     z_prev=np.array(z_prev), tau=tau, e_vel=np.zeros(2))
+
+
+@pytest.mark.parametrize("psi, x_per_measurement, x_combined", [
+    (1e-3, [1.0, 0.0, 1.75, 0.0], [1.0, 0.0, 2.0, 0.0]),  # saturated, gamma = 0: K e = e
+    (10.0, [0.1, 0.0, 0.30625, 0.0], [0.1, 0.0, 0.4, 0.0]),  # inside the layer: K_jj = |e_j| / 10
+])
+def test_artificial_pda_per_measurement_or_combined_by_hand(psi, x_per_measurement, x_combined):
+    """x_pred = 0, z_prev = (-1, 0), tau = 1 s; nu = [(2, 0), (0, 0)] with beta = (0.5, 0.25), beta0 = 0.25;
+    gamma = 0, psi = psi_v. Position part e = nu_c = (1, 0) in both. Velocity part:
+    per_measurement: sum_i beta_i ((z_hat + nu_i - z_prev) / tau - v) = 0.5 (3, 0) + 0.25 (1, 0) = (1.75, 0);
+    combined: z^a = z_hat + nu_c = (1, 0), (z^a - z_prev) / tau - v = (2, 0).
+    Gain (2.30) K_jj = |e_j| / max(|e_j|, psi): x = K e; e_post = e - K e."""
+    nu, beta, beta0 = np.array([[2.0, 0.0], [0.0, 0.0]]), np.array([0.5, 0.25]), 0.25
+    for mode, x_hand in (("per_measurement", x_per_measurement), ("combined", x_combined)):
+        flt = make_filter("svsf", sigma_w=1.0, gamma=0.0, psi=psi, psi_v=psi, artificial_pda=mode)
+        u = flt.update(_svsf_prior(flt), nu, beta, beta0)
+        np.testing.assert_allclose(u.x, x_hand, rtol=1e-15, atol=1e-15, err_msg=mode)
+        e_v = x_hand[2] if psi < 1 else (1.75 if mode == "per_measurement" else 2.0)
+        np.testing.assert_allclose(np.r_[u.e_post, u.e_vel], [1.0 - x_hand[0], 0.0, e_v - x_hand[2], 0.0],
+                                   rtol=0, atol=1e-15, err_msg=mode)  # (2.34) e - K e
+        np.testing.assert_allclose(u.z_prev, [1.0, 0.0], rtol=0, atol=0)  # (2.32) z^a in both
+
+
+@pytest.mark.parametrize("covariance", ["mse", "joseph", "short"])
+def test_artificial_pda_forms_agree_when_beta0_is_zero(covariance):
+    """With beta0 = 0 the combined artificial measurement is the weighted sum of the per-measurement ones: every
+    field of the update equal to 1e-12; with beta0 = 0.3 the velocity estimates differ."""
+    rng = np.random.default_rng(21)
+    a, b = (make_filter("svsf", sigma_v=SV, sigma_w=SW, covariance=covariance, artificial_pda=m)
+            for m in ("per_measurement", "combined"))
+    sp = a.predict(a.predict(a.update(a.predict(a.initial_state(np.array([0.0, 0.0, 10.0, 2.0]),
+                                                                np.diag([9.0, 9.0, 4.0, 4.0])), DT),
+                                      np.array([[1.0, -2.0]]), np.ones(1), 0.0), DT), DT)
+    nu = rng.normal(size=(3, 2)) * SW
+    beta = rng.dirichlet(np.ones(3))
+    ua, ub = a.update(sp, nu, beta, 0.0), b.update(sp, nu, beta, 0.0)
+    for k in ("x", "P", "e_post", "e_vel", "z_prev"):
+        np.testing.assert_allclose(getattr(ua, k), getattr(ub, k), rtol=1e-12, atol=1e-12, err_msg=k)
+    va, vb = a.update(sp, nu, 0.7 * beta, 0.3).x[2:], b.update(sp, nu, 0.7 * beta, 0.3).x[2:]
+    assert np.abs(va - vb).max() > 1e-3
+
+
+@pytest.mark.parametrize("kind", ["svsf", "gc-svsf", "gvbl-svsf"])
+def test_memory_after_a_miss_is_kept_or_reset(kind):
+    """After a scan without update, "keep" returns the prediction itself and "reset" the prediction with
+    e_{z,k-1|k-1} (and the svsf's e_vel) = 0, x and P unchanged; the next gain then has no gamma term.
+    gc-svsf by hand: x_pred = 0, P = I, e_post = (0.4, 0.6), gamma = 0.5, psi_z = 10, nu = (2, -1):
+    K_u = diag(E_z / 10) with E_z = |e| + 0.5 |e_post| = (2.2, 1.3) kept, (2, 1) reset, so
+    x_u = K_u e = (0.44, -0.13) kept, (0.4, -0.1) reset."""
+    from trackers.state import FilterState
+
+    keep, reset = (make_filter(kind, sigma_v=SV, sigma_w=SW, memory_after_miss=m) for m in ("keep", "reset"))
+    sp = predicted(keep, np.random.default_rng(22))
+    assert np.abs(sp.e_post).max() > 0
+    assert keep.update(sp, np.zeros((0, 2)), np.zeros(0), 1.0) is sp
+    for nu, beta in ((np.zeros((0, 2)), np.zeros(0)), (np.ones((1, 2)), np.zeros(1))):
+        r = reset.update(sp, nu, beta, 1.0)
+        np.testing.assert_array_equal(r.e_post, [0.0, 0.0])
+        if kind == "svsf":
+            np.testing.assert_array_equal(r.e_vel, [0.0, 0.0])
+        np.testing.assert_array_equal(r.x, sp.x)
+        np.testing.assert_array_equal(r.P, sp.P)
+    if kind != "gc-svsf":
+        return
+    s0 = FilterState(x=np.zeros(4), P=np.eye(4), e_post=np.array([0.4, 0.6]), F=ConstantVelocity(SV).transition(DT))
+    for m, x_u in (("keep", [0.44, -0.13]), ("reset", [0.4, -0.1])):
+        flt = make_filter("gc-svsf", sigma_v=SV, sigma_w=SW, gamma=0.5, psi_z=10.0, memory_after_miss=m)
+        missed = flt.update(s0, np.zeros((0, 2)), np.zeros(0), 1.0)
+        u = flt.update(missed, np.array([[2.0, -1.0]]), np.ones(1), 0.0)
+        np.testing.assert_allclose(u.x[:2], x_u, rtol=0, atol=1e-15, err_msg=m)
+
+
+def test_memory_reset_reaches_the_trackers_batched_update_on_an_empty_scan():
+    """pda-gvbl-svsf and pda-svsf with memory_after_miss = "reset": after an empty scan every track's memory is 0;
+    with "keep" it is the memory of the last update (non-zero)."""
+    Z = [np.array([[0.0, 0.0], [30.0, 5.0]]), np.array([[2.1, 0.1], [32.0, 5.2]]), np.array([[4.3, 0.1], [34.2, 5.1]])]
+    for name in ("pda-gvbl-svsf", "pda-svsf"):
+        for mode in ("keep", "reset"):
+            trk = make_tracker(name, sigma_v=4.0, sigma_w=0.5, memory_after_miss=mode)
+            tracks, nid = (), 1
+            for z in Z + [np.zeros((0, 2))]:
+                res = trk.step(tracks, z, 0.1, nid)
+                before, tracks, nid = tracks, res.tracks, res.next_id
+            live = [t for t in tracks if not t.candidate]
+            assert len(live) == 2
+            memory = np.array([t.state.e_post for t in live])
+            if mode == "reset":
+                np.testing.assert_array_equal(memory, 0.0)
+            else:
+                assert np.abs(memory).max() > 1e-3, name
+                np.testing.assert_array_equal(memory, [t.state.e_post for t in before if not t.candidate])
+
+
+def test_apda_layer_previous_capped_or_psi_max_by_hand():
+    """GVBL, P = I, sigma_w = 1 (S = 2 I), e_post = 0, one measurement nu = (0.5, -0.25): E_z = |e| and
+    Psi_z = S P11^-1 diag(E_z) = (1.0, 0.5) (4.61), below psi_max = 5 (optimal regime). The next scan's layer is
+    (1.0, 0.5) with "previous_capped" and (5, 5) with "psi_max"; before any update both report psi_max.
+    Through apda-gvbl-svsf on a scan with one measurement at nu = (2, 0): chattering C = max(0, |nu| - layer)
+    (5.37) = (1, 0), norm 1, and APDA active; with "psi_max" C = 0 and the weights are the PDA's."""
+    from trackers.filters.gvbl import GVBLState
+    from trackers.tracker import Track
+
+    for mode, lay in (("previous_capped", [1.0, 0.5]), ("psi_max", [5.0, 5.0])):
+        flt = make_filter("gvbl-svsf", sigma_v=1.0, sigma_w=1.0, psi_max=5.0, apda_layer=mode)
+        s0 = flt.initial_state(np.zeros(4), np.eye(4))
+        sp = flt.predict(s0, 0.0)  # dt = 0: P stays I, Q = 0
+        np.testing.assert_array_equal(flt.layer(sp), [5.0, 5.0])
+        u = flt.update(sp, np.array([[0.5, -0.25]]), np.ones(1), 0.0)
+        assert u.info["regime"] == 0.0
+        np.testing.assert_allclose(u.info["psi_z"], [1.0, 0.5], rtol=1e-15, atol=0)
+        np.testing.assert_allclose(flt.layer(flt.predict(u, 0.1)), lay, rtol=1e-15, atol=0, err_msg=mode)
+        trk = make_tracker("apda-gvbl-svsf", sigma_v=1.0, sigma_w=1.0, psi_max=5.0, apda_layer=mode)
+        state = GVBLState(x=np.zeros(4), P=np.eye(4), e_post=np.zeros(2), psi_layer=np.array([1.0, 0.5]))
+        track = Track(id=1, state=state, score=10.0, max_score=10.0, confirmed=True, age=5, hits=5, misses_in_a_row=0)
+        res = trk.step((track,), np.array([[2.0, 0.0]]), 0.0, 2)
+        np.testing.assert_allclose(res.info.layers[0], lay, rtol=1e-15, atol=0, err_msg=mode)
+        d = res.info.diagnostics
+        chatter = 1.0 if mode == "previous_capped" else 0.0
+        assert d["chattering"][0] == pytest.approx(chatter, abs=1e-15) and d["apda_active"][0] == chatter, mode
+
+
+@pytest.mark.parametrize("kind, key, allowed", [("svsf", "artificial_pda", "per_measurement, combined"),
+                                                ("svsf", "memory_after_miss", "keep, reset"),
+                                                ("gc-svsf", "memory_after_miss", "keep, reset"),
+                                                ("gvbl-svsf", "memory_after_miss", "keep, reset"),
+                                                ("gvbl-svsf", "apda_layer", "previous_capped, psi_max")])
+def test_a_bad_switch_value_is_a_one_line_error(kind, key, allowed):
+    with pytest.raises(ParamError) as info:
+        make_filter(kind, **{key: "sometimes"})
+    assert str(info.value) == f"filter.{key}: 'sometimes' is not allowed; allowed: {allowed}"
+    built = make_filter(kind)
+    with pytest.raises(ValueError, match=f"{key} must be one of"):
+        type(built)(built.motion, built.measurement, **{key: "sometimes"})  # the filter checks its own fields too

@@ -249,7 +249,7 @@ def test_kind_sub_tables_apply_only_to_their_kind_and_reach_imm_modes():
     assert make_tracker("apda-gvbl-svsf", **tables).association.psi_max == 1.0
     imm = make_tracker("imm-pda-svsf", **tables)  # CV mode: svsf, CT mode: gvbl-svsf
     assert imm.filter.filters[0].psi == (0.2, 0.2) and imm.filter.filters[1].psi_max == 5.0
-    with pytest.raises(ParamError, match="filter.svsf.psy: unknown key; allowed: covariance, gamma"):
+    with pytest.raises(ParamError, match="filter.svsf.psy: unknown key; allowed: artificial_pda, covariance, gamma"):
         make_tracker("jpda-kf", filter={"svsf": {"psy": 0.2}})  # a typo in another kind's table still fails
     with pytest.raises(ParamError, match="filter.svsf.psi: -1.0 is not allowed"):
         make_tracker("jpda-svsf", filter={"svsf": {"psi": -1.0}})

@@ -15,7 +15,7 @@ from scipy.special import gammaln
 
 from trackers.association.roles import AssociationInput, AssociatorKind, AssociatorParams
 from trackers.filters.base import Filter, batch_predict, batch_predicted_measurements, batch_update
-from trackers.gating import gate, gate_probability, mahalanobis2_and_log_gaussian
+from trackers.gating import gate, mahalanobis2_and_log_gaussian
 from trackers.initiation import pair_candidates, single_point, two_point
 from trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
                                  position_std, score_decide, score_increment)
@@ -173,8 +173,8 @@ class Tracker:
 
     @property
     def pg(self) -> float:
-        """Gate probability P_G = F_chi2_m(gate_alpha)."""
-        return gate_probability(self.association.gate_alpha, self.filter.measurement.ndim)
+        """Gate probability P_G: the associator's `pg`, or F_chi2_m(gate_alpha) when it is None."""
+        return self.association.gate_probability(self.filter.measurement.ndim)
 
     def step(self, tracks: tuple[Track, ...], Z: np.ndarray, dt: float, next_id: int,
              pd: PdInput = None) -> StepResult:

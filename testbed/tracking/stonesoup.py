@@ -121,6 +121,7 @@ def components(scenario, associator: str) -> dict:
                                                          missed_distance=gate))
     elif associator == "jpda":
         pg = 1.0 - math.exp(-a.gate_alpha / 2.0)  # chi-square(2) gate probability (thesis §4.1)
+        pg = pg if a.pg is None else a.pg  # the associator's P_G when it sets one
         assoc = JPDA(PDAHypothesiser(predictor, updater, clutter_spatial_density=a.clutter_density,
                                      prob_detect=a.pd, prob_gate=pg))
     else:

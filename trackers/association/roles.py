@@ -14,6 +14,7 @@ from trackers.association.jpda import DEFAULT_K, DEFAULT_MAX_NODES, METHODS, jpd
 from trackers.association.nn import nearest_neighbour
 from trackers.association.params import OVERFLOW_MODES, AssociationParams
 from trackers.association.pda import pda
+from trackers.gating import gate_probability
 from trackers.params import NON_NEGATIVE, POSITIVE, PROBABILITY, ParamError, load, param
 
 
@@ -47,6 +48,15 @@ class AssociatorParams:
     clutter_density: float = param(1e-2, "Poisson clutter density lambda [1/m^2] (thesis §4.6.2: 1e-2)",
                                    check=POSITIVE)
     use_pg: bool = param(False, "JPDA and GNN in the P_D P_G form (thesis §4.4 note) instead of the thesis form")
+    pg: float | None = param(None, "gate probability P_G in the PDA (4.10)-(4.13) and APDA (5.54) weights, in JPDA "
+                             "and GNN with use_pg, and in the track score (1.35); None: the gate's chi-square mass "
+                             "F_chi2_m(gate_alpha) (thesis §4.6.1 prints alpha = 16 with P_G = 0.9997 = "
+                             "F_chi2_2(16)); a value: that P_G whatever the gate (e.g. a paper's printed P_G that is "
+                             "not its gate's)", check=PROBABILITY)
+
+    def gate_probability(self, m: int) -> float:
+        """P_G for m measurement components: `pg` if set, else F_chi2_m(gate_alpha) (trackers.gating)."""
+        return gate_probability(self.gate_alpha, m) if self.pg is None else self.pg  # (4.10)-(4.13) P_G
 
     def problem(self, pg: float, **extra: Any) -> AssociationParams:
         """The plain-function parameter object for gate probability `pg`."""

@@ -36,10 +36,19 @@ parameters of `GVBLSVSF`:
   |Psi_z| below psi_max, so the filter is exactly the KF); "all_any" is robust on 99 % of the scans.
   With psi_max = None (no limit) the filter is the Kalman filter exactly.
 
-Boundary layer reported to association (`layer`): min(|diag Psi_z| of the previous update, psi_max), or
-psi_max before the first update (None when psi_max is None). The layer of the current scan cannot be used:
-it depends on the combined innovation, which needs the association weights, and with the unsaturated optimal
-layer the chattering max(0, |nu| - Psi_z) of (5.37) would be identically zero (diag Psi_z > |e| for diagonal R).
+Boundary layer reported to association (`layer`, read by the APDA as psi_{z,k+1} of (5.37)), `apda_layer`:
+* "previous_capped" (default): min(|diag Psi_z| of the previous update, psi_max), or psi_max before the first
+  update (None when psi_max is None): the reading in which psi_{z,k+1} is a GVBL layer (5.16), the last one
+  known before association;
+* "psi_max": psi_max on every scan (None when psi_max is None): the reading in which psi_{z,k+1} is the layer
+  of the current scan, min(Psi_z, psi_max), whose chattering is non-zero only where psi_max binds, so that
+  C = max(0, |nu| - psi_max) and det Psi = psi_max^m in (5.54).
+The layer of the current scan itself cannot be used: it depends on the combined innovation, which needs the
+association weights, and with the unsaturated optimal layer the chattering max(0, |nu| - Psi_z) of (5.37) would
+be identically zero (diag Psi_z > |e| for diagonal R).
+
+After a scan without update the memory e_{z,k-1|k-1} is kept or reset (`memory_after_miss`, as the SVSFs of
+`svsf.py`); the reported layer is kept either way.
 """
 
 from __future__ import annotations
@@ -52,14 +61,16 @@ import numpy as np
 from trackers.errors import FilterError
 from trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
                                    combined_innovation, pda_covariance, symmetrise)
-from trackers.filters.svsf import (EY_MEMORY, GAMMA, Partition, promote_state, generalised_covariance, lower_error,
-                                   svsf_gain_factor)
+from trackers.filters.svsf import (EY_MEMORY, GAMMA, MEMORY_AFTER_MISS, MEMORY_AFTER_MISS_DOC, Partition,
+                                   after_miss, check_memory_after_miss, generalised_covariance, lower_error,
+                                   promote_state, svsf_gain_factor)
 from trackers.filters.params import ModelParams
 from trackers.params import POSITIVE, ParamError, param
 from trackers.state import FilterState, derive
 
 SWITCH_RULES = ("z_any", "all_any", "per_partition")
 ROBUST_LOWER = ("optimal", "psi_max")
+APDA_LAYERS = ("previous_capped", "psi_max")
 
 
 @dataclass(frozen=True, eq=False)
@@ -93,8 +104,9 @@ def optimal_layers(P: np.ndarray, S: np.ndarray, part: Partition, M: np.ndarray,
 class GVBLSVSF(ModelFilter):
     """GVBL-SVSF (see module docstring). gamma, gamma_y in [0, 1) (thesis ch. 4: 0.1); psi_max [m] saturation
     limit of the optimal layer (thesis ch. 4: 20; math.inf = never robust = the KF); switch, robust_lower,
-    ey_memory: the open choices of the module docstring. Works for NCV and, with robust_lower = "optimal"
-    (the unmeasured rows keep the EKF gain), for the 5-D CT model (Phi12^+ only enters E_y and Psi_y)."""
+    ey_memory, apda_layer, memory_after_miss: the open choices of the module docstring. Works for NCV and,
+    with robust_lower = "optimal" (the unmeasured rows keep the EKF gain), for the 5-D CT model (Phi12^+ only
+    enters E_y and Psi_y)."""
 
     motion: object
     measurement: object
@@ -104,8 +116,13 @@ class GVBLSVSF(ModelFilter):
     switch: str = "z_any"
     robust_lower: str = "optimal"
     ey_memory: str = "a_priori"
+    apda_layer: str = "previous_capped"
+    memory_after_miss: str = "keep"
 
     def __post_init__(self) -> None:
+        check_memory_after_miss("GVBLSVSF", self.memory_after_miss)
+        if self.apda_layer not in APDA_LAYERS:
+            raise ValueError(f"GVBLSVSF apda_layer must be one of {APDA_LAYERS}, got {self.apda_layer!r}")
         if not (0.0 <= self.gamma < 1.0 and 0.0 <= self.gamma_y < 1.0):
             raise ValueError(f"GVBLSVSF gamma and gamma_y must be in [0, 1), got {self.gamma}, {self.gamma_y}")
         if math.isnan(self.psi_max) or self.psi_max <= 0:
@@ -121,19 +138,20 @@ class GVBLSVSF(ModelFilter):
         return promote_state(GVBLState, super().initial_state(x0, P0))
 
     def layer(self, s_pred: FilterState) -> np.ndarray | None:
-        """min(previous |diag Psi_z|, psi_max) (m,) [m]; psi_max before the first update; None if both unknown."""
+        """psi_{z,k+1} of (5.37) (m,) [m] for `apda_layer` (module docstring): "previous_capped": min(previous
+        |diag Psi_z|, psi_max), psi_max before the first update; "psi_max": psi_max; None if unknown."""
         prev = getattr(s_pred, "psi_layer", None)
-        if prev is not None:
+        if prev is not None and self.apda_layer == "previous_capped":  # (5.37) psi_{z,k+1}: the last GVBL layer [D]
             return np.array(prev)
         if math.isinf(self.psi_max):
             return None
-        return np.full(self.measurement.ndim, self.psi_max)
+        return np.full(self.measurement.ndim, self.psi_max)  # (5.37) psi_max: first scan, or apda_layer "psi_max"
 
     def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState:
         """PDA-form GVBL-SVSF update; nu (M, m), beta (M,), beta0 (see module docstring)."""
         nu, beta, beta0 = check_weights(nu, beta, beta0, self.measurement.ndim)
         if nu.shape[0] == 0 or beta0 == 1.0:
-            return s_pred  # (4.16) with beta0 = 1: no update
+            return after_miss(s_pred, self.memory_after_miss)  # (4.16) with beta0 = 1: no update
         s = promote_state(GVBLState, s_pred)
         H, R, P = self.measurement_jacobian(s), self.measurement.R, s.P
         part = Partition.of(H)
@@ -170,7 +188,7 @@ class GVBLSVSF(ModelFilter):
         """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,) (the per-track update is the reference,
         tests/test_trackers_svsf.py checks them equal to 1e-12). A linear measurement and one transition
         Jacobian for all tracks (the tracker predicts them together), else the per-track loop."""
-        out = list(preds)
+        out = [after_miss(s, self.memory_after_miss) for s in preds]  # the active tracks are replaced below
         T = len(preds)
         active = np.flatnonzero((w0 < 1.0) & (W > 0.0).any(axis=1)) if T else np.zeros(0, dtype=np.int64)
         if active.size == 0:
@@ -267,6 +285,12 @@ class GVBLParams(ModelParams):
                               choices=ROBUST_LOWER)
     ey_memory: str = param("a_priori", "gamma_y term of E_y: a priori error (thesis (4.34)) or the previous "
                            "a posteriori error", choices=EY_MEMORY)
+    apda_layer: str = param("previous_capped", "boundary layer psi_{z,k+1} reported to the APDA (5.37), which the "
+                            "thesis leaves open: 'previous_capped', min(|diag Psi_z| of the previous update "
+                            "(5.16), psi_max), or 'psi_max', the saturation limit on every scan (the current "
+                            "layer min(Psi_z, psi_max), whose chattering is non-zero only where psi_max binds)",
+                            choices=APDA_LAYERS)
+    memory_after_miss: str = param("keep", MEMORY_AFTER_MISS_DOC, choices=MEMORY_AFTER_MISS)
 
 
 def build_gvbl(p: GVBLParams) -> GVBLSVSF:
@@ -275,4 +299,5 @@ def build_gvbl(p: GVBLParams) -> GVBLSVSF:
     return GVBLSVSF(p.motion_model(), p.measurement_model(), gamma=p.gamma,
                     gamma_y=p.gamma if p.gamma_y is None else p.gamma_y,
                     psi_max=math.inf if p.psi_max is None else p.psi_max, switch=p.switch,
-                    robust_lower=p.robust_lower, ey_memory=p.ey_memory)
+                    robust_lower=p.robust_lower, ey_memory=p.ey_memory, apda_layer=p.apda_layer,
+                    memory_after_miss=p.memory_after_miss)

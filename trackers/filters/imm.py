@@ -23,7 +23,8 @@ and lambda D is the same for every mode, so it cancels in (2.104). The IMM there
 Lambda_i ∝ beta_0 + sum_j beta_j N_i(z_j) / N_c(z_j), exact for PDA (whatever miss term the associator uses,
 the identity returns (2.103) with that term); for hard association (NN, GNN: beta = [1]) it is N_i / N_c, the
 standard IMM likelihood; for JPDA's marginal weights it is the natural approximation. No measurement (or
-beta_0 = 1) gives Lambda_i equal for all modes: update returns the prediction, whose mu is c.
+beta_0 = 1) gives Lambda_i equal for all modes: update returns the prediction, whose mu is c, after each mode's
+own miss handling (an SVSF-family mode with memory_after_miss = "reset" zeroes its memory).
 
 Mixed mode banks (a 4-D NCV mode beside a 5-D CT mode, [D]: the thesis does not say how §2.3.5's two models meet): every mode state starts with the
 kinematic [p; v]. Mixing into a smaller mode drops the extra entries (omega); mixing into a larger one pads
@@ -198,8 +199,11 @@ class IMMFilter:
         Lambda_i ∝ beta0 + sum_j beta_j N_i(z_j) / N_c(z_j) (module docstring), (2.104), (1.17)-(1.18)."""
         meas = self.measurement
         nu, beta, beta0 = check_weights(nu, beta, beta0, meas.ndim)
-        if nu.shape[0] == 0 or beta0 == 1.0:
-            return s_pred  # every Lambda_i equal: mu stays c, the modes keep their predictions
+        if nu.shape[0] == 0 or beta0 == 1.0:  # every Lambda_i equal: mu stays c
+            modes = tuple(f.update(m, nu, beta, beta0) for f, m in zip(self.filters, s_pred.modes))
+            if all(a is b for a, b in zip(modes, s_pred.modes)):
+                return s_pred  # the modes keep their predictions
+            return self._state(modes, s_pred.mu)  # a mode that resets its SVSF memory after a miss
         zs, Ss = self.mode_measurements(s_pred)
         z_c, S_c = self._combine_measurements(zs, Ss, s_pred.mu)
         zero = np.zeros(meas.ndim)

@@ -24,8 +24,10 @@ the mean-square error about the SVSF estimate given the innovations, P_kf + d d^
 Kalman estimate (the PDA mixture of these for soft weights, `estimate_mse`): the KF's P when the two agree,
 larger when the SVSF's correction departs from the KF's. It changes P only, never x, the gain or the memory.
 "joseph" keeps (2.12)/(4.37) as printed.
-M = 0 or beta0 = 1 returns the prediction unchanged, so after an empty gate the memory is kept, not reset
-([D]: the thesis is silent; keeping it is what "no update" means in (4.16)).
+M = 0 or beta0 = 1 (an empty gate, or no weight on any measurement) returns the prediction unchanged
+(`memory_after_miss = "keep"`, default: what "no update" means in (4.16)), or the prediction with the memory
+e_{z,k-1|k-1} set to 0 ("reset": the next gain starts without memory, as at birth). [D]: the thesis (§2.1.5,
+§3.5.1) defines the memory only after an update; `after_miss` below.
 Units: positions m, velocities m/s, boundary-layer widths in the units of the component they bound.
 """
 
@@ -45,6 +47,8 @@ from trackers.state import FilterState, derive
 
 EY_MEMORY = ("a_priori", "a_posteriori")
 COVARIANCES = ("mse", "joseph", "short")
+MEMORY_AFTER_MISS = ("keep", "reset")
+ARTIFICIAL_PDA = ("per_measurement", "combined")
 
 
 # ------------------------------------------------------------------------------------------ shared maths
@@ -134,6 +138,23 @@ def lower_error(M: np.ndarray, Phi12_pinv: np.ndarray, e: np.ndarray, e_post: np
     return e_y, np.abs(e_y) + gamma_y * np.abs(Phi12_pinv @ mem)  # (4.34) E_y
 
 
+def after_miss(s_pred: FilterState, memory: str) -> FilterState:
+    """The state after a scan without update (M = 0 or beta0 = 1) for `memory_after_miss` = memory: s_pred itself
+    ("keep") or s_pred with the SVSF memories e_post (m,) and, if it has one, e_vel (m,) set to 0 ("reset")."""
+    if memory == "keep":
+        return s_pred  # (4.16) with beta0 = 1: no update, e_{z,k-1|k-1} of (2.10)/(4.30) kept [D]
+    zeros = {"e_post": np.zeros(s_pred.e_post.shape)}
+    if getattr(s_pred, "e_vel", None) is not None:
+        zeros["e_vel"] = np.zeros(s_pred.e_vel.shape)
+    return derive(s_pred, **zeros)  # [D] e_{z,k-1|k-1} := 0 after a miss (thesis §2.1.5, §3.5.1 silent)
+
+
+def check_memory_after_miss(owner: str, memory: str) -> None:
+    """ValueError (one line) unless memory is one of MEMORY_AFTER_MISS."""
+    if memory not in MEMORY_AFTER_MISS:
+        raise ValueError(f"{owner} memory_after_miss must be one of {MEMORY_AFTER_MISS}, got {memory!r}")
+
+
 def promote_state(cls: type, s: FilterState) -> FilterState:
     """s as an instance of the FilterState subclass `cls` (extra fields at their defaults)."""
     if isinstance(s, cls):
@@ -189,11 +210,22 @@ class SVSF(ModelFilter):
       measurement gets its own augmented innovation nu_bar_i = [nu_i; (z_hat + nu_i - z_prev)/tau - H_v x],
       which the PDA spread term (4.17) then uses. The first update (no z_prev) uses the position rows only.
 
+    `artificial_pda`, how the artificial velocity enters e_{z,k|k-1} under PDA (the thesis does not say):
+    * "per_measurement" (default): e_{z,k|k-1} = sum_i beta_i nu_bar_i, the combined innovation (2.27) of
+      the augmented innovations, so the velocity part carries 1 - beta0 of the differenced position
+      (1 - beta0)((z_hat - z_prev)/tau - H_v x) + nu_c / tau: the reading that treats the artificial
+      measurement like a real one, each hypothesis with its own.
+    * "combined": one artificial measurement from the projected measurement z^a = z_hat + nu_c (2.32):
+      e_{z,k|k-1} = [nu_c; (z^a - z_prev)/tau - H_v x], i.e. (3.63)'s projected measurement differenced; the
+      reading in which z^a stands for the scan's measurement, as it does for z_prev.
+    The two agree when beta0 = 0. The spread term (4.17) ("joseph", "short") uses the nu_bar_i in both.
+
     gamma: SVSF memory in [0, 1); psi (m,) [m]: the fixed position layer half widths (the registry default
     3 sigma_w is [D]: ch. 2-3 give no value); psi_v [m/s]: the layer of the artificial velocity components,
     None for 3 sqrt(R_bar_vv) = 3 sqrt(2) sigma_w / tau. The sign(e / psi) printed in (2.10) is the limit
     psi -> 0 (e.g. psi = 1e-6): full correction plus gamma times the memory on every scan.
-    Needs a linear position measurement (H = [H1 0]) and, for "artificial", a motion model whose
+    memory_after_miss: "keep" (default) or "reset" the memories e_post and e_vel after a scan without update
+    (module docstring). Needs a linear position measurement (H = [H1 0]) and, for "artificial", a motion model whose
     unmeasured states are exactly the velocities (NCV)."""
 
     motion: object
@@ -203,9 +235,14 @@ class SVSF(ModelFilter):
     psi_v: float | None = None
     unmeasured: str = "artificial"
     covariance: str = "mse"
+    artificial_pda: str = "per_measurement"
+    memory_after_miss: str = "keep"
 
     def __post_init__(self) -> None:
         m = self.measurement.ndim
+        check_memory_after_miss("SVSF", self.memory_after_miss)
+        if self.artificial_pda not in ARTIFICIAL_PDA:
+            raise ValueError(f"SVSF artificial_pda must be one of {ARTIFICIAL_PDA}, got {self.artificial_pda!r}")
         if not (0.0 <= self.gamma < 1.0):
             raise ValueError(f"SVSF gamma must be in [0, 1), got {self.gamma}")
         if len(self.psi) != m or not all(math.isfinite(p) and p > 0 for p in self.psi):
@@ -256,7 +293,7 @@ class SVSF(ModelFilter):
         m = self.measurement.ndim
         nu, beta, beta0 = check_weights(nu, beta, beta0, m)
         if nu.shape[0] == 0 or beta0 == 1.0:
-            return s_pred  # (4.16) with beta0 = 1: no update
+            return after_miss(s_pred, self.memory_after_miss)  # (4.16) with beta0 = 1: no update
         s = promote_state(SVSFState, s_pred)
         H0, R0 = self.measurement_jacobian(s), self.measurement.R
         z_a = self.measurement.h(s.x, self.motion) + combined_innovation(nu, beta)  # (2.32) projected measurement
@@ -265,6 +302,8 @@ class SVSF(ModelFilter):
         H, R, nu_b, e_prev, psi = (self.augmented(s, nu) if with_vel
                                    else (H0, R0, nu, s.e_post, np.array(self.psi, dtype=np.float64)))
         nu_c = combined_innovation(nu_b, beta)  # (2.27) e_{z,k|k-1} := combined innovation
+        if with_vel and self.artificial_pda == "combined":  # (2.32) one artificial measurement from z^a [D]
+            nu_c = np.concatenate([nu_c[:m], (z_a - s.z_prev) / s.tau - s.x[list(self.motion.velocity)]])
         E = np.abs(nu_c) + self.gamma * np.abs(e_prev)  # (2.10) |e_{k|k-1}| + gamma |e_{k-1|k-1}|
         K = np.linalg.pinv(H) * svsf_gain_factor(E, nu_c, psi)  # (2.30) K = H^+ diag(E o sat(e/psi)) diag(e)^-1
         x = s.x + K @ nu_c  # (2.29)
@@ -305,18 +344,17 @@ class SVSF(ModelFilter):
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
                     w0: np.ndarray) -> list[FilterState]:
-        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,); the default settings (artificial
-        velocity measurements, "mse" covariance, a linear measurement), else the per-track loop."""
+        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,); artificial velocity measurements (either
+        `artificial_pda`), "mse" covariance and a linear measurement, else the per-track loop."""
         if self.unmeasured != "artificial" or self.covariance != "mse" or not self.measurement.linear:
             return ModelFilter.update_many(self, preds, nu, W, w0)
-        out = list(preds)
+        out = [after_miss(s, self.memory_after_miss) for s in preds]  # the active tracks are replaced below
         T = len(preds)
         active = np.flatnonzero((w0 < 1.0) & (W > 0.0).any(axis=1)) if T else np.zeros(0, dtype=np.int64)
         if active.size == 0:
             return out
         m = self.measurement.ndim
         nua, Wa, b0 = batch_weights(nu, W, w0, active)  # (A, M, m), (A, M), (A,)
-        used = Wa > 0.0
         ss = [promote_state(SVSFState, preds[t]) for t in active]
         X = np.array([s.x for s in ss])
         P = np.array([s.P for s in ss])
@@ -327,14 +365,7 @@ class SVSF(ModelFilter):
         H0, R0 = self.measurement.matrix(self.motion), self.measurement.R
         Hv = np.zeros((m, X.shape[1]))
         Hv[range(m), self.motion.velocity] = 1.0
-        z_hat = X @ H0.T
-        z_a = z_hat + np.einsum("aj,ajm->am", Wa, nua)  # (2.32) projected measurement
-        vel = (tau > 0.0) & np.isfinite(z_prev).all(axis=1)
-        t_v = np.where(vel, tau, 1.0)
-        nu_v = ((z_hat[:, None, :] + nua - np.where(vel[:, None], z_prev, 0.0)[:, None, :]) / t_v[:, None, None]
-                - (X @ Hv.T)[:, None, :])  # [17] artificial velocity innovations
-        nu_bar = np.concatenate([nua, np.where(used[..., None], nu_v, 0.0)], axis=2)  # (A, M, 2m)
-        nu_c = np.einsum("aj,ajm->am", Wa, nu_bar)  # (2.27) e_{z,k|k-1} := combined innovation
+        z_a, vel, t_v, nu_c = _artificial_many(X, z_prev, tau, nua, Wa, H0, Hv, self.artificial_pda)
         e_prev = np.concatenate([e_post, e_vel], axis=1)
         psi_p = np.array(self.psi, dtype=np.float64)
         psi_v = (np.broadcast_to(float(self.psi_v), (len(ss), m)) if self.psi_v is not None
@@ -368,6 +399,22 @@ class SVSF(ModelFilter):
         return out
 
 
+def _artificial_many(X, z_prev, tau, nua, Wa, H0, Hv, artificial_pda: str):
+    """(z^a (A, m), with-velocity flags (A,), tau or 1 (A,), e_{z,k|k-1} (A, 2m)) of `SVSF.update` for A tracks:
+    X (A, n), z_prev (A, m) (NaN before a first update), tau (A,), nua (A, M, m), Wa (A, M), H0 (m, n), Hv (m, n)."""
+    z_hat = X @ H0.T
+    z_a = z_hat + np.einsum("aj,ajm->am", Wa, nua)  # (2.32) projected measurement
+    vel = (tau > 0.0) & np.isfinite(z_prev).all(axis=1)
+    t_v = np.where(vel, tau, 1.0)
+    zp = np.where(vel[:, None], z_prev, 0.0)
+    nu_v = (z_hat[:, None, :] + nua - zp[:, None, :]) / t_v[:, None, None] - (X @ Hv.T)[:, None, :]  # [17]
+    nu_bar = np.concatenate([nua, np.where((Wa > 0.0)[..., None], nu_v, 0.0)], axis=2)  # (A, M, 2m)
+    nu_c = np.einsum("aj,ajm->am", Wa, nu_bar)  # (2.27) e_{z,k|k-1} := combined innovation
+    if artificial_pda == "combined":  # (2.32) one artificial measurement from z^a [D]
+        nu_c[:, H0.shape[0]:] = (z_a - zp) / t_v[:, None] - X @ Hv.T
+    return z_a, vel, t_v, nu_c
+
+
 def _estimate_mse_many(P, H, R, x_pred, x, nu, W, w0) -> np.ndarray:
     """`estimate_mse` of A tracks at once: P (A, n, n), x_pred and x (A, n), nu (A, M, m), W (A, M), w0 (A,)."""
     S = H @ P @ H.T + R
@@ -396,7 +443,8 @@ class GeneralisedSVSF(ModelFilter):
     predict. psi_z (m,) [m] and psi_y are fixed layers; psi_y None uses 3 sqrt(diag(M R M^T)) each scan,
     M = Phi22 Phi12^+ (the 3-sigma width of e_y from measurement noise alone; 3 sigma_w / dt for NCV).
     ey_memory: the gamma_y term of E_y with the a priori error (thesis (3.38)/(4.34), default) or
-    with the previous a posteriori error ("a_posteriori").
+    with the previous a posteriori error ("a_posteriori"). memory_after_miss: "keep" (default) or "reset" the
+    memory e_{z,k-1|k-1} after a scan without update (module docstring).
 
     Needs Phi12 invertible, i.e. n = 2m (NCV). For the 5-D CT model Phi12 is 2 x 3 and the pseudo-inverse
     map Phi22 Phi12^+ puts most of a position error into the turn rate (the minimum-norm solution in mixed
@@ -411,9 +459,11 @@ class GeneralisedSVSF(ModelFilter):
     psi_y: float | None = None
     ey_memory: str = "a_priori"
     covariance: str = "mse"
+    memory_after_miss: str = "keep"
 
     def __post_init__(self) -> None:
         m = self.measurement.ndim
+        check_memory_after_miss("GeneralisedSVSF", self.memory_after_miss)
         if self.covariance not in ("mse", "joseph"):
             raise ValueError(f"GeneralisedSVSF covariance must be mse|joseph, got {self.covariance!r}")
         if not (0.0 <= self.gamma < 1.0 and 0.0 <= self.gamma_y < 1.0):
@@ -436,7 +486,7 @@ class GeneralisedSVSF(ModelFilter):
         """PDA-form generalised SVSF update (see class docstring); nu (M, m), beta (M,), beta0."""
         nu, beta, beta0 = check_weights(nu, beta, beta0, self.measurement.ndim)
         if nu.shape[0] == 0 or beta0 == 1.0:
-            return s_pred  # (4.16) with beta0 = 1: no update
+            return after_miss(s_pred, self.memory_after_miss)  # (4.16) with beta0 = 1: no update
         H, R = self.measurement_jacobian(s_pred), self.measurement.R
         part = Partition.of(H)
         M, Phi12_pinv = part.maps(s_pred.F)
@@ -464,6 +514,9 @@ class GeneralisedSVSF(ModelFilter):
 # ------------------------------------------------------------------------------- registry parameters
 
 GAMMA = (lambda v: 0.0 <= v < 1.0, "in [0, 1)")
+MEMORY_AFTER_MISS_DOC = ("SVSF memory e_{z,k-1|k-1} of the gain after a scan without update (empty gate or "
+                         "beta0 = 1), which the thesis leaves open: 'keep' (no update changes nothing, (4.16)) or "
+                         "'reset' to 0 (the next gain starts without memory, as at birth)")
 
 
 def noise_layer(R: np.ndarray, sigmas: float = 3.0) -> tuple[float, ...]:
@@ -485,6 +538,12 @@ class SVSFParams(ModelParams):
                             "(consistent; the KF's P when e = 0); joseph: (2.12)/(2.31) as printed, which grows "
                             "with Q when the in-layer gain is small; short: (I - K H) P of (2.54)/(2.89)",
                             choices=COVARIANCES)
+    artificial_pda: str = param("per_measurement", "artificial velocity under PDA, which the thesis leaves open: "
+                                "'per_measurement', one per validated measurement combined with the weights "
+                                "beta (2.27) (the velocity correction carries 1 - beta0), or 'combined', one from "
+                                "the projected measurement z^a = z_hat + sum beta_i nu_i (2.32), (3.63) "
+                                "differenced; equal when beta0 = 0", choices=ARTIFICIAL_PDA)
+    memory_after_miss: str = param("keep", MEMORY_AFTER_MISS_DOC, choices=MEMORY_AFTER_MISS)
 
 
 @dataclass(frozen=True)
@@ -500,6 +559,7 @@ class GCSVSFParams(ModelParams):
                            "a posteriori error (Habibi's original)", choices=EY_MEMORY)
     covariance: str = param("mse", "mse: the mean-square error about the estimate given the innovations; "
                             "joseph: the generalised covariance (4.37) as printed", choices=("mse", "joseph"))
+    memory_after_miss: str = param("keep", MEMORY_AFTER_MISS_DOC, choices=MEMORY_AFTER_MISS)
 
 
 def build_svsf(p: SVSFParams) -> SVSF:
@@ -509,7 +569,7 @@ def build_svsf(p: SVSFParams) -> SVSF:
     meas = p.measurement_model()
     psi = noise_layer(meas.R) if p.psi is None else (p.psi,) * meas.ndim
     return SVSF(p.motion_model(), meas, gamma=p.gamma, psi=psi, psi_v=p.psi_v, unmeasured=p.unmeasured,
-                covariance=p.covariance)
+                covariance=p.covariance, artificial_pda=p.artificial_pda, memory_after_miss=p.memory_after_miss)
 
 
 def build_gc_svsf(p: GCSVSFParams) -> GeneralisedSVSF:
@@ -519,4 +579,5 @@ def build_gc_svsf(p: GCSVSFParams) -> GeneralisedSVSF:
     meas = p.measurement_model()
     psi_z = noise_layer(meas.R) if p.psi_z is None else (p.psi_z,) * meas.ndim
     return GeneralisedSVSF(p.motion_model(), meas, gamma=p.gamma, gamma_y=p.gamma if p.gamma_y is None else p.gamma_y,
-                           psi_z=psi_z, psi_y=p.psi_y, ey_memory=p.ey_memory, covariance=p.covariance)
+                           psi_z=psi_z, psi_y=p.psi_y, ey_memory=p.ey_memory, covariance=p.covariance,
+                           memory_after_miss=p.memory_after_miss)

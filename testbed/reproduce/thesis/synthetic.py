@@ -48,7 +48,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from trackers.association.roles import AssociationInput, build_associator
-from trackers.gating import gate, gate_probability, mahalanobis2_and_log_gaussian
+from trackers.gating import gate, mahalanobis2_and_log_gaussian
 from trackers.models import ConstantVelocity, CoordinatedTurn
 from trackers.tracker import gate_volume
 
@@ -235,7 +235,7 @@ def track(run: Run, scn: Scenario, flt, associator: str = "pda", association: Ma
     kind, params = build_associator(associator, table, "associator")
     meas, m = flt.measurement, flt.measurement.ndim
     alpha = params.gate_alpha
-    pg = gate_probability(alpha, m)
+    pg = params.gate_probability(m)
     s = flt.initial_state(run.x0_est, run.P0)
     x0, P0 = flt.output(s)
     K = len(run.Z)
