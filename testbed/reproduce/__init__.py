@@ -26,6 +26,8 @@ REPRODUCTIONS: dict[str, tuple[str, str]] = {
     "seed-002-highway": ("testbed.reproduce.seed002.highway", "paper 002's KS track regime detector on the highway: "
                          "delay after a forced loss and a sensor dropout, false alarms while tracking, per tracker, "
                          "against the track score's deletion"),
+    "thesis-highway": ("testbed.reproduce.thesis.highway", "thesis Tables 4.3 and 5.4 on highway_benchmark: every "
+                       "named tracker, 5 seeds, full and thesis pipelines, intervals and paired differences"),
     "seed-003": ("testbed.reproduce.seed003.study", "paper 003: symmetric measurement equations (sum of powers, sum of "
                  "products) with an EKF, 2 and 3 targets"),
 }
