@@ -71,3 +71,14 @@ def test_paired_difference_interval_and_verdict_by_hand():
     result, _ = highway.compare(df, "full", "seen", "x", "jpda-kf")
     assert result == {"tp_pct": "better", "fp_pct": "no difference shown", "breakup_pct": "no difference shown"}
     assert highway.supports(result)
+
+
+def test_finished_tasks_are_kept_and_not_run_again(quick):
+    out, _, df = quick
+    partial = out / "results-partial.csv"
+    s = highway.settings(True, 0)
+    assert len(highway.done_rows(partial, s)) == len(df)  # a rerun into the folder starts no task
+    assert highway.done_rows(partial, highway.settings(True, 1)) == [] or all(
+        r["seed"] == 1 for r in highway.done_rows(partial, highway.settings(True, 1)))  # seeds 1, 2: only seed 1 kept
+    longer = highway.Settings(s.trackers, s.seeds, 20.0)
+    assert highway.done_rows(partial, longer) == []  # another duration: everything runs again

@@ -112,26 +112,51 @@ def run_task(pipeline: str, seed: int, trackers: tuple[str, ...], duration_s: fl
     return rows
 
 
-def run_all(s: Settings, progress: bool) -> list[dict]:
-    """run_task for every (pipeline, seed) on a process pool of the usable cores (in order of completion)."""
+def run_all(s: Settings, progress: bool, out_dir: Path) -> list[dict]:
+    """run_task for every (pipeline, seed) on a process pool of the usable cores. Each finished task's rows are kept
+    in ``out_dir/results-partial.csv`` at once, and the tasks found there (same trackers and duration) are not run
+    again: an interrupted study resumes where it stopped."""
+    import pandas as pd
     from tqdm import tqdm
 
-    tasks = [(p, k) for p in PIPELINES for k in s.seeds]
+    partial = out_dir / "results-partial.csv"
+    rows = done_rows(partial, s)
+    done = {(r["pipeline"], int(r["seed"])) for r in rows}
+    tasks = [(p, k) for k in s.seeds for p in PIPELINES if (p, k) not in done]
     workers = max(1, min(len(tasks), len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
                          else os.cpu_count() or 1))
-    rows: list[dict] = []
     ctx = multiprocessing.get_context("spawn")
     with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool, \
-            tqdm(total=len(tasks), desc="thesis-highway", unit="seed", disable=not progress) as bar:
+            tqdm(total=len(tasks) + len(done), initial=len(done), desc="thesis-highway", unit="seed",
+                 disable=not progress) as bar:
         futures = [pool.submit(run_task, p, k, s.trackers, s.duration_s) for p, k in tasks]
         try:
             for fut in cf.as_completed(futures):
                 rows += fut.result()
+                write_text(partial, pd.DataFrame(rows).to_csv(index=False))
                 bar.update(1)
         except BaseException:
             for fut in futures:
                 fut.cancel()
             raise
+    return rows
+
+
+def done_rows(partial: Path, s: Settings) -> list[dict]:
+    """The rows of the tasks of ``partial`` (results-partial.csv) run with the trackers and duration of ``s``."""
+    import pandas as pd
+
+    if not partial.is_file():
+        return []
+    from ...scenario.spec import load_scenario
+
+    df = pd.read_csv(partial)
+    n_frames = load_scenario(SCENARIO, {} if s.duration_s is None else {"duration_s": s.duration_s}).n_frames
+    rows = []
+    for (pipeline, seed), g in df.groupby(["pipeline", "seed"]):
+        complete = set(g.tracker) == set(s.trackers) and len(g) == 2 * len(s.trackers)
+        if complete and (g.n_frames == n_frames).all() and int(seed) in s.seeds:
+            rows += g.to_dict("records")
     return rows
 
 
@@ -289,7 +314,7 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
 
     s = settings(quick, seed)
     out_dir = Path(out_dir)
-    df = pd.DataFrame(run_all(s, progress)).sort_values(["pipeline", "cars", "tracker", "seed"], kind="stable")
+    df = pd.DataFrame(run_all(s, progress, out_dir)).sort_values(["pipeline", "cars", "tracker", "seed"], kind="stable")
     write_text(out_dir / "results.csv", df.to_csv(index=False))
     return report(out_dir, df, s, quick)
 
