@@ -3,7 +3,8 @@
 A motion model gives its state size `ndim`, which entries are position and velocity (`position`,
 `velocity`, index tuples, positions first), the transition `f(x, dt)`, its Jacobian `jacobian(x, dt)`
 (n, n) and the process noise `process_noise(dt)` (n, n). `embed(x, P)` lifts a kinematic Gaussian
-[p; v] (2d,) into the model's state (e.g. a turn rate appended with its prior variance).
+[p; v] (2d,) into the model's state (e.g. a turn rate appended with its prior variance), `embed_many`
+the same for T of them at once ((T, 2d), (T, 2d, 2d)).
 
 A measurement model gives `ndim` (m), `h(x, motion)`, `jacobian(x, motion)` (m, n), the noise `R` (m, m),
 `residual(z, z_hat)` (angle wrapping for bearings) and `position_of(z)`: the position and its
@@ -96,6 +97,10 @@ class ConstantVelocity:
         """Kinematic [p; v] (2d,) and (2d, 2d) -> model state: the identity for NCV."""
         return np.asarray(x, dtype=np.float64), np.asarray(P, dtype=np.float64)
 
+    def embed_many(self, X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`embed` of T kinematic Gaussians at once: X (T, 2d), P (T, 2d, 2d) -> the same (the identity)."""
+        return np.asarray(X, dtype=np.float64), np.asarray(P, dtype=np.float64)
+
 
 @dataclass(frozen=True)
 class CoordinatedTurn:
@@ -167,6 +172,15 @@ class CoordinatedTurn:
         P5[:4, :4] = P
         P5[4, 4] = self.omega_std0 ** 2
         return x5, P5
+
+    def embed_many(self, X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`embed` of T kinematic Gaussians at once: X (T, 4), P (T, 4, 4) -> (T, 5), (T, 5, 5)."""
+        X5 = np.zeros((len(X), 5))
+        X5[:, :4] = X
+        P5 = np.zeros((len(X), 5, 5))
+        P5[:, :4, :4] = P
+        P5[:, 4, 4] = self.omega_std0 ** 2  # thesis §5 IMM [D]: omega = 0 with variance omega_std0^2
+        return X5, P5
 
 
 MOTION_MODELS = {"cv": ConstantVelocity, "ct": CoordinatedTurn}
