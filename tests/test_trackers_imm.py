@@ -366,7 +366,8 @@ def test_the_batched_imm_equals_the_per_track_imm_to_1e_12(setting, T):
             np.testing.assert_allclose(z_hat[t], z1, rtol=1e-12, atol=1e-12)
             np.testing.assert_allclose(S[t], S1, rtol=1e-12, atol=1e-12)
         M = 5
-        nu = (np.linalg.cholesky(S)[:, None] @ rng.normal(size=(T, M, 2, 1)))[..., 0] * rng.choice([0.5, 3.0], (T, 1, 1))
+        scale = rng.choice([0.5, 3.0], (T, 1, 1))
+        nu = (np.linalg.cholesky(S)[:, None] @ rng.normal(size=(T, M, 2, 1)))[..., 0] * scale  # (T, M, 2)
         W, w0 = _random_weights(rng, T, M)
         nu[W == 0.0] = 1e6  # innovations the weights do not use must not matter
         with _batched_only():

@@ -4,7 +4,8 @@ A motion model gives its state size `ndim`, which entries are position and veloc
 `velocity`, index tuples, positions first), the transition `f(x, dt)`, its Jacobian `jacobian(x, dt)`
 (n, n) and the process noise `process_noise(dt)` (n, n). `embed(x, P)` lifts a kinematic Gaussian
 [p; v] (2d,) into the model's state (e.g. a turn rate appended with its prior variance), `embed_many`
-the same for T of them at once ((T, 2d), (T, 2d, 2d)).
+the same for T of them at once ((T, 2d), (T, 2d, 2d)). A nonlinear model may offer `f_many(X, dt)` and
+`jacobian_many(X, dt)` for T states X (T, n) at once (the CT model does); its process noise must then not depend on x.
 
 A measurement model gives `ndim` (m), `h(x, motion)`, `jacobian(x, motion)` (m, n), the noise `R` (m, m),
 `residual(z, z_hat)` (angle wrapping for bearings) and `position_of(z)`: the position and its
@@ -25,6 +26,12 @@ def _check_finite(owner: str, **values: float) -> None:
     for name, v in values.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise ValueError(f"{owner}.{name} must be a finite number, got {v!r}")
+
+
+def scalar_map(fn, values: np.ndarray) -> np.ndarray:
+    """fn of each entry of the 1-D float64 array `values` as a Python float (T,): the scalar maths of a per-track
+    form, for batched forms that must equal it bit for bit."""
+    return np.array([fn(v) for v in values.tolist()], dtype=np.float64)
 
 
 # --------------------------------------------------------------------------------------------- motion
@@ -157,8 +164,47 @@ class CoordinatedTurn:
         F[:, 4] = d
         return F
 
+    # ---- batched forms: X (T, 5) -> (T, 5) and (T, 5, 5), the per-track expressions entry by entry. sin, cos and
+    # w ** 2 are Python's, as in the per-track form (`scalar_map`), so A and F are bit-identical to it: numpy's
+    # vectorised sin / cos / power need not round as libm's pow, sin and cos do, and an ulp in cos(w dt) is
+    # amplified by the cancellation in 1 - cos(w dt) near the small-omega switch.
+    def transition_many(self, dt: float, omega: np.ndarray) -> np.ndarray:
+        """A_CT(omega_t) of T turn rates omega (T,): (T, 5, 5)."""
+        w = np.asarray(omega, dtype=np.float64).reshape(-1)
+        wd = w * dt
+        si, co = scalar_map(math.sin, wd), scalar_map(math.cos, wd)
+        small = np.abs(w) < 1e-6
+        ws = np.where(small, 1.0, w)
+        s = np.where(small, dt, si / ws)  # `_terms`: sin(w dt) / w, limit dt
+        c1 = np.where(small, 0.5 * w * dt * dt, (1.0 - co) / ws)  # (1 - cos(w dt)) / w, limit w dt^2 / 2
+        A = np.zeros(w.shape + (5, 5))
+        A[:, 0, 0] = A[:, 1, 1] = A[:, 4, 4] = 1.0
+        A[:, 0, 2], A[:, 0, 3], A[:, 1, 2], A[:, 1, 3] = s, -c1, c1, s
+        A[:, 2, 2], A[:, 2, 3], A[:, 3, 2], A[:, 3, 3] = co, -si, si, co  # thesis §1.3 [R]: A_CT(omega)
+        return A
+
+    def f_many(self, X: np.ndarray, dt: float) -> np.ndarray:
+        """`f` of T states X (T, 5): (T, 5)."""
+        return np.einsum("tij,tj->ti", self.transition_many(dt, X[:, 4]), X)  # §1.3 f(x) = A_CT(omega) x
+
+    def jacobian_many(self, X: np.ndarray, dt: float) -> np.ndarray:
+        """`jacobian` of T states X (T, 5): (T, 5, 5)."""
+        w, vx, vy = X[:, 4], X[:, 2], X[:, 3]
+        F = self.transition_many(dt, w)
+        small = np.abs(w) < 1e-6
+        ws = np.where(small, 1.0, w)
+        sw, cw = F[:, 3, 2], F[:, 2, 2]
+        w2 = scalar_map(lambda v: v ** 2, ws)
+        a = (ws * dt * cw - sw) / w2
+        b = (ws * dt * sw - (1.0 - cw)) / w2
+        F[:, 0, 4] = np.where(small, -0.5 * dt * dt * vy, vx * a - vy * b)  # §1.3 [R] df/domega; small-omega limit
+        F[:, 1, 4] = np.where(small, 0.5 * dt * dt * vx, vx * b + vy * a)
+        F[:, 2, 4] = np.where(small, -dt * vy, -dt * (sw * vx + cw * vy))
+        F[:, 3, 4] = np.where(small, dt * vx, dt * (cw * vx - sw * vy))
+        return F
+
     def process_noise(self, dt: float, x: np.ndarray | None = None) -> np.ndarray:
-        """Q = B diag(sigma_v^2, sigma_v^2, sigma_omega^2) B^T (5, 5) (§1.3 [R/D])."""
+        """Q = B diag(sigma_v^2, sigma_v^2, sigma_omega^2) B^T (5, 5) (§1.3 [R/D]); the same for every x."""
         B = np.zeros((5, 3))
         B[0, 0] = B[1, 1] = 0.5 * dt * dt
         B[2, 0] = B[3, 1] = B[4, 2] = dt
