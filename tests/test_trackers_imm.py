@@ -2,13 +2,16 @@
 hand-computed mixing of a 4-D + 5-D bank, the PDA mode-likelihood identity, a manoeuvre, a tracker run,
 parameter errors."""
 
+from contextlib import ExitStack
 from dataclasses import replace
+from unittest import mock
 
 import numpy as np
 import pytest
 
 from trackers import CoordinatedTurn, ParamError, make_filter, make_tracker, pda, preset
 from trackers.association.params import AssociationParams
+from trackers.errors import FilterError
 from trackers.filters.imm import IMMFilter, IMMState
 from trackers.gating import log_gaussian
 from trackers.registry import WRAPPERS
@@ -282,3 +285,163 @@ def test_imm_filter_checks_its_markov_matrix_when_built_directly():
     s = imm.predict(imm.initial_state(X0, P0), 0.1)  # mode 1 unreachable: mu stays [1, 0], no NaN
     np.testing.assert_array_equal(s.mu, [1.0, 0.0])
     assert np.isfinite(s.x).all() and imm.mode_names == ("cv0", "cv1")
+
+
+# ---------------------------------------------------------------- batched paths against the per-track reference
+def _modes(base: str) -> tuple[dict, ...]:
+    return WRAPPERS["imm"](base)[1]["modes"]
+
+
+IMM_BATCHED = {
+    "kf": {"modes": _modes("kf")},  # KF-CV + EKF-CT
+    "ekf": {"modes": _modes("ekf")},
+    "svsf": {"modes": _modes("svsf")},  # SVSF-CV + GVBL-CT
+    "gc-svsf": {"modes": _modes("gc-svsf")},
+    "gvbl-svsf": {"modes": _modes("gvbl-svsf")},
+    "gvbl-svsf-robust": {"modes": ({"kind": "gvbl-svsf", "psi_max": 0.5},
+                                   {"kind": "gvbl-svsf", "motion": "ct", "psi_max": 0.5})},
+    "three-modes": {"modes": ({"kind": "kf"}, {"kind": "ekf", "motion": "ct", "omega_std0": 0.3}, {"kind": "svsf"}),
+                    "transition": [[0.9, 0.05, 0.05], [0.1, 0.8, 0.1], [0.2, 0.2, 0.6]], "mu0": [0.5, 0.3, 0.2]},
+    "unreachable": {"modes": _modes("kf"), "transition": [[1.0, 0.0], [0.0, 1.0]], "mu0": [1.0, 0.0]},
+}
+
+
+def _imm_fields(s, prefix: str = "") -> dict:
+    """Every array of an IMM state: x, P, e_post, mu, each info entry, and every field of every mode state."""
+    out = {}
+    for k, v in vars(s).items():
+        if k == "info":
+            out.update({f"{prefix}info.{key}": val for key, val in v.items()})
+        elif k == "modes":
+            for i, m in enumerate(v):
+                out.update(_imm_fields(m, f"{prefix}modes[{i}]."))
+        else:
+            out[prefix + k] = v
+    return out
+
+
+def _assert_same(a, b) -> None:
+    fa, fb = _imm_fields(a), _imm_fields(b)
+    assert set(fa) == set(fb), set(fa) ^ set(fb)
+    assert type(a) is type(b) and all(type(x) is type(y) for x, y in zip(a.modes, b.modes))
+    for k in fa:
+        if fa[k] is None or fb[k] is None:
+            assert fa[k] is None and fb[k] is None, k
+            continue
+        np.testing.assert_allclose(fa[k], fb[k], rtol=1e-12, atol=1e-12, err_msg=k)
+
+
+def _batched_only() -> ExitStack:
+    """A context in which the IMM's per-track predict / predicted_measurement / update fail: the batched forms
+    under test must not fall back to them."""
+    stack = ExitStack()
+    for name in ("predict", "predicted_measurement", "update", "_state"):
+        stack.enter_context(mock.patch.object(IMMFilter, name, side_effect=AssertionError(f"per-track {name}")))
+    return stack
+
+
+def _random_weights(rng, T: int, M: int) -> tuple[np.ndarray, np.ndarray]:
+    """W (T, M), w0 (T,): per track a miss (w0 = 1, no weight), a hard association or PDA weights over a few."""
+    W, w0 = np.zeros((T, M)), np.ones(T)
+    for t, kind in enumerate(rng.integers(3, size=T)):
+        if kind == 1:
+            W[t, rng.integers(M)], w0[t] = 1.0, 0.0
+        elif kind == 2:
+            used = rng.random(M) < 0.5
+            used[rng.integers(M)] = True
+            p = rng.dirichlet(np.ones(int(used.sum()) + 1))
+            W[t, used], w0[t] = p[1:], p[0]
+    return W, w0
+
+
+@pytest.mark.parametrize("T", [0, 1, 40])
+@pytest.mark.parametrize("setting", list(IMM_BATCHED))
+def test_the_batched_imm_equals_the_per_track_imm_to_1e_12(setting, T):
+    """predict_many / predicted_measurements / update_many over T tracks and 8 scans (turning and straight
+    CT modes, misses, hard and PDA weights, unused innovations) against the per-track predict /
+    predicted_measurement / update (ModelFilter.update_many's loop), both from the same states each scan:
+    x, P, e_post, mu, the info entries and every field of every mode state equal to 1e-12 (relative, or
+    absolute near 0); a track without a measurement keeps its prediction (the same object)."""
+    from trackers.filters.base import ModelFilter
+
+    imm = make_filter("imm", sigma_v=2.0, sigma_w=0.5, **IMM_BATCHED[setting])
+    rng = np.random.default_rng(17)
+    states = []
+    for t in range(T):
+        s = imm.initial_state(rng.normal(size=4) * [50, 5, 10, 2], np.diag([0.5, 0.5, 25.0, 25.0]))
+        modes = tuple(replace(m, x=np.append(m.x[:4], rng.choice([0.0, 1e-7, 0.3]) * rng.normal()))
+                      if m.x.size == 5 else m for m in s.modes)  # CT modes: straight, nearly and truly turning
+        mu = rng.dirichlet(np.ones(len(modes))) if setting != "unreachable" else [[1.0, 0.0], [0.0, 1.0]][t % 2]
+        states.append(replace(s, modes=modes, mu=np.asarray(mu, dtype=np.float64)))
+    robust = 0
+    for dt in (0.1, 0.1, 0.25, 0.0, 0.1, 0.1, 0.1, 0.1):
+        with _batched_only():
+            batch = imm.predict_many(states, dt)
+        single = [imm.predict(s, dt) for s in states]
+        assert len(batch) == T
+        for a, b in zip(batch, single):
+            _assert_same(a, b)
+        with _batched_only():
+            z_hat, S = imm.predicted_measurements(batch)
+        assert z_hat.shape == (T, 2) and S.shape == (T, 2, 2)
+        for t, s in enumerate(batch):
+            z1, S1 = imm.predicted_measurement(s)
+            np.testing.assert_allclose(z_hat[t], z1, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(S[t], S1, rtol=1e-12, atol=1e-12)
+        M = 5
+        scale = rng.choice([0.5, 3.0], (T, 1, 1))
+        nu = (np.linalg.cholesky(S)[:, None] @ rng.normal(size=(T, M, 2, 1)))[..., 0] * scale  # (T, M, 2)
+        W, w0 = _random_weights(rng, T, M)
+        nu[W == 0.0] = 1e6  # innovations the weights do not use must not matter
+        with _batched_only():
+            a = imm.update_many(batch, nu, W, w0)
+        b = ModelFilter.update_many(imm, batch, nu, W, w0)
+        for t, (u, v) in enumerate(zip(a, b)):
+            _assert_same(u, v)
+            if w0[t] == 1.0:
+                assert u is batch[t]
+            robust += sum(int(k.endswith("regime") and val == 1.0) for k, val in u.info.items())
+        states = a
+    if setting == "gvbl-svsf-robust" and T > 1:
+        assert robust > 0  # the GVBL's robust (SVSF) gain was exercised
+
+
+def test_the_batched_imm_raises_as_the_per_track_imm():
+    """Bad input: the batched forms raise the per-track path's ValueError (same message) for non-finite used
+    innovations or weights, rows not summing to 1, a bad dt; FilterError for a non-finite covariance.
+    A non-finite innovation the weights do not use is ignored by both."""
+    from trackers.filters.base import ModelFilter
+
+    imm = make_filter("imm")
+    preds = imm.predict_many([imm.initial_state(X0 + k, P0) for k in range(3)], 0.1)
+    nu = np.full((3, 2, 2), 0.3)
+    W, w0 = np.array([[0.5, 0.3], [1.0, 0.0], [0.0, 0.0]]), np.array([0.2, 0.0, 1.0])
+    bad = []
+    for what, value in [("nu", (1, 0, 1, np.nan)), ("nu", (0, 1, 0, np.inf)), ("W", (0, 1, np.nan)),
+                        ("W", (0, 1, 0.2)), ("W", (1, 0, 0.0)), ("w0", (2, 0.5)), ("w0", (0, -0.2)),
+                        ("w0", (1, np.nan)), ("W", (2, 0, np.inf))]:
+        arrays = {"nu": nu.copy(), "W": W.copy(), "w0": w0.copy()}
+        arrays[what][value[:-1]] = value[-1]
+        bad.append(arrays)
+    for arrays in bad:
+        with pytest.raises(ValueError) as ref:
+            ModelFilter.update_many(imm, preds, arrays["nu"], arrays["W"], arrays["w0"])
+        with pytest.raises(ValueError) as got:
+            imm.update_many(preds, arrays["nu"], arrays["W"], arrays["w0"])
+        assert str(got.value) == str(ref.value)
+    unused = nu.copy()
+    unused[1, 1] = np.nan  # W[1, 1] = 0
+    for u, v in zip(imm.update_many(preds, unused, W, w0), ModelFilter.update_many(imm, preds, unused, W, w0)):
+        _assert_same(u, v)
+    for dt in (-0.1, np.nan, np.inf):
+        with pytest.raises(ValueError, match="finite dt >= 0"):
+            imm.predict(preds[0], dt)
+        with pytest.raises(ValueError, match="finite dt >= 0"):
+            imm.predict_many(preds, dt)
+    s = preds[0]
+    broken = replace(s, modes=(replace(s.modes[0], P=np.full((4, 4), np.inf)), s.modes[1]))
+    with pytest.raises(FilterError) as ref, np.errstate(invalid="ignore"):
+        imm.predict(broken, 0.1)
+    with pytest.raises(FilterError) as got, np.errstate(invalid="ignore"):
+        imm.predict_many([preds[1], broken], 0.1)
+    assert str(got.value) == str(ref.value)

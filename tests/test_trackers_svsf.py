@@ -7,6 +7,7 @@ with the stated parameters, the test asserts what does happen (the numbers are i
 
 import math
 import os
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -471,7 +472,10 @@ BATCHED = [("svsf", {}), ("svsf", {"psi_v": 2.0}), ("svsf", {"gamma": 0.0, "psi"
            ("gvbl-svsf", {"psi_max": 0.5, "ey_memory": "a_posteriori"}),
            ("svsf", {"artificial_pda": "combined"}), ("svsf", {"memory_after_miss": "reset"}),
            ("gvbl-svsf", {"psi_max": 0.5, "memory_after_miss": "reset", "apda_layer": "psi_max"}),
-           ("gc-svsf", {}), ("ekf", {}), ("kf", {})]  # the last three: the generic (or KF) batched predict
+           ("gc-svsf", {}), ("ekf", {}), ("kf", {}),  # these three: the generic (or KF) batched predict
+           ("ekf", {"motion": "ct"}), ("gvbl-svsf", {"motion": "ct"}),  # CT: per-track Jacobians (f_many, ...)
+           ("gvbl-svsf", {"motion": "ct", "psi_max": 0.5}),
+           ("gvbl-svsf", {"motion": "ct", "memory_after_miss": "reset"})]
 
 
 def _fields(s) -> dict:
@@ -483,18 +487,29 @@ def _fields(s) -> dict:
 @pytest.mark.parametrize("kind, params", BATCHED, ids=[f"{k}-{'-'.join(map(str, p.values())) or 'default'}"
                                                         for k, p in BATCHED])
 def test_the_batched_predict_and_update_equal_the_per_track_ones_to_1e_12(kind, params):
-    """predict_many / update_many over 40 tracks and 10 scans (random gates, weights, misses, first updates
-    without z_prev) against the per-track predict / update (ModelFilter.update_many's loop): every field, the
-    layers and diagnostics included, equal to 1e-12 (relative, or absolute near 0)."""
+    """predict_many / predicted_measurements / update_many over 40 tracks and 10 scans (random gates, weights,
+    misses, first updates without z_prev; CT models turning and straight) against the per-track predict /
+    predicted_measurement / update (ModelFilter.update_many's loop): every field, the layers and diagnostics
+    included, equal to 1e-12 (relative, or absolute near 0)."""
     from trackers.filters.base import ModelFilter
 
     flt = make_filter(kind, sigma_v=2.0, sigma_w=0.5, **params)
     rng = np.random.default_rng(3)
     states = [flt.initial_state(rng.normal(size=4) * [50, 5, 10, 2], np.diag([0.5, 0.5, 25.0, 25.0]))
               for _ in range(40)]
+    if flt.motion.ndim == 5:  # turn rates 0, below the small-omega switch (1e-6 rad/s) and turning
+        states = [replace(s, x=np.append(s.x[:4], rng.choice([0.0, 5e-7, 0.3]) * rng.normal())) for s in states]
     robust = 0
     for _ in range(10):
         batch, single = flt.predict_many(states, 0.1), [flt.predict(s, 0.1) for s in states]
+        for u, v in zip(batch, single):
+            for k in ("x", "P", "F"):
+                np.testing.assert_allclose(getattr(u, k), getattr(v, k), rtol=1e-12, atol=1e-12, err_msg=k)
+        z_hat, S = flt.predicted_measurements(batch)
+        for t, s in enumerate(batch):
+            z1, S1 = flt.predicted_measurement(s)
+            np.testing.assert_allclose(z_hat[t], z1, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(S[t], S1, rtol=1e-12, atol=1e-12)
         T, M = len(batch), 6
         nu = rng.normal(size=(T, M, 2)) * rng.choice([0.3, 3.0], size=(T, 1, 1))
         W = rng.random((T, M)) * (rng.random((T, M)) < 0.4)

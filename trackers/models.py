@@ -3,7 +3,9 @@
 A motion model gives its state size `ndim`, which entries are position and velocity (`position`,
 `velocity`, index tuples, positions first), the transition `f(x, dt)`, its Jacobian `jacobian(x, dt)`
 (n, n) and the process noise `process_noise(dt)` (n, n). `embed(x, P)` lifts a kinematic Gaussian
-[p; v] (2d,) into the model's state (e.g. a turn rate appended with its prior variance).
+[p; v] (2d,) into the model's state (e.g. a turn rate appended with its prior variance), `embed_many`
+the same for T of them at once ((T, 2d), (T, 2d, 2d)). A nonlinear model may offer `f_many(X, dt)` and
+`jacobian_many(X, dt)` for T states X (T, n) at once (the CT model does); its process noise must then not depend on x.
 
 A measurement model gives `ndim` (m), `h(x, motion)`, `jacobian(x, motion)` (m, n), the noise `R` (m, m),
 `residual(z, z_hat)` (angle wrapping for bearings) and `position_of(z)`: the position and its
@@ -96,6 +98,10 @@ class ConstantVelocity:
         """Kinematic [p; v] (2d,) and (2d, 2d) -> model state: the identity for NCV."""
         return np.asarray(x, dtype=np.float64), np.asarray(P, dtype=np.float64)
 
+    def embed_many(self, X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`embed` of T kinematic Gaussians at once: X (T, 2d), P (T, 2d, 2d) -> the same (the identity)."""
+        return np.asarray(X, dtype=np.float64), np.asarray(P, dtype=np.float64)
+
 
 SERIES_BELOW = 0.5
 """|omega dt| below which `CoordinatedTurn` evaluates its turn terms by Taylor series. The closed forms lose about
@@ -186,8 +192,25 @@ class CoordinatedTurn:
         F[:, 4] = [vx * a - vy * b, vx * b + vy * a, -dt * (sw * vx + cw * vy), dt * (cw * vx - sw * vy), 1.0]
         return F
 
+    # ---- batched forms: X (T, 5) -> (T, 5) and (T, 5, 5), built from the per-track ones entry by entry, so A and F
+    # are bit-identical to them (the closed forms and their small-|w dt| series switch per track; numpy's
+    # vectorised sin / cos need not round as libm's do, and an ulp in cos(w dt) is amplified near the switch).
+    def transition_many(self, dt: float, omega: np.ndarray) -> np.ndarray:
+        """A_CT(omega_t) of T turn rates omega (T,): (T, 5, 5)."""
+        w = np.asarray(omega, dtype=np.float64).reshape(-1)
+        return np.array([self.transition(dt, float(v)) for v in w], dtype=np.float64).reshape(-1, 5, 5)
+
+    def f_many(self, X: np.ndarray, dt: float) -> np.ndarray:
+        """`f` of T states X (T, 5): (T, 5)."""
+        return np.einsum("tij,tj->ti", self.transition_many(dt, X[:, 4]), X)  # §1.3 f(x) = A_CT(omega) x
+
+    def jacobian_many(self, X: np.ndarray, dt: float) -> np.ndarray:
+        """`jacobian` of T states X (T, 5): (T, 5, 5)."""
+        return np.array([self.jacobian(x, dt) for x in np.asarray(X, dtype=np.float64)],
+                        dtype=np.float64).reshape(-1, 5, 5)
+
     def process_noise(self, dt: float, x: np.ndarray | None = None) -> np.ndarray:
-        """Q = B diag(sigma_v^2, sigma_v^2, sigma_omega^2) B^T (5, 5) (§1.3 [R/D])."""
+        """Q = B diag(sigma_v^2, sigma_v^2, sigma_omega^2) B^T (5, 5) (§1.3 [R/D]); the same for every x."""
         B = np.zeros((5, 3))
         B[0, 0] = B[1, 1] = 0.5 * dt * dt
         B[2, 0] = B[3, 1] = B[4, 2] = dt
@@ -201,6 +224,15 @@ class CoordinatedTurn:
         P5[:4, :4] = P
         P5[4, 4] = self.omega_std0 ** 2
         return x5, P5
+
+    def embed_many(self, X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`embed` of T kinematic Gaussians at once: X (T, 4), P (T, 4, 4) -> (T, 5), (T, 5, 5)."""
+        X5 = np.zeros((len(X), 5))
+        X5[:, :4] = X
+        P5 = np.zeros((len(X), 5, 5))
+        P5[:, :4, :4] = P
+        P5[:, 4, 4] = self.omega_std0 ** 2  # thesis §5 IMM [D]: omega = 0 with variance omega_std0^2
+        return X5, P5
 
 
 MOTION_MODELS = {"cv": ConstantVelocity, "ct": CoordinatedTurn}

@@ -91,12 +91,17 @@ class ModelFilter:
 
     # Batched forms used by the tracker; a filter may override them with vectorised code (the KF does).
     def predict_many(self, states: list[FilterState], dt: float) -> list[FilterState]:
-        """`predict` of T tracks at once: vectorised for a linear motion model, else the per-track loop."""
+        """`predict` of T tracks at once: vectorised for a linear motion model or one with `f_many` and
+        `jacobian_many` (the CT model), else the per-track loop."""
         dt = float(dt)
         if not math.isfinite(dt) or dt < 0:
             raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
-        if not states or not self.motion.linear or type(self).predict is not ModelFilter.predict:
+        if not states or type(self).predict is not ModelFilter.predict:
             return [self.predict(s, dt) for s in states]  # a subclass's own predict is its reference
+        if not self.motion.linear:
+            if not (hasattr(self.motion, "f_many") and hasattr(self.motion, "jacobian_many")):
+                return [self.predict(s, dt) for s in states]
+            return self.nonlinear_predict_many(states, dt)
         A, Q = self.motion.transition(dt), self.motion.process_noise(dt)
         X = np.array([s.x for s in states]) @ A.T  # (4.24) x = A x
         P = A @ np.array([s.P for s in states]) @ A.T + Q  # (4.26) P = A P A^T + Q
@@ -104,12 +109,33 @@ class ModelFilter:
         check_covariance(P, "predicted covariance P")
         return [derive(s, x=X[t], P=P[t], F=A, info={}) for t, s in enumerate(states)]
 
+    def nonlinear_predict_many(self, states: list[FilterState], dt: float) -> list[FilterState]:
+        """`predict` of T tracks with the motion model's `f_many` / `jacobian_many`: x = f(x), P = F P F^T + Q."""
+        X = np.array([s.x for s in states])
+        F = self.motion.jacobian_many(X, dt)  # (T, n, n), the EKF (1.11) Jacobians
+        Xn = self.motion.f_many(X, dt)  # (4.24) predict, EKF (1.11) for a nonlinear f
+        P = F @ np.array([s.P for s in states]) @ np.swapaxes(F, 1, 2) + self.motion.process_noise(dt)  # (4.26)
+        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+        check_covariance(P, "predicted covariance P")
+        return [derive(s, x=Xn[t], P=P[t], F=F[t], info={}) for t, s in enumerate(states)]
+
     def predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
-        """z_hat (T, m) and S (T, m, m) of T predicted states."""
+        """z_hat (T, m) and S (T, m, m) of T predicted states: vectorised for a linear measurement model, else
+        (or for a subclass with its own predicted_measurement or measurement_jacobian) the per-track loop."""
+        own = (type(self).predicted_measurement is not ModelFilter.predicted_measurement
+               or type(self).measurement_jacobian is not ModelFilter.measurement_jacobian)
+        if preds and self.measurement.linear and not own:
+            return self.linear_predicted_measurements(preds)
         m = self.measurement.ndim
         zs = [self.predicted_measurement(s) for s in preds]
         return (np.array([z for z, _ in zs], dtype=np.float64).reshape(len(preds), m),
                 np.array([S for _, S in zs], dtype=np.float64).reshape(len(preds), m, m))
+
+    def linear_predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
+        """z_hat = H x (T, m), S = H P H^T + R (T, m, m) of T >= 1 predicted states (H: the linear measurement's)."""
+        H = self.measurement.matrix(self.motion)
+        S = H @ np.array([s.P for s in preds]) @ H.T + self.measurement.R  # (4.3)-(4.8) innovation covariance S
+        return np.array([s.x for s in preds]) @ H.T, 0.5 * (S + np.swapaxes(S, 1, 2))
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
                     w0: np.ndarray) -> list[FilterState]:

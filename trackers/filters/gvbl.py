@@ -186,22 +186,21 @@ class GVBLSVSF(ModelFilter):
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
                     w0: np.ndarray) -> list[FilterState]:
         """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,) (the per-track update is the reference,
-        tests/test_trackers_svsf.py checks them equal to 1e-12). A linear measurement and one transition
-        Jacobian for all tracks (the tracker predicts them together), else the per-track loop."""
+        tests/test_trackers_svsf.py checks them equal to 1e-12). A linear measurement, else the per-track loop;
+        the partition maps of one transition Jacobian shared by every track (NCV) are computed once, those of
+        per-track Jacobians (CT) per track."""
         out = [after_miss(s, self.memory_after_miss) for s in preds]  # the active tracks are replaced below
         T = len(preds)
         active = np.flatnonzero((w0 < 1.0) & (W > 0.0).any(axis=1)) if T else np.zeros(0, dtype=np.int64)
         if active.size == 0:
             return out
         ss = [promote_state(GVBLState, preds[t]) for t in active]
-        F = ss[0].F
-        if (not self.measurement.linear or F is None
-                or any(s.F is not F and not np.array_equal(s.F, F) for s in ss)):
+        if not self.measurement.linear or any(s.F is None for s in ss):
             return ModelFilter.update_many(self, preds, nu, W, w0)
         nua, Wa, b0 = batch_weights(nu, W, w0, active)  # (A, M, m), (A, M), (A,)
         H, R = self.measurement.matrix(self.motion), self.measurement.R
         part = Partition.of(H)
-        Mm, Phi12_pinv = part.maps(F)
+        Mm, Phi12_pinv, M_pinv = _maps_many(part, [s.F for s in ss])
         X = np.array([s.x for s in ss])
         P = np.array([s.P for s in ss])
         e_post = np.array([s.e_post for s in ss])
@@ -213,11 +212,11 @@ class GVBLSVSF(ModelFilter):
             raise FilterError("innovation covariance S is not positive definite") from None
         e = np.einsum("aj,ajm->am", Wa, nua)  # (2.27)/(4.28) e_{z,k|k-1} := combined innovation
         E_z = np.abs(e) + self.gamma * np.abs(e_post)  # (4.30)
-        e_y = e @ Mm.T  # (3.37)
+        e_y = _apply(Mm, e)  # (3.37)
         mem = e if self.ey_memory == "a_priori" else e_post
-        E_y = np.abs(e_y) + self.gamma_y * np.abs(mem @ Phi12_pinv.T)  # (4.34) E_y
+        E_y = np.abs(e_y) + self.gamma_y * np.abs(_apply(Phi12_pinv, mem))  # (4.34) E_y
         u, l, H1 = part.u, part.l, part.H1
-        psi_z, psi_y = _optimal_layer_diagonals(P, S, part, Mm, E_z, E_y)
+        psi_z, psi_y = _optimal_layer_diagonals(P, S, part, M_pinv, E_z, E_y)
         trip_z, trip_y = np.any(psi_z > self.psi_max, axis=1), np.any(psi_y > self.psi_max, axis=1)  # §4.5.1 step 2
         robust_u = trip_z | (trip_y if self.switch == "all_any" else False)
         robust_l = trip_y if self.switch == "per_partition" else robust_u
@@ -228,7 +227,7 @@ class GVBLSVSF(ModelFilter):
             K[np.ix_(robust_u, u)] = K_u[robust_u]
         if self.robust_lower == "psi_max" and robust_l.any():
             g_y = svsf_gain_factor(E_y, e_y, np.full(e_y.shape, self.psi_max))
-            K[np.ix_(robust_l, l)] = (g_y[:, :, None] * Mm[None])[robust_l]  # (4.40)
+            K[np.ix_(robust_l, l)] = (g_y[:, :, None] * (Mm[None] if Mm.ndim == 2 else Mm))[robust_l]  # (4.40)
         KHP = K @ H @ P
         P_star = P - KHP - np.swapaxes(KHP, 1, 2) + K @ S @ np.swapaxes(K, 1, 2)  # (4.37)
         P_star = 0.5 * (P_star + np.swapaxes(P_star, 1, 2))
@@ -249,14 +248,35 @@ class GVBLSVSF(ModelFilter):
         return out
 
 
-def _optimal_layer_diagonals(P: np.ndarray, S: np.ndarray, part: Partition, M: np.ndarray, E_z: np.ndarray,
+def _maps_many(part: Partition, Fs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`Partition.maps` of A transition Jacobians Fs (n, n) and the pseudo-inverse of the first map:
+    (M = Phi22 Phi12^+, Phi12^+, M^+), each 2-D ((n-m, m), (n-m, m), (m, n-m)) when one F is shared by every
+    track (NCV: mapped once), else stacked per track ((A, n-m, m), (A, n-m, m), (A, m, n-m); CT)."""
+    F0 = Fs[0]
+    if all(F is F0 or np.array_equal(F, F0) for F in Fs):
+        M, Phi12_pinv = part.maps(F0)
+        return M, Phi12_pinv, np.linalg.pinv(M)
+    F = np.array(Fs)
+    Phi12 = part.H1 @ F[:, part.u][:, :, part.l]  # (4.31)-(4.32) partition, T = blockdiag(H1, I)
+    Phi22 = F[:, part.l][:, :, part.l]
+    Phi12_pinv = np.linalg.pinv(Phi12)  # §2.3.5 [D]: Phi12^+ (Phi12^-1 for NCV)
+    M = Phi22 @ Phi12_pinv
+    return M, Phi12_pinv, np.linalg.pinv(M)
+
+
+def _apply(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """M v of each row of v (A, k): M (j, k) shared by every track or (A, j, k) per track -> (A, j)."""
+    return v @ M.T if M.ndim == 2 else np.einsum("ajk,ak->aj", M, v)
+
+
+def _optimal_layer_diagonals(P: np.ndarray, S: np.ndarray, part: Partition, M_pinv: np.ndarray, E_z: np.ndarray,
                              E_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """|diag Psi_z| (A, m) and |diag Psi_y| (A, n-m) of `optimal_layers` for A tracks at once: P (A, n, n),
-    S (A, m, m), E_z (A, m), E_y (A, n-m)."""
+    S (A, m, m), M_pinv = (Phi22 Phi12^+)^+ (m, n-m) shared or (A, m, n-m) per track, E_z (A, m), E_y (A, n-m)."""
     u, l, H1 = part.u, part.l, part.H1
     A_ = H1 @ P[:, u][:, :, u] @ H1.T
     Psi_z = S @ np.linalg.solve(A_, _diag(E_z))  # (4.61) Psi_z = (E_z^-1 H1 P11 H1^T S^-1)^-1
-    M_pinv = np.broadcast_to(np.linalg.pinv(M), (len(P),) + M.T.shape)
+    M_pinv = np.broadcast_to(M_pinv, (len(P),) + M_pinv.shape[-2:])
     X = P[:, l][:, :, u] @ H1.T @ np.linalg.solve(S, M_pinv)  # P21 H1^T S^-1 (Phi22 Phi12^-1)^-1
     Psi_y = np.linalg.pinv(X) @ _diag(E_y)  # (4.68), pseudo-inverse [D]
     return np.abs(np.diagonal(Psi_z, axis1=1, axis2=2)), np.abs(np.diagonal(Psi_y, axis1=1, axis2=2))

@@ -37,21 +37,29 @@ Parameters (IMMParams): `modes` are filter tables built with `build_filter` (err
 key and does not set it; `transition` and `mu0` default to 0.95 on the diagonal and [0.9, 0.1] [D] (the thesis gives no values).
 Diagnostics (`FilterState.info`, logged by the tracker): "mu" (r,) in the order of `IMMFilter.mode_names`,
 and each mode's own info as "<mode name>.<key>" (e.g. "ct.psi_z").
+
+Batched forms (what the tracker calls, through filters.base.batch_*): `predict_many`, `predicted_measurements`
+and `update_many` run the same cycle over T tracks at once, the mixing, moment matching, mode likelihoods and
+mode probabilities vectorised over tracks and each mode's predict / update by that mode filter's own batched
+form. The per-track `predict` / `predicted_measurement` / `update` are their reference (equal to 1e-12,
+tests/test_trackers_imm.py).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from trackers.filters.base import check_covariance, check_weights, symmetrise
+from trackers.filters.base import (ModelFilter, batch_predict, batch_predicted_measurements, batch_update,
+                                   check_covariance, check_weights, symmetrise)
 from trackers.gating import log_gaussian
 from trackers.models import MOTION_MODELS
 from trackers.params import NON_NEGATIVE, POSITIVE, ParamError, param
-from trackers.state import FilterState
+from trackers.state import FilterState, derive
 
 
 # --------------------------------------------------------------------------------------------- state
@@ -108,6 +116,40 @@ def moments(xs: np.ndarray, Ps: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, 
     d = xs - x
     P = np.einsum("j,jab->ab", w, Ps) + (d.T * w) @ d  # (2.102) / (1.18) mean covariance + spread of means
     return x, symmetrise(P)
+
+
+def layout_many(X: np.ndarray, P: np.ndarray, motion) -> tuple[np.ndarray, np.ndarray]:
+    """`to_layout` of T mode estimates at once: X (T, k), P (T, k, k) -> (T, n), (T, n, n) in `motion`'s layout
+    (the model's `embed_many` pads, or its `embed` per track for a model without one)."""
+    n, k = motion.ndim, X.shape[1]
+    if k >= n:
+        return X[:, :n], P[:, :n, :n]  # [D]: drop omega when mixing into NCV
+    kin = 2 * motion.dims
+    many = getattr(motion, "embed_many", None)
+    if many is not None:
+        Xn, Pn = many(X[:, :kin], P[:, :kin, :kin])  # [D]: pad omega = 0, var omega_std0^2
+    else:
+        pairs = [motion.embed(x[:kin], p[:kin, :kin]) for x, p in zip(X, P)]
+        Xn, Pn = [a for a, _ in pairs], [b for _, b in pairs]
+    Xn = np.array(Xn, dtype=np.float64).reshape(len(X), n)
+    Pn = np.array(Pn, dtype=np.float64).reshape(len(X), n, n)
+    Xn[:, :k], Pn[:, :k, :k] = X, P
+    return Xn, Pn
+
+
+def moments_many(xs: np.ndarray, Ps: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`moments` of T mixtures at once: xs (T, r, n), Ps (T, r, n, n), weights w (T, r) (rows summing to 1)
+    -> x (T, n), P (T, n, n) symmetric."""
+    x = np.einsum("tj,tjn->tn", w, xs)
+    d = xs - x[:, None, :]
+    P = np.einsum("tj,tjab->tab", w, Ps) + np.swapaxes(d * w[:, :, None], 1, 2) @ d  # (2.102) / (1.18)
+    return x, 0.5 * (P + np.swapaxes(P, 1, 2))
+
+
+def stacked(states: list[FilterState]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """x (T, n), P (T, n, n), e_post (T, m) of T states of one layout."""
+    return (np.array([s.x for s in states]), np.array([s.P for s in states]),
+            np.array([s.e_post for s in states]))
 
 
 # -------------------------------------------------------------------------------------------- filter
@@ -230,7 +272,147 @@ class IMMFilter:
             return None
         return s_pred.mu @ np.array(layers, dtype=np.float64)
 
+    # -------------------------------------------------------------------- batched forms
+    # The same cycle over T tracks at once (used by the tracker through filters.base.batch_*): the mixing,
+    # moment matching, mode likelihoods and mode probabilities vectorised over tracks, each mode's predict
+    # and update by its filter's own batched form. The per-track methods above are the reference:
+    # tests/test_trackers_imm.py checks every field equal to 1e-12.
+    def predict_many(self, states: list[IMMState], dt: float) -> list[IMMState]:
+        """`predict` of T tracks: T IMMStates -> T IMMStates; ValueError for dt < 0 or non-finite (also at T = 0)."""
+        dt = float(dt)
+        if not math.isfinite(dt) or dt < 0:
+            raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
+        if not states:
+            return []
+        if not self._stackable(states):
+            return [self.predict(s, dt) for s in states]  # unusual states: the per-track reference
+        mu = np.array([s.mu for s in states])  # (T, r)
+        with np.errstate(divide="ignore"):
+            log_w = np.log(self.transition)[None] + np.log(mu)[:, :, None]  # (T, r_j, r_i): log p_ji mu_j
+        log_c = logsumexp(log_w, axis=1)  # (2.101) c_i = sum_j p_ji mu_j, (T, r)
+        mixed = self._mix_many(states, log_w, log_c)
+        modes = [batch_predict(f, ms, dt) for f, ms in zip(self.filters, mixed)]
+        return self._states_many(states, modes, np.exp(log_c - logsumexp(log_c, axis=1)[:, None]))
+
+    def mode_measurements_many(self, preds: list[IMMState]) -> tuple[np.ndarray, np.ndarray]:
+        """`mode_measurements` of T predicted states: z (T, r, m), S (T, r, m, m), each mode by its filter's
+        batched `predicted_measurements`."""
+        zS = [batch_predicted_measurements(f, [s.modes[i] for s in preds]) for i, f in enumerate(self.filters)]
+        return np.stack([z for z, _ in zS], axis=1), np.stack([S for _, S in zS], axis=1)
+
+    def predicted_measurements(self, preds: list[IMMState]) -> tuple[np.ndarray, np.ndarray]:
+        """`predicted_measurement` of T predicted states: z_c (T, m), S_c (T, m, m)."""
+        m = self.measurement.ndim
+        if not preds:
+            return np.zeros((0, m)), np.zeros((0, m, m))
+        zs, Ss = self.mode_measurements_many(preds)
+        return self._combine_many(zs, Ss, np.array([s.mu for s in preds]))
+
+    def update_many(self, preds: list[IMMState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray) -> list[IMMState]:
+        """`update` of T tracks: nu (T, M, m) innovations relative to each track's z_c, W (T, M) weights (0 = not
+        used), w0 (T,) miss weights. A track with no weight > 0 or w0 = 1 keeps its prediction (the same object).
+        Bad input (non-finite used innovations or weights, rows not summing to 1) goes to the per-track loop,
+        which raises the reference's ValueError."""
+        T, m = len(preds), self.measurement.ndim
+        W, w0 = np.asarray(W, dtype=np.float64), np.asarray(w0, dtype=np.float64)
+        nu = np.asarray(nu, dtype=np.float64)
+        if nu.shape[:1] + nu.shape[2:] != (T, m) or W.shape != nu.shape[:2] or w0.shape != (T,) \
+                or not self._stackable(preds):
+            return ModelFilter.update_many(self, preds, nu, W, w0)
+        use = W > 0.0
+        nu_u, W_u = np.where(use[..., None], nu, 0.0), np.where(use, W, 0.0)  # what each per-track update is given
+        ok = (np.isfinite(nu_u).all(axis=(1, 2)) & np.isfinite(W_u).all(axis=1) & np.isfinite(w0) & (w0 >= 0.0)
+              & (w0 <= 1.0) & (np.abs(w0 + W_u.sum(axis=1) - 1.0) <= 1e-9))
+        if not ok.all():
+            return ModelFilter.update_many(self, preds, nu, W, w0)  # raises as the per-track check_weights
+        active = np.flatnonzero((w0 < 1.0) & use.any(axis=1))
+        out = list(preds)
+        if active.size == 0:
+            return out  # every Lambda_i equal: mu stays c, the modes keep their predictions
+        ps = [preds[t] for t in active]
+        nua, Wa, b0 = nu_u[active], W_u[active], w0[active]
+        zs, Ss = self.mode_measurements_many(ps)  # (A, r, m), (A, r, m, m)
+        mu_c = np.array([s.mu for s in ps])
+        z_c, S_c = self._combine_many(zs, Ss, mu_c)
+        meas = self.measurement
+        nus = meas.residual(nua[:, None] + meas.residual(z_c[:, None], zs)[:, :, None], np.zeros(m))  # z_j - z_i
+        mu = self._mode_probabilities_many(nus, Ss, nua, S_c, Wa, b0, mu_c)
+        modes = [batch_update(f, [s.modes[i] for s in ps], nus[:, i], Wa, b0) for i, f in enumerate(self.filters)]
+        for t, s in zip(active, self._states_many(ps, modes, mu)):
+            out[t] = s
+        return out
+
     # -------------------------------------------------------------------- internals
+    def _stackable(self, states: list[FilterState]) -> bool:
+        """True if T states can be stacked: IMMStates of r modes, mode i of one size in every track, one memory
+        size (else the batched forms use the per-track reference)."""
+        r = len(self.filters)
+        if not all(isinstance(s, IMMState) and len(s.modes) == r for s in states):
+            return False
+        sizes = {tuple(m.x.size for m in s.modes) for s in states}
+        return len(sizes) <= 1 and len({m.e_post.shape for s in states for m in s.modes}) <= 1
+
+    def _mix_many(self, states: list[IMMState], log_w: np.ndarray, log_c: np.ndarray) -> list[list[FilterState]]:
+        """Mixed initial conditions (2.101)-(2.102) of T tracks: per mode i the T mixed mode-i states (a mode
+        unreachable this scan keeps its own state). log_w (T, r, r) = log p_ji mu_j, log_c (T, r) = log c_i."""
+        r = len(self.filters)
+        X, P, E = zip(*(stacked([s.modes[j] for s in states]) for j in range(r)))
+        E = np.stack(E, axis=1)  # (T, r, m) mode memories
+        out = []
+        for i, f in enumerate(self.filters):
+            reach = np.isfinite(log_c[:, i])  # mode unreachable this scan: nothing to mix into it
+            w = np.exp(log_w[:, :, i] - np.where(reach, log_c[:, i], 0.0)[:, None])  # (2.101) mu_{j|i}
+            w = np.where(reach[:, None], w, 0.0)
+            xs, Ps = zip(*(layout_many(X[j], P[j], f.motion) for j in range(r)))
+            x0, P0 = moments_many(np.stack(xs, axis=1), np.stack(Ps, axis=1), w)  # (2.102) mixed initial condition
+            e0 = np.einsum("tj,tjm->tm", w, E)  # §5 [D] mixed memories
+            out.append([derive(s.modes[i], x=x0[t], P=P0[t], e_post=e0[t]) if reach[t] else s.modes[i]
+                        for t, s in enumerate(states)])
+        return out
+
+    def _combine_many(self, zs: np.ndarray, Ss: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`_combine_measurements` of T tracks: zs (T, r, m), Ss (T, r, m, m), w (T, r) -> (T, m), (T, m, m)."""
+        meas = self.measurement
+        z0 = zs[:, 0]
+        z_c = z0 + np.einsum("ti,tim->tm", w, meas.residual(zs, z0[:, None, :]))  # moment matching; wraps bearings
+        d = meas.residual(zs, z_c[:, None, :])
+        S_c = np.einsum("ti,tiab->tab", w, Ss) + np.swapaxes(d * w[:, :, None], 1, 2) @ d  # (1.18)-form spread
+        return z_c, 0.5 * (S_c + np.swapaxes(S_c, 1, 2))
+
+    def _mode_probabilities_many(self, nus: np.ndarray, Ss: np.ndarray, nu: np.ndarray, S_c: np.ndarray,
+                                 W: np.ndarray, w0: np.ndarray, mu: np.ndarray) -> np.ndarray:
+        """Updated mode probabilities (A, r) of A updated tracks: nus (A, r, M, m) = z_j - z_i, Ss (A, r, m, m),
+        nu (A, M, m) = z_j - z_c, S_c (A, m, m), weights W (A, M) (0 = not used) and w0 (A,), predicted mu (A, r)."""
+        A, r, M, m = nus.shape
+        log_ni = log_gaussian(nus.reshape(A * r, M, m), Ss.reshape(A * r, m, m)).reshape(A, r, M)  # log N_i(z_j)
+        log_nc = log_gaussian(nu, S_c)  # (A, M): log N_c(z_j), the density association used
+        a = np.concatenate([np.zeros((A, r, 1)), log_ni - log_nc[:, None, :]], axis=2)
+        b = np.concatenate([w0[:, None], W], axis=1)[:, None, :]
+        log_lam = logsumexp(a, axis=2, b=b)  # (2.103) up to the mode-independent factor lambda D
+        with np.errstate(divide="ignore"):
+            log_post = log_lam + np.log(mu)
+        return np.exp(log_post - logsumexp(log_post, axis=1)[:, None])  # (2.104) mu_i = Lambda_i c_i / sum_l
+
+    def _states_many(self, like: list[IMMState], modes: list[list[FilterState]], mu: np.ndarray) -> list[IMMState]:
+        """`_state` of T tracks: modes[i][t] the mode-i state of track t, mu (T, r); the combined output
+        (1.17)-(1.18) vectorised; `like` (T IMMStates) gives each new state's type."""
+        mts = list(zip(*modes))  # T tuples of r mode states
+        if len({m.e_post.shape for mt in mts for m in mt}) > 1:
+            return [self._state(mt, mu[t]) for t, mt in enumerate(mts)]
+        xs, Ps, Es = zip(*(stacked(ms) for ms in modes))
+        xs, Ps = zip(*(layout_many(x, P, self.motion) for x, P in zip(xs, Ps)))
+        x, P = moments_many(np.stack(xs, axis=1), np.stack(Ps, axis=1), mu)  # (1.17)-(1.18) output combination
+        check_covariance(P, "IMM combined covariance P")
+        e = np.einsum("tj,tjm->tm", mu, np.stack(Es, axis=1))
+        out = []
+        for t, (s, mt) in enumerate(zip(like, mts)):
+            info: dict[str, Any] = {"mu": np.array(mu[t], dtype=np.float64)}
+            for name, m in zip(self.mode_names, mt):
+                for key, v in m.info.items():
+                    info[f"{name}.{key}"] = v
+            out.append(derive(s, x=x[t], P=P[t], e_post=e[t], F=None, info=info, modes=mt, mu=mu[t]))
+        return out
+
     def _combine_measurements(self, zs: np.ndarray, Ss: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         meas = self.measurement
         z_c = zs[0] + w @ meas.residual(zs, zs[0][None, :])  # moment matching; residual wraps bearings

@@ -13,8 +13,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from trackers.errors import FilterError
-from trackers.filters.base import (ModelFilter, check_covariance, check_weights, cholesky, combined_innovation,
-                                   pda_covariance, symmetrise)
+from trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
+                                   combined_innovation, pda_covariance, symmetrise)
 from trackers.state import FilterState, derive
 
 
@@ -87,37 +87,45 @@ class KalmanFilter(ModelFilter):
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
                     w0: np.ndarray) -> list[FilterState]:
         """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,). A track with w0 = 1 keeps its prediction."""
-        T = len(preds)
-        active = np.flatnonzero((w0 < 1.0) & (W.sum(axis=1) > 0.0)) if T else np.zeros(0, dtype=np.int64)
-        out = list(preds)
-        if active.size == 0:
-            return out
-        if not (np.isfinite(nu[active]).all() and np.isfinite(W[active]).all() and np.isfinite(w0[active]).all()):
-            raise ValueError("update got non-finite innovations or weights")
-        H, R = self.measurement.matrix(self.motion), self.measurement.R
-        X = np.array([preds[t].x for t in active])
-        P = np.array([preds[t].P for t in active])
-        Wa, nua, b0 = W[active], nu[active], w0[active]
-        S = H @ P @ H.T + R
-        S = 0.5 * (S + np.swapaxes(S, 1, 2))
-        try:
-            np.linalg.cholesky(S)
-        except np.linalg.LinAlgError:
-            raise FilterError("innovation covariance S is not positive definite") from None
-        K = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)  # (4.3)-(4.8) KF gain K = P H^T S^-1, (a, n, m)
-        nu_c = np.einsum("aj,ajm->am", Wa, nua)  # (4.15) combined innovation
-        Xn = X + np.einsum("anm,am->an", K, nu_c)  # §4.2 PDA state update
-        I_KH = np.eye(X.shape[1]) - K @ H
-        P_star = I_KH @ P @ np.swapaxes(I_KH, 1, 2) + K @ R @ np.swapaxes(K, 1, 2)  # (4.8) Joseph form
-        spread = np.einsum("aj,aji,ajk->aik", Wa, nua, nua) - np.einsum("ai,ak->aik", nu_c, nu_c)
-        Pn = b0[:, None, None] * P + (1.0 - b0)[:, None, None] * P_star + K @ spread @ np.swapaxes(K, 1, 2)  # (4.16)-(4.17)
-        Pn = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
-        if not (np.isfinite(Xn).all() and np.isfinite(Pn).all()):
-            raise FilterError("updated state is not finite")
-        e_post = nu_c - np.einsum("im,am->ai", H, np.einsum("anm,am->an", K, nu_c))  # (3.65)
-        for i, t in enumerate(active):
-            out[t] = derive(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
+        return gain_update_many(preds, nu, W, w0, self.measurement.matrix(self.motion), self.measurement.R)
+
+
+def gain_update_many(preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray, H: np.ndarray,
+                     R: np.ndarray, effective_R: bool = False) -> list[FilterState]:
+    """KF-gain PDA updates of T tracks (`gain_update` with K = P H^T S^-1): nu (T, M, m), W (T, M), w0 (T,), the
+    linear measurement's H (m, n) and R (m, m). effective_R: the Joseph form with R_eff = S - H P H^T, as the
+    per-track EKF update computes it. A track with w0 = 1 or no weight keeps its prediction; ValueError as the
+    per-track check (`batch_weights`)."""
+    T = len(preds)
+    active = np.flatnonzero((w0 < 1.0) & (W > 0.0).any(axis=1)) if T else np.zeros(0, dtype=np.int64)
+    out = list(preds)
+    if active.size == 0:
         return out
+    nua, Wa, b0 = batch_weights(nu, W, w0, active)  # (A, M, m), (A, M), (A,)
+    X = np.array([preds[t].x for t in active])
+    P = np.array([preds[t].P for t in active])
+    HPH = H @ P @ H.T
+    S = HPH + R
+    S = 0.5 * (S + np.swapaxes(S, 1, 2))
+    try:
+        np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        raise FilterError("innovation covariance S is not positive definite") from None
+    R_j = S - HPH if effective_R else R  # (1.11): R plus the EKF's second-order terms (here none)
+    K = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)  # (4.3)-(4.8) KF gain K = P H^T S^-1, (a, n, m)
+    nu_c = np.einsum("aj,ajm->am", Wa, nua)  # (4.15) combined innovation
+    Xn = X + np.einsum("anm,am->an", K, nu_c)  # §4.2 PDA state update
+    I_KH = np.eye(X.shape[1]) - K @ H
+    P_star = I_KH @ P @ np.swapaxes(I_KH, 1, 2) + K @ R_j @ np.swapaxes(K, 1, 2)  # (4.8) Joseph form
+    spread = np.einsum("aj,aji,ajk->aik", Wa, nua, nua) - np.einsum("ai,ak->aik", nu_c, nu_c)
+    Pn = b0[:, None, None] * P + (1.0 - b0)[:, None, None] * P_star + K @ spread @ np.swapaxes(K, 1, 2)  # (4.16)-(4.17)
+    Pn = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
+    if not (np.isfinite(Xn).all() and np.isfinite(Pn).all()):
+        raise FilterError("updated state is not finite")
+    e_post = nu_c - np.einsum("im,am->ai", H, np.einsum("anm,am->an", K, nu_c))  # (3.65)
+    for i, t in enumerate(active):
+        out[t] = derive(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
+    return out
 
 
 @dataclass(frozen=True)
@@ -161,3 +169,19 @@ class ExtendedKalmanFilter(ModelFilter):
         K = np.linalg.solve(S, H @ s_pred.P).T  # (1.11) EKF gain with the Jacobian H
         R_eff = S - H @ s_pred.P @ H.T  # R plus the second-order terms: keeps the Joseph form consistent
         return gain_update(s_pred, H, R_eff, S, K, nu, beta, beta0)
+
+    # ---- batched forms (the per-track ones above are their reference, tests/test_trackers_svsf.py)
+    def predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
+        """z_hat (T, m), S (T, m, m): vectorised for the first-order EKF of a linear measurement (H x, H P H^T + R)."""
+        if self.second_order or not self.measurement.linear or not preds:
+            return super().predicted_measurements(preds)
+        return self.linear_predicted_measurements(preds)
+
+    def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
+                    w0: np.ndarray) -> list[FilterState]:
+        """`update` of T tracks at once for the first-order EKF of a linear measurement (the KF gain update with
+        R_eff = S - H P H^T), else the per-track loop: nu (T, M, m), W (T, M), w0 (T,)."""
+        if self.second_order or not self.measurement.linear:
+            return super().update_many(preds, nu, W, w0)
+        return gain_update_many(preds, nu, W, w0, self.measurement.matrix(self.motion), self.measurement.R,
+                                effective_R=True)
