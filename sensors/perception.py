@@ -64,7 +64,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from sensors import checks, perception_jit
 from sensors.boxfit import (
@@ -80,6 +79,7 @@ from sensors.boxfit import (
 from sensors.clustering import ClusterConfig, cluster, numbered, scan_line_links
 from sensors.ground import GroundConfig, segment_ground
 from sensors.lidar import Scan
+from sensors.perception_reference import hull_points_reference, union_fits_reference
 from sensors.roi import RoadMap
 
 MERGED: int = 1  # fragments were merged into the detection
@@ -536,19 +536,7 @@ def _split(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: Pe
     out: list[np.ndarray] = []
     out_flags: list[int] = []
     for k, obj in enumerate(objects):
-        if not candidate[k]:
-            out.append(obj)
-            out_flags.append(flags[k])
-            continue
-        queue = [(obj, st.axis[k], 0)]
-        pieces = []
-        while queue:
-            o, axis, depth = queue.pop()
-            cut = _cut(pts, o, axis, cfg) if depth < cfg.max_splits else None
-            if cut is None:
-                pieces.append(o)
-            else:
-                queue += [(cut[0], axis, depth + 1), (cut[1], axis, depth + 1)]
+        pieces = split_object(pts, obj, st.axis[k], cfg) if candidate[k] else [obj]
         out += pieces
         out_flags += [flags[k] | (SPLIT if len(pieces) > 1 else 0)] * len(pieces)
     return out, out_flags, len(out) > len(objects)
@@ -559,37 +547,25 @@ def _too_big(length, width, top, cfg: PerceptionConfig):
     return (length > cfg.max_length_for(top)) | (width > cfg.max_width_m)
 
 
-def _cut(pts: np.ndarray, obj: np.ndarray, axis: float, cfg: PerceptionConfig) -> tuple[np.ndarray, np.ndarray] | None:
-    """The two parts of `obj` at its best gap, or None when it should stay whole."""
+def split_object(pts: np.ndarray, obj: np.ndarray, axis: float, cfg: PerceptionConfig) -> list[np.ndarray]:
+    """The pieces of the split candidate `obj` (point indices into pts (N, 3) [m], canonical order): cut at its
+    best gap along or across `axis` [rad] (np.float64), then each part again, up to cfg.max_splits deep (module
+    docstring, stage 2); [obj] when it stays whole. Each piece keeps obj's order.
+
+    perception_reference.split_reference, compiled (perception_jit.split_pieces) but for the projections on the
+    axis: those stay numpy's matrix-vector products of the whole object (a compiled x c + y s differs in the last
+    bit from the BLAS kernel's fused multiply-add; a point's product does not depend on the rows around it)."""
     xy = pts[obj, :2]
     c, s = np.cos(axis), np.sin(axis)
-    uv = np.stack([xy @ np.array([c, s]), xy @ np.array([-s, c])], axis=1)  # along, across the axis
-    extent = np.ptp(uv, axis=0)
-    top = pts[obj, 2].max() - cfg.ground.ground_z_m
-    too_big = bool(_too_big(extent.max(), extent.min(), top, cfg))
-    min_gap = cfg.min_split_gap_m if too_big else cfg.split_gap_m
-    best = None
-    for dim in (0, 1) if too_big else (0,):  # a vehicle-sized object is cut only along the axis
-        order = np.argsort(uv[:, dim], kind="stable")
-        t = uv[order, dim]
-        o = uv[order, 1 - dim]
-        gaps = np.diff(t)
-        n = len(t)
-        # sides of each part: along this dim from t, across from running min/max of the other coordinate
-        left_other = np.maximum.accumulate(o)[:-1] - np.minimum.accumulate(o)[:-1]
-        right_other = (np.maximum.accumulate(o[::-1])[::-1] - np.minimum.accumulate(o[::-1])[::-1])[1:]
-        left_side = np.maximum(t[:-1] - t[0], left_other)
-        right_side = np.maximum(t[-1] - t[1:], right_other)
-        i = np.arange(n - 1)
-        ok = ((gaps >= min_gap) & (i + 1 >= cfg.cluster.min_points) & (n - i - 1 >= cfg.cluster.min_points)
-              & (left_side >= cfg.min_extent_m) & (right_side >= cfg.min_extent_m))
-        if ok.any():
-            j = int(np.flatnonzero(ok)[np.argmax(gaps[ok])])
-            if best is None or gaps[j] > best[0]:
-                best = (gaps[j], order[: j + 1], order[j + 1 :])
-    if best is None:
-        return None
-    return obj[np.sort(best[1])], obj[np.sort(best[2])]  # each part keeps obj's canonical order
+    bounds = np.array([cfg.max_length_m, cfg.max_width_m, cfg.truck_min_top_m, cfg.max_truck_length_m])
+    piece, count = perception_jit.split_pieces(
+        xy @ np.array([c, s]), xy @ np.array([-s, c]), pts[obj, 2], float(cfg.ground.ground_z_m), bounds,
+        float(cfg.min_split_gap_m), float(cfg.split_gap_m), float(cfg.min_extent_m), int(cfg.cluster.min_points),
+        int(cfg.max_splits))
+    if count == 1:
+        return [obj]
+    order = np.argsort(piece, kind="stable")
+    return np.split(obj[order], np.cumsum(np.bincount(piece, minlength=count))[:-1])
 
 
 # --- merge ----------------------------------------------------------------------------------------------
@@ -597,7 +573,7 @@ def _cut(pts: np.ndarray, obj: np.ndarray, axis: float, cfg: PerceptionConfig) -
 def _merge(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: PerceptionConfig,
            st: _Stats) -> tuple[list[np.ndarray], list[int], bool]:
     """Join fragments of one vehicle by the gap between their points (see the module docstring, stage
-    3a); whether any were joined."""
+    3a); whether any were joined. perception_reference.merge_reference, compiled."""
     if len(objects) < 2:
         return objects, flags, False
     fits = ~_too_big(np.maximum(st.p_length, st.thickness), np.minimum(st.p_length, st.thickness), st.top, cfg)
@@ -611,69 +587,72 @@ def _merge(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: Pe
     ii, jj = np.nonzero(np.triu(box_gap <= cfg.merge_gap_m, k=1))
     if len(ii) == 0:
         return objects, flags, False
-    trees: dict[int, cKDTree] = {}
-    pairs = []
-    for a, b in zip(idx[ii], idx[jj]):
-        if len(objects[a]) < len(objects[b]):
-            a, b = b, a
-        if a not in trees:
-            trees[a] = cKDTree(pts[objects[a], :2])
-        d, _ = trees[a].query(pts[objects[b], :2], distance_upper_bound=cfg.merge_gap_m)
-        if np.min(d) <= cfg.merge_gap_m:
-            pairs.append((float(np.min(d)), min(a, b), max(a, b)))
-    parent = list(range(len(objects)))
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    group = {i: objects[i] for i in range(len(objects))}
-    hull: dict[int, np.ndarray] = {}
-    for _, a, b in sorted(pairs):
-        ra, rb = root(a), root(b)
-        if ra == rb:
-            continue
-        union_hull = _union_fits(pts, group, hull, ra, rb, cfg)
-        if union_hull is not None:
-            keep, drop = min(ra, rb), max(ra, rb)
-            parent[drop] = keep
-            group[keep] = np.concatenate([group[ra], group[rb]])
-            hull[keep] = union_hull
-    roots = np.array([root(i) for i in range(len(objects))])
+    pa, pb = idx[ii], idx[jj]  # pa < pb
+    d = perception_jit.pair_gaps(st.xy, st.starts, st.n, pa, pb, float(cfg.merge_gap_m))
+    near = d <= cfg.merge_gap_m
+    order = np.lexsort((pb[near], pa[near], d[near]))  # closest first, ties by the pair
+    roots, groups = unite_fitting(pts, objects, st, pa[near][order], pb[near][order], cfg)
     size = np.bincount(roots, minlength=len(objects))
     joined = np.zeros(len(objects), np.int64)
     np.bitwise_or.at(joined, roots, np.asarray(flags, np.int64))
     out, out_flags = [], []
     for i in np.flatnonzero(roots == np.arange(len(objects))):
         merged = size[i] > 1
-        out.append(_canonical(pts, group[i]) if merged else group[i])
+        out.append(_canonical(pts, groups[i]) if merged else objects[i])
         out_flags.append(int(joined[i]) | (MERGED if merged else 0))
     return out, out_flags, len(out) < len(objects)
 
 
-def _hull_points(xy: np.ndarray) -> np.ndarray:
-    """The convex-hull vertices of xy (n, 2) (all points when they are degenerate): the minimum-area
-    rectangle of a union only needs its parts' hulls."""
-    if len(xy) < 4:
-        return xy
-    try:
-        return xy[ConvexHull(xy - xy.mean(axis=0)).vertices]
-    except QhullError:
-        return xy
+UNION_MARGIN_M = 1e-7
+"""unite_fitting runs the reference test (scipy's hull) on a union whose rectangle side lies this close to its
+bound [m] (or whose minimum-area rectangle is flat or ambiguous): rounding could decide those either way."""
 
 
-def _union_fits(pts: np.ndarray, group: dict, hull: dict, a: int, b: int, cfg: PerceptionConfig) -> np.ndarray | None:
-    """The hull points of groups a and b together if their union fits one vehicle, else None; `hull`
-    caches each group's hull points."""
-    for g in (a, b):
-        if g not in hull:
-            hull[g] = _hull_points(pts[group[g], :2])
-    union = np.concatenate([hull[a], hull[b]])
-    _, length, width = min_area_rectangle(union)
-    top = max(pts[group[a], 2].max(), pts[group[b], 2].max()) - cfg.ground.ground_z_m
-    return union if bool(~_too_big(length, width, top, cfg)) else None
+def unite_fitting(pts: np.ndarray, objects: list[np.ndarray], st: _Stats, pa: np.ndarray, pb: np.ndarray,
+                  cfg: PerceptionConfig) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """The merge's union loop (perception_reference.unite_reference): the groups of objects pa[p] < pb[p] (P,)
+    joined, in order p, when their union's minimum-area rectangle fits one vehicle. Returns the root (K,) of
+    every object (the smallest of its group) and, per joined group's root, its point indices (its parts in the
+    order they were joined). st: the objects' _stats.
+
+    Compiled (perception_jit.merge_pairs, a monotone-chain hull and rotating calipers) but for a test within
+    UNION_MARGIN_M of a bound, or with a flat or ambiguous rectangle: that one is the reference's own."""
+    k_all = len(objects)
+    parent, head, tail = np.arange(k_all), np.arange(k_all), np.arange(k_all)
+    nxt, top = np.full(k_all, -1, np.int64), st.top.copy()
+    bounds = np.array([cfg.max_length_m, cfg.max_width_m, cfg.truck_min_top_m, cfg.max_truck_length_m])
+    p, decided = 0, -1
+    while True:
+        p = perception_jit.merge_pairs(st.xy, st.starts, st.n, pa, pb, p, decided, bounds, UNION_MARGIN_M, parent,
+                                       head, nxt, tail, top)
+        if p >= len(pa):
+            break
+        ra, rb = (_root_of(parent, int(o)) for o in (pa[p], pb[p]))
+        group = {r: np.concatenate([objects[o] for o in _listed(head, nxt, r)]) for r in (ra, rb)}
+        hull = {r: np.concatenate([hull_points_reference(pts[objects[o], :2]) for o in _listed(head, nxt, r)])
+                for r in (ra, rb)}
+        decided = int(union_fits_reference(pts, group, hull, ra, rb, cfg) is not None)
+    roots = parent
+    while np.any(parent[roots] != roots):
+        roots = parent[roots]
+    groups = {int(r): np.concatenate([objects[o] for o in _listed(head, nxt, int(r))])
+              for r in np.flatnonzero(np.bincount(roots, minlength=k_all) > 1)}
+    return roots, groups
+
+
+def _root_of(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        i = int(parent[i])
+    return i
+
+
+def _listed(head: np.ndarray, nxt: np.ndarray, root: int) -> list[int]:
+    """The objects of root's group in order (unite_fitting's lists)."""
+    out, o = [], int(head[root])
+    while o >= 0:
+        out.append(o)
+        o = int(nxt[o])
+    return out
 
 
 # --- selection and fit ----------------------------------------------------------------------------------
@@ -864,31 +843,20 @@ def _merge_boxes(pts, objects, flags, reason, fits, shape_centre, st, cfg):
             dist[pair] = d
     if not dist:
         return objects, flags, reason, fits, shape_centre, []
-    parent = {int(k): int(k) for k in keys}
-    group = {int(k): objects[k] for k in keys}
-    hull: dict[int, np.ndarray] = {}
-    for (a, b), _ in sorted(dist.items(), key=lambda item: (item[1], item[0])):
-        ra, rb = parent[a], parent[b]
-        if ra == rb:
-            continue
-        union_hull = _union_fits(pts, group, hull, ra, rb, cfg)
-        if union_hull is not None:
-            keep, drop = min(ra, rb), max(ra, rb)
-            for k, r in parent.items():
-                if r == drop:
-                    parent[k] = keep
-            group[keep] = np.concatenate([group[ra], group[rb]])
-            hull[keep] = union_hull
+    pairs = sorted(dist.items(), key=lambda item: (item[1], item[0]))  # closest first, ties by the pair
+    roots, groups = unite_fitting(pts, objects, st, np.array([a for (a, _), _ in pairs], np.int64),
+                                  np.array([b for (_, b), _ in pairs], np.int64), cfg)
+    size = np.bincount(roots, minlength=len(objects))
+    joined = np.zeros(len(objects), np.int64)
+    np.bitwise_or.at(joined, roots, np.asarray(flags, np.int64))
     out, out_flags, out_reason, out_fits, out_centre, merged = [], [], [], {}, {}, []
     for k in range(len(objects)):
-        root = parent.get(k, k)
-        if root != k:
+        if roots[k] != k:
             continue
-        size = sum(1 for r in parent.values() if r == k) if k in parent else 1
         new = len(out)
-        if size > 1:
-            out.append(_canonical(pts, group[k]))
-            out_flags.append(int(np.bitwise_or.reduce([flags[j] for j, r in parent.items() if r == k])) | MERGED)
+        if size[k] > 1:
+            out.append(_canonical(pts, groups[k]))
+            out_flags.append(int(joined[k]) | MERGED)
             merged.append(new)
         else:
             out.append(objects[k])
