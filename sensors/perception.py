@@ -60,6 +60,7 @@ scan's truth labels and is meant for scoring, never for the tracker.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
@@ -71,6 +72,7 @@ from sensors.boxfit import (
     BoxFit,
     BoxFitConfig,
     fit_vehicle_box_unchecked,
+    fit_vehicle_boxes_unchecked,
     lshape_rectangle,
     min_area_rectangle,
     shape_class,
@@ -488,6 +490,7 @@ class _Stats:
     d_min: np.ndarray  # (K,) nearest horizontal range from the sensor [m]
     u: np.ndarray  # (sum n,) each member's coordinate along its object's axis, from the centroid [m]
     xy: np.ndarray  # (sum n, 2) the members' bird's-eye points [m]
+    z: np.ndarray  # (sum n,) ... and heights (world z) [m]
     rel: np.ndarray  # (sum n, 2) ... relative to their object's centroid [m]
     principal: np.ndarray  # (K,) principal axis of the points [rad]
     thickness: np.ndarray  # (K,) footprint extent across the principal axis [m]
@@ -499,7 +502,7 @@ def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy:
     n = np.fromiter(map(len, objects), np.int64, len(objects))
     members = np.concatenate(objects)
     starts = np.cumsum(n) - n
-    top, lo, hi, centroid, sxx, syy, sxy, d_min, xy, rel = perception_jit.object_sums(
+    top, lo, hi, centroid, sxx, syy, sxy, d_min, xy, z, rel = perception_jit.object_sums(
         pts, members, starts, n, float(road_z), float(sensor_xy[0]), float(sensor_xy[1]))
     principal = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     cos_p, sin_p = np.cos(principal), np.sin(principal)
@@ -509,7 +512,7 @@ def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy:
     cos_a, sin_a = (np.cos(axis), np.sin(axis)) if road is not None else (cos_p, sin_p)
     u, along = perception_jit.along(rel, cos_a, sin_a, starts, n)
     across = _extent(rel, -sin_a, cos_a, n, starts)
-    return _Stats(members, starts, n, top, lo, hi, centroid, axis, along, across, d_min, u, xy, rel, principal,
+    return _Stats(members, starts, n, top, lo, hi, centroid, axis, along, across, d_min, u, xy, z, rel, principal,
                   thickness, p_length)
 
 
@@ -536,7 +539,8 @@ def _split(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: Pe
     out: list[np.ndarray] = []
     out_flags: list[int] = []
     for k, obj in enumerate(objects):
-        pieces = split_object(pts, obj, st.axis[k], cfg) if candidate[k] else [obj]
+        rows = slice(st.starts[k], st.starts[k] + st.n[k])
+        pieces = split_object(obj, st.xy[rows], st.z[rows], st.axis[k], cfg) if candidate[k] else [obj]
         out += pieces
         out_flags += [flags[k] | (SPLIT if len(pieces) > 1 else 0)] * len(pieces)
     return out, out_flags, len(out) > len(objects)
@@ -547,21 +551,22 @@ def _too_big(length, width, top, cfg: PerceptionConfig):
     return (length > cfg.max_length_for(top)) | (width > cfg.max_width_m)
 
 
-def split_object(pts: np.ndarray, obj: np.ndarray, axis: float, cfg: PerceptionConfig) -> list[np.ndarray]:
-    """The pieces of the split candidate `obj` (point indices into pts (N, 3) [m], canonical order): cut at its
-    best gap along or across `axis` [rad] (np.float64), then each part again, up to cfg.max_splits deep (module
-    docstring, stage 2); [obj] when it stays whole. Each piece keeps obj's order.
+def split_object(obj: np.ndarray, xy: np.ndarray, z: np.ndarray, axis: float,
+                 cfg: PerceptionConfig) -> list[np.ndarray]:
+    """The pieces of the split candidate `obj` (n,) (point indices, canonical order), whose points are xy (n, 2)
+    and z (n,) [m]: cut at its best gap along or across `axis` [rad] (np.float64), then each part again, up to
+    cfg.max_splits deep (module docstring, stage 2); [obj] when it stays whole. Each piece keeps obj's order.
 
     perception_reference.split_reference, compiled (perception_jit.split_pieces) but for the projections on the
     axis: those stay numpy's matrix-vector products of the whole object (a compiled x c + y s differs in the last
     bit from the BLAS kernel's fused multiply-add; a point's product does not depend on the rows around it)."""
-    xy = pts[obj, :2]
     c, s = np.cos(axis), np.sin(axis)
     bounds = np.array([cfg.max_length_m, cfg.max_width_m, cfg.truck_min_top_m, cfg.max_truck_length_m])
+    u, v = xy @ np.array([c, s]), xy @ np.array([-s, c])
     piece, count = perception_jit.split_pieces(
-        xy @ np.array([c, s]), xy @ np.array([-s, c]), pts[obj, 2], float(cfg.ground.ground_z_m), bounds,
-        float(cfg.min_split_gap_m), float(cfg.split_gap_m), float(cfg.min_extent_m), int(cfg.cluster.min_points),
-        int(cfg.max_splits))
+        u, v, z, np.argsort(u, kind="stable"), np.argsort(v, kind="stable"),
+        float(cfg.ground.ground_z_m), bounds, float(cfg.min_split_gap_m), float(cfg.split_gap_m),
+        float(cfg.min_extent_m), int(cfg.cluster.min_points), int(cfg.max_splits))
     if count == 1:
         return [obj]
     order = np.argsort(piece, kind="stable")
@@ -676,7 +681,7 @@ def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: Perce
     road_z = cfg.ground.ground_z_m
     boxfit = _boxfit_for(scan, cfg)
     reason, shape_centre = _screen(scan, st, cfg)
-    pool = _side_pool(pts, is_ground, cfg, boxfit)
+    pool = _SidePool(pts, is_ground, cfg, boxfit)
     fits = _fit_all(scan, st, np.flatnonzero(reason == ""), road is not None, cfg, boxfit, pool)
     if cfg.merge_fragments and len(fits) > 1:
         objects, flags, reason, fits, shape_centre, merged = _merge_boxes(
@@ -745,12 +750,11 @@ def _screen(scan: Scan, st: _Stats, cfg: PerceptionConfig) -> tuple[np.ndarray, 
     shape_centre: dict[int, np.ndarray] = {}
     if not cfg.vehicle_like:
         return reason, shape_centre
-    pts = scan.points
     road_z = cfg.ground.ground_z_m
     diag = np.hypot(*(st.hi - st.lo).T)
     required = _required_top(scan, st.d_min, cfg)
     low = st.top < required
-    z = pts[st.members, 2] - road_z
+    z = st.z - road_z
     if cfg.robust_height:
         low |= ~_body_reaches(z, st, required, cfg.body_bin_m)
     if cfg.shape_filter:  # too big for a vehicle by the points' principal extents: a guard-rail run, a wall
@@ -772,11 +776,12 @@ def _screen(scan: Scan, st: _Stats, cfg: PerceptionConfig) -> tuple[np.ndarray, 
     if cfg.shape_filter:
         reason[(reason == "") & _lifted(z, st, cfg)] = "lifted"
         for k in np.flatnonzero((reason == "") & _maybe_not_vehicle(st, cfg.boxfit)):
-            idx = _members(st, k)
-            shape = shape_class(pts[idx, :2], pts[idx, 2] - road_z, float(st.top[k]), cfg.boxfit)
+            rows = slice(st.starts[k], st.starts[k] + st.n[k])
+            xy = st.xy[rows].copy()  # pts[members, :2] (the members' rows of st.xy)
+            shape = shape_class(xy, z[rows], float(st.top[k]), cfg.boxfit)
             if shape != "vehicle":
                 reason[k] = shape
-                shape_centre[k] = min_area_rectangle(pts[idx, :2])[0]
+                shape_centre[k] = min_area_rectangle(xy)[0]
     return reason, shape_centre
 
 
@@ -870,110 +875,96 @@ def _merge_boxes(pts, objects, flags, reason, fits, shape_centre, st, cfg):
             merged)
 
 
-@dataclass(frozen=True)
-class _Fit:
-    centre: np.ndarray
-    heading: float
-    length: float
-    width: float
-    seen_length: float
-    seen_width: float
-    completed: bool
-    R: np.ndarray
-    shape: str
-
-
 def _fit_all(scan: Scan, st: _Stats, keys: np.ndarray, hinted: bool, cfg: PerceptionConfig,
-             boxfit: BoxFitConfig, pool: np.ndarray | None = None) -> dict[int, _Fit]:
+             boxfit: BoxFitConfig, pool: _SidePool | None = None) -> dict[int, BoxFit]:
     """The fits of objects `keys` (K,); with a map (hinted) the lane heading at the centroid is the prior;
-    pool: the points a truck's seen side may continue into (_side_pool)."""
-    ends = _open_ends(scan, st, keys) if cfg.fit == "vehicle_box" else [None] * len(keys)
-    return {int(k): _fit(scan, _members(st, k), st.top[k], float(st.axis[k]) if hinted else None, e, cfg, boxfit,
-                         pool) for k, e in zip(keys, ends)}
+    pool: the points a truck's seen side may continue into. Plain representatives are BoxFits with faces 0."""
+    if cfg.fit != "vehicle_box":
+        return {int(k): _representative(scan.points[_members(st, k), :2], scan.origin[:2], cfg) for k in keys}
+    if len(keys) == 0:
+        return {}
+    ends = _open_ends(scan, st, keys)
+    open_ends = np.array([e if e is not None else (False, False) for e in ends], bool).reshape(-1, 2)
+    rows = np.concatenate([np.arange(st.starts[k], st.starts[k] + st.n[k]) for k in keys])
+    n = st.n[keys]
+    fits = fit_vehicle_boxes_unchecked(st.xy[rows], st.z[rows] - cfg.ground.ground_z_m, np.cumsum(n) - n, n,
+                                       scan.origin[:2], st.top[keys], st.axis[keys] if hinted else None, open_ends,
+                                       boxfit)
+    out = {}
+    for k, f, e in zip(keys, fits, ends):
+        if boxfit.prior(st.top[k]).min_length_m > 0 and not (e and any(e)) and pool is not None and len(pool.idx):
+            f = _truck_side(scan, _members(st, k), f, float(st.top[k]), float(st.axis[k]) if hinted else None, e,
+                            cfg, boxfit, pool)
+        out[int(k)] = f
+    return out
 
 
-def _side_pool(pts: np.ndarray, is_ground: np.ndarray, cfg: PerceptionConfig, boxfit: BoxFitConfig) -> np.ndarray:
-    """Indices of the non-ground points between boxfit.side_min_z_m and max_height_m above the road (those a
-    truck's side seen at a grazing angle returns, mostly left as noise or fragments by the clustering)."""
-    z = pts[:, 2] - cfg.ground.ground_z_m
-    return np.flatnonzero(~is_ground & (z >= boxfit.side_min_z_m) & (z <= cfg.max_height_m))
+class _SidePool:
+    """The non-ground points between boxfit.side_min_z_m and max_height_m above the road (those a truck's side
+    seen at a grazing angle returns, mostly left as noise or fragments by the clustering), gathered on first use
+    (a frame without a truck needs none): idx (P,) indices into pts (N, 3), xy (P, 2) [m], z (P,) above the road."""
+
+    def __init__(self, pts: np.ndarray, is_ground: np.ndarray, cfg: PerceptionConfig, boxfit: BoxFitConfig):
+        self._pts, self._is_ground, self._road_z = pts, is_ground, cfg.ground.ground_z_m
+        self._bounds = (boxfit.side_min_z_m, cfg.max_height_m)
+
+    @functools.cached_property
+    def idx(self) -> np.ndarray:
+        z = self._pts[:, 2] - self._road_z
+        return np.flatnonzero(~self._is_ground & (z >= self._bounds[0]) & (z <= self._bounds[1]))
+
+    @functools.cached_property
+    def xy(self) -> np.ndarray:
+        return self._pts[self.idx, :2]
+
+    @functools.cached_property
+    def z(self) -> np.ndarray:
+        return self._pts[self.idx, 2] - self._road_z
 
 
-def _fit(scan: Scan, idx: np.ndarray, top: float, hint: float | None, open_ends: tuple[bool, bool] | None,
-         cfg: PerceptionConfig, boxfit: BoxFitConfig, pool: np.ndarray | None = None) -> _Fit:
-    """The measurement of one object by cfg.fit."""
-    xy = scan.points[idx, :2]
-    if cfg.fit == "vehicle_box":
-        f = _vehicle_box(scan, idx, top, hint, open_ends, cfg, boxfit, pool)
-        return _Fit(f.centre, f.heading, f.length, f.width, f.seen_length, f.seen_width, f.completed, f.R, f.shape)
+def _representative(xy: np.ndarray, sensor_xy: np.ndarray, cfg: PerceptionConfig) -> BoxFit:
+    """The plain representative cfg.fit of the points xy (n, 2) [m] (REPRESENTATIVES), R = DEFAULT_STD_M^2 I."""
     centre, length, width = REPRESENTATIVES[cfg.fit](xy)
     completed = False
     if cfg.complete_one_face and width < cfg.one_face_width_m:
-        centre = _complete_one_face(centre, xy, length, width, scan.origin[:2], cfg.size_prior_m)
+        centre = _complete_one_face(centre, xy, length, width, sensor_xy, cfg.size_prior_m)
         completed = True
-    return _Fit(centre, _principal_angle(xy), length, width, length, width, completed,
-                DEFAULT_STD_M**2 * np.eye(2), "vehicle")
+    return BoxFit(centre=centre, heading=_principal_angle(xy), length=length, width=width, seen_length=length,
+                  seen_width=width, faces=0, completed=completed, R=DEFAULT_STD_M**2 * np.eye(2))
 
 
-def _vehicle_box(scan: Scan, idx: np.ndarray, top: float, hint: float | None, open_ends: tuple[bool, bool] | None,
-                 cfg: PerceptionConfig, boxfit: BoxFitConfig, pool: np.ndarray | None) -> BoxFit:
-    """boxfit.fit_vehicle_box of the points idx; for a class whose length is grown from the seen side
-    (SizePrior.min_length_m > 0: trucks) whose azimuth ends are not occluded, refitted with the points of
+def _truck_side(scan: Scan, idx: np.ndarray, f: BoxFit, top: float, hint: float | None,
+                open_ends: tuple[bool, bool] | None, cfg: PerceptionConfig, boxfit: BoxFitConfig,
+                pool: _SidePool) -> BoxFit:
+    """The fit f of the points idx of an object whose class's length is grown from the seen side
+    (SizePrior.min_length_m > 0: trucks) and whose azimuth ends are not occluded, refitted with the points of
     `pool` that continue its seen side (boxfit.side_continuation: the clustering leaves a side seen at a
-    grazing angle as noise and fragments)."""
+    grazing angle as noise and fragments); f when there are none."""
     pts, road_z = scan.points, cfg.ground.ground_z_m
-    f = fit_vehicle_box_unchecked(pts[idx, :2], scan.origin[:2], top_m=float(top), heading_hint=hint, open_ends=open_ends,
-                         cfg=boxfit, z=pts[idx, 2] - road_z)  # checked inputs
-    if pool is None or len(pool) == 0 or boxfit.prior(top).min_length_m <= 0 or (open_ends and any(open_ends)):
-        return f
-    more = pool[side_continuation(f, pts[pool, :2], pts[pool, 2] - road_z, scan.origin[:2],
-                                  max_length_m=cfg.max_truck_length_m, cfg=boxfit)]
-    more = np.setdiff1d(more, idx)
+    more = pool.idx[side_continuation(f, pool.xy, pool.z, scan.origin[:2], max_length_m=cfg.max_truck_length_m,
+                                      cfg=boxfit)]
+    in_object = np.zeros(len(pts), bool)
+    in_object[idx] = True
+    more = more[~in_object[more]]  # np.setdiff1d(more, idx): more is sorted and unique (one side each)
     if len(more) == 0:
         return f
     both = _canonical(pts, np.concatenate([idx, more]))
-    return fit_vehicle_box_unchecked(pts[both, :2], scan.origin[:2], top_m=float(top), heading_hint=hint,
-                            open_ends=open_ends, cfg=boxfit, z=pts[both, 2] - road_z)
+    return fit_vehicle_box_unchecked(pts[both, :2], scan.origin[:2], top_m=top, heading_hint=hint,
+                                     open_ends=open_ends, cfg=boxfit, z=pts[both, 2] - road_z)
 
 
 def _open_ends(scan: Scan, st: _Stats, keys: np.ndarray, margin_m: float = 0.5,
                look: int = 2) -> list[tuple[bool, bool] | None]:
     """Per object of `keys`: whether its (first, last) azimuth edge, counter-clockwise, is bounded by a
-    nearer return; None for all without a range image.
+    nearer return; None for all without a range image (or with a point of unknown ray).
 
     sensors/boxfit.open_ends_from_ranges for all objects at once (same rule, same arguments; the tests
-    check they agree): an object's columns start after the widest empty arc of its azimuth columns, and
-    an edge is open when in one of the `look` columns beyond it a beam the object uses at that edge
-    returns more than margin_m nearer than the object's nearest return in that edge column."""
+    check they agree): perception_reference.open_ends_reference, compiled (perception_jit.open_ends)."""
     if scan.ranges.size == 0 or len(keys) == 0:
         return [None] * len(keys)
-    members = np.concatenate([_members(st, k) for k in keys])
-    ray = scan.ray[members]
-    if np.any(ray < 0):
-        return [None] * len(keys)
-    n_az, n_beams = scan.ranges.shape
-    owner = np.repeat(np.arange(len(keys)), st.n[keys])
-    az, beam = ray // n_beams, ray % n_beams
-    cols = np.unique(owner * n_az + az)  # sorted (object, column) pairs
-    c_owner, c_az = cols // n_az, cols % n_az
-    start = np.flatnonzero(np.r_[True, c_owner[1:] != c_owner[:-1]])
-    end = np.r_[start[1:], len(cols)] - 1
-    nxt = np.r_[c_az[1:], 0]
-    nxt[end] = c_az[start] + n_az  # the arc from an object's last column round to its first
-    gap = nxt - c_az
-    widest = np.lexsort((np.arange(len(cols)), -gap, c_owner))[start]  # first widest gap of each object
-    first = np.where(widest == end, c_az[start], c_az[np.minimum(widest + 1, len(cols) - 1)])
-    last = c_az[widest]
-    out = []
-    for edge, step in ((first, -1), (last, +1)):
-        at_edge = az == edge[owner]
-        o, b = owner[at_edge], beam[at_edge]
-        here = np.full(len(keys), np.inf)
-        np.minimum.at(here, o, scan.ranges[edge[o], b])
-        beyond = (edge[o][:, None] + step * np.arange(1, look + 1)[None, :]) % n_az
-        nearer = np.any(scan.ranges[beyond, b[:, None]] < (here[o] - margin_m)[:, None], axis=1)
-        out.append(np.bincount(o, weights=nearer, minlength=len(keys)) > 0)
-    return [(bool(a), bool(b)) for a, b in zip(*out)]
+    ends, known = perception_jit.open_ends(scan.ray, st.members, st.starts, st.n, np.asarray(keys, np.int64),
+                                           np.ascontiguousarray(scan.ranges), float(margin_m), int(look))
+    return [(bool(a), bool(b)) for a, b in ends] if known else [None] * len(keys)
 
 
 def _principal_angle(xy: np.ndarray) -> float:

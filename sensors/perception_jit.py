@@ -68,24 +68,33 @@ def _reduceat_add(a, starts, n):
 def object_sums(pts, members, starts, n, road_z, sx, sy):
     """Per object: top above the road (K,), footprint corners lo, hi (K, 2), centroid (K, 2), the second
     moments sxx, syy, sxy (K,) about it, the nearest horizontal range d_min (K,) from the sensor (sx, sy);
-    per member: xy (sum n, 2) and rel = xy - its object's centroid (sum n, 2). pts (N, 3) [m]."""
+    per member: xy (sum n, 2), z (sum n,) and rel = xy - its object's centroid (sum n, 2). pts (N, 3) [m].
+
+    d_min is the smallest np.hypot, taken only over the points whose dx * dx + dy * dy lies within 1e-12
+    (relative) of the smallest: every other point's hypot is larger (both are within a few ulp of the range)."""
     k_all, m = len(starts), len(members)
     xy = np.empty((m, 2))
-    x, y = np.empty(m), np.empty(m)
+    x, y, z, d2 = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
     top = np.empty(k_all)
     lo, hi = np.empty((k_all, 2)), np.empty((k_all, 2))
     d_min = np.empty(k_all)
     for k in range(k_all):
-        s0 = starts[k]
-        t, xl, xh, yl, yh, d = -np.inf, np.inf, -np.inf, np.inf, -np.inf, np.inf
-        for i in range(s0, s0 + n[k]):
+        s0, s1 = starts[k], starts[k] + n[k]
+        t, xl, xh, yl, yh, d2_min = -np.inf, np.inf, -np.inf, np.inf, -np.inf, np.inf
+        for i in range(s0, s1):
             p = members[i]
             px, py, pz = pts[p, 0], pts[p, 1], pts[p, 2]
             xy[i, 0], xy[i, 1] = px, py
-            x[i], y[i] = px, py
+            x[i], y[i], z[i] = px, py, pz
             t = max(t, pz)
             xl, xh, yl, yh = min(xl, px), max(xh, px), min(yl, py), max(yh, py)
-            d = min(d, np.hypot(px - sx, py - sy))
+            dx, dy = px - sx, py - sy
+            d2[i] = dx * dx + dy * dy
+            d2_min = min(d2_min, d2[i])
+        near, d = d2_min * (1.0 + 1e-12) + 1e-290, np.inf
+        for i in range(s0, s1):
+            if d2[i] <= near:
+                d = min(d, np.hypot(x[i] - sx, y[i] - sy))
         top[k] = t - road_z
         lo[k, 0], lo[k, 1], hi[k, 0], hi[k, 1] = xl, yl, xh, yh
         d_min[k] = d
@@ -100,7 +109,7 @@ def object_sums(pts, members, starts, n, road_z, sx, sy):
             rel[i, 0], rel[i, 1] = rx, ry
             xx[i], yy[i], xy_[i] = rx * rx, ry * ry, rx * ry
     return (top, lo, hi, centroid, _reduceat_add(xx, starts, n), _reduceat_add(yy, starts, n),
-            _reduceat_add(xy_, starts, n), d_min, xy, rel)
+            _reduceat_add(xy_, starts, n), d_min, xy, z, rel)
 
 
 @njit(cache=True)
@@ -267,74 +276,77 @@ def _foot_key(x, y, inv):
 # --- split (sensors/perception_reference.split_reference) ---------------------------------------------------
 
 @njit(cache=True)
-def _cut_mask(u, v, z, road_z, bounds, min_split_gap, split_gap, min_extent, min_points):
-    """perception_reference.cut_reference on one part: (m,) bool, True for the points of its first part, or
-    an empty array when it stays whole. u, v (m,) the points along / across the object's axis, z (m,) their
-    heights [m]; bounds (4,) max_length_m, max_width_m, truck_min_top_m, max_truck_length_m."""
-    m = len(u)
-    u_lo, u_hi, v_lo, v_hi, top = np.inf, -np.inf, np.inf, -np.inf, -np.inf
+def _best_cut(u, v, z, by_u, by_v, road_z, bounds, min_split_gap, split_gap, min_extent, min_points):
+    """perception_reference.cut_reference on one part of an object: (dim, j), its first piece being the points
+    by_u[: j + 1] (dim 0) or by_v[: j + 1] (dim 1), or (-1, -1) when the part stays whole. u, v (n,) the object's
+    points along / across its axis, z (n,) their heights [m]; by_u, by_v (m,) the part's points sorted by u and
+    by v (stable: ties in point order, as the reference's argsort of the part); bounds (4,) max_length_m,
+    max_width_m, truck_min_top_m, max_truck_length_m."""
+    m = len(by_u)
+    ext_u, ext_v = u[by_u[m - 1]] - u[by_u[0]], v[by_v[m - 1]] - v[by_v[0]]
+    top = -np.inf
     for i in range(m):
-        u_lo, u_hi = min(u_lo, u[i]), max(u_hi, u[i])
-        v_lo, v_hi = min(v_lo, v[i]), max(v_hi, v[i])
-        top = max(top, z[i])
-    ext_u, ext_v = u_hi - u_lo, v_hi - v_lo
+        top = max(top, z[by_u[i]])
     top -= road_z
     max_length = bounds[3] if top >= bounds[2] else bounds[0]
     too_big = max(ext_u, ext_v) > max_length or min(ext_u, ext_v) > bounds[1]
     min_gap = min_split_gap if too_big else split_gap
-    best_gap, best = 0.0, np.zeros(0, np.bool_)
+    best_dim, best_j, best_gap = -1, -1, 0.0
+    r_hi, r_lo = np.empty(m), np.empty(m)
     for dim in range(2 if too_big else 1):  # a vehicle-sized object is cut only along the axis
-        order = np.argsort(u if dim == 0 else v, kind="mergesort")
-        t = (u if dim == 0 else v)[order]
-        o = (v if dim == 0 else u)[order]
-        r_hi, r_lo = np.empty(m), np.empty(m)  # the other coordinate's range from i on
+        order, t, o = (by_u, u, v) if dim == 0 else (by_v, v, u)
         hi, lo = -np.inf, np.inf
-        for i in range(m - 1, -1, -1):
-            hi, lo = max(hi, o[i]), min(lo, o[i])
+        for i in range(m - 1, -1, -1):  # the other coordinate's range from i on
+            hi, lo = max(hi, o[order[i]]), min(lo, o[order[i]])
             r_hi[i], r_lo[i] = hi, lo
         hi, lo = -np.inf, np.inf
         j, j_gap = -1, 0.0
+        t0, t1 = t[order[0]], t[order[m - 1]]
         for i in range(m - 1):
-            hi, lo = max(hi, o[i]), min(lo, o[i])
-            gap = t[i + 1] - t[i]
-            left = max(t[i] - t[0], hi - lo)
-            right = max(t[m - 1] - t[i + 1], r_hi[i + 1] - r_lo[i + 1])
+            hi, lo = max(hi, o[order[i]]), min(lo, o[order[i]])
+            gap = t[order[i + 1]] - t[order[i]]
+            left = max(t[order[i]] - t0, hi - lo)
+            right = max(t1 - t[order[i + 1]], r_hi[i + 1] - r_lo[i + 1])
             if (gap >= min_gap and i + 1 >= min_points and m - i - 1 >= min_points and left >= min_extent
                     and right >= min_extent and (j < 0 or gap > j_gap)):
                 j, j_gap = i, gap  # the first widest gap
-        if j >= 0 and (len(best) == 0 or j_gap > best_gap):
-            best_gap = j_gap
-            best = np.zeros(m, np.bool_)
-            for q in range(j + 1):
-                best[order[q]] = True
-    return best
+        if j >= 0 and (best_j < 0 or j_gap > best_gap):
+            best_dim, best_j, best_gap = dim, j, j_gap
+    return best_dim, best_j
 
 
 @njit(cache=True)
-def split_pieces(u, v, z, road_z, bounds, min_split_gap, split_gap, min_extent, min_points, max_splits):
+def split_pieces(u, v, z, by_u, by_v, road_z, bounds, min_split_gap, split_gap, min_extent, min_points,
+                 max_splits):
     """perception_reference.split_reference of one object: piece (n,) int64 the piece of each point, numbered
     in the reference's order of the pieces, and their count. u, v (n,) the points along / across the object's
-    axis (numpy's products, as the reference computes them), z (n,) their heights [m]; bounds as _cut_mask."""
+    axis (numpy's products, as the reference computes them), z (n,) their heights [m], by_u, by_v (n,) their
+    stable argsorts; bounds as _best_cut. Each part keeps the object's sorted orders (a stable sort of a part is
+    its points in the object's order)."""
     n = len(u)
     piece = np.empty(n, np.int64)
-    stack = [np.arange(n)]
+    first = np.zeros(n, np.bool_)
+    stack_u, stack_v = [by_u], [by_v]
     depth = [0]
     count = 0
-    while len(stack) > 0:
-        pos = stack.pop()
-        d = depth.pop()
-        first = np.zeros(0, np.bool_)
+    while len(depth) > 0:
+        by_u, by_v, d = stack_u.pop(), stack_v.pop(), depth.pop()
+        dim, j = -1, -1
         if d < max_splits:
-            first = _cut_mask(u[pos], v[pos], z[pos], road_z, bounds, min_split_gap, split_gap, min_extent,
-                              min_points)
-        if len(first) == 0:
-            piece[pos] = count
+            dim, j = _best_cut(u, v, z, by_u, by_v, road_z, bounds, min_split_gap, split_gap, min_extent,
+                               min_points)
+        if dim < 0:
+            piece[by_u] = count
             count += 1
-        else:  # the reference queues (first, second) and takes the second first
-            stack.append(pos[first])
+            continue
+        cut = by_u if dim == 0 else by_v
+        first[cut[: j + 1]] = True
+        in_u, in_v = first[by_u], first[by_v]
+        for part in (True, False):  # the reference queues (first, second) and takes the second first
+            stack_u.append(by_u[in_u == part])
+            stack_v.append(by_v[in_v == part])
             depth.append(d + 1)
-            stack.append(pos[~first])
-            depth.append(d + 1)
+        first[cut[: j + 1]] = False
     return piece, count
 
 
@@ -552,3 +564,46 @@ def merge_pairs(xy, starts, n, pa, pb, first, decided, bounds, margin, parent, h
         if fits:
             _unite(ra, rb, parent, head, nxt, tail, top)
     return len(pa)
+
+
+# --- box fit inputs (sensors/perception_reference.open_ends_reference) -------------------------------------
+
+@njit(cache=True)
+def open_ends(ray, members, starts, n, keys, ranges, margin, look):
+    """(K, 2) bool per object of keys (K,): whether its (first, last) azimuth edge, counter-clockwise, is bounded
+    by a nearer return (perception_reference.open_ends_reference), and whether every member's ray (N,) is known
+    (else the ends are not computed). An object's columns start after the widest empty arc of its azimuth
+    columns (the first widest, counter-clockwise); an edge is open when in one of the `look` columns beyond it
+    a beam the object uses at that edge returns more than margin [m] nearer than the object's nearest return in
+    that column. ranges (A, B) [m]."""
+    n_az, n_beams = ranges.shape
+    out = np.zeros((len(keys), 2), np.bool_)
+    for k in keys:
+        for i in range(starts[k], starts[k] + n[k]):
+            if ray[members[i]] < 0:
+                return out, False
+    for q in range(len(keys)):
+        s0, m = starts[keys[q]], n[keys[q]]
+        az = np.empty(m, np.int64)
+        for i in range(m):
+            az[i] = ray[members[s0 + i]] // n_beams
+        cols = np.unique(az)
+        widest, widest_gap = 0, -1
+        for i in range(len(cols)):
+            gap = (cols[i + 1] if i + 1 < len(cols) else cols[0] + n_az) - cols[i]
+            if gap > widest_gap:
+                widest, widest_gap = i, gap
+        edges = (cols[(widest + 1) % len(cols)], cols[widest])  # (first, last)
+        for e in range(2):
+            edge, step = edges[e], -1 if e == 0 else 1
+            here = np.inf
+            for i in range(m):
+                if az[i] == edge:
+                    here = min(here, ranges[edge, ray[members[s0 + i]] % n_beams])
+            for i in range(m):
+                if az[i] == edge and not out[q, e]:
+                    b = ray[members[s0 + i]] % n_beams
+                    for step_k in range(1, look + 1):
+                        if ranges[(edge + step * step_k) % n_az, b] < here - margin:
+                            out[q, e] = True
+    return out, True

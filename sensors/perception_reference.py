@@ -162,3 +162,43 @@ def merge_reference(pts: np.ndarray, objects: list[np.ndarray], flags: list[int]
         out.append(g[np.lexsort((pts[g, 2], pts[g, 1], pts[g, 0]))] if merged else g)
         out_flags.append(int(joined[i]) | (merged_flag if merged else 0))
     return out, out_flags, len(out) < len(objects)
+
+
+def open_ends_reference(scan, st, keys: np.ndarray, margin_m: float = 0.5,
+                        look: int = 2) -> list[tuple[bool, bool] | None]:
+    """Per object of `keys` (st: the objects' summaries, members by starts and n): whether its (first, last)
+    azimuth edge, counter-clockwise, is bounded by a nearer return; None for all without a range image.
+
+    sensors/boxfit.open_ends_from_ranges for all objects at once (same rule, same arguments): an object's
+    columns start after the widest empty arc of its azimuth columns, and an edge is open when in one of the
+    `look` columns beyond it a beam the object uses at that edge returns more than margin_m nearer than the
+    object's nearest return in that edge column."""
+    if scan.ranges.size == 0 or len(keys) == 0:
+        return [None] * len(keys)
+    members = np.concatenate([st.members[st.starts[k] : st.starts[k] + st.n[k]] for k in keys])
+    ray = scan.ray[members]
+    if np.any(ray < 0):
+        return [None] * len(keys)
+    n_az, n_beams = scan.ranges.shape
+    owner = np.repeat(np.arange(len(keys)), st.n[keys])
+    az, beam = ray // n_beams, ray % n_beams
+    cols = np.unique(owner * n_az + az)  # sorted (object, column) pairs
+    c_owner, c_az = cols // n_az, cols % n_az
+    start = np.flatnonzero(np.r_[True, c_owner[1:] != c_owner[:-1]])
+    end = np.r_[start[1:], len(cols)] - 1
+    nxt = np.r_[c_az[1:], 0]
+    nxt[end] = c_az[start] + n_az  # the arc from an object's last column round to its first
+    gap = nxt - c_az
+    widest = np.lexsort((np.arange(len(cols)), -gap, c_owner))[start]  # first widest gap of each object
+    first = np.where(widest == end, c_az[start], c_az[np.minimum(widest + 1, len(cols) - 1)])
+    last = c_az[widest]
+    out = []
+    for edge, step in ((first, -1), (last, +1)):
+        at_edge = az == edge[owner]
+        o, b = owner[at_edge], beam[at_edge]
+        here = np.full(len(keys), np.inf)
+        np.minimum.at(here, o, scan.ranges[edge[o], b])
+        beyond = (edge[o][:, None] + step * np.arange(1, look + 1)[None, :]) % n_az
+        nearer = np.any(scan.ranges[beyond, b[:, None]] < (here[o] - margin_m)[:, None], axis=1)
+        out.append(np.bincount(o, weights=nearer, minlength=len(keys)) > 0)
+    return [(bool(a), bool(b)) for a, b in zip(*out)]

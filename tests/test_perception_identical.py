@@ -79,7 +79,7 @@ def test_split_object_equals_the_reference_on_highway_scans(highway):
     for pts, objects, st, _ in highway:
         for k, obj in enumerate(objects):
             ref = perception_reference.split_reference(pts, obj, st.axis[k], CFG)
-            assert same_arrays(perception.split_object(pts, obj, st.axis[k], CFG), ref)
+            assert same_arrays(perception.split_object(obj, pts[obj, :2], pts[obj, 2], st.axis[k], CFG), ref)
             n_split += len(ref) > 1
     assert n_split >= 10  # the scans do hold objects that are cut
 
@@ -92,7 +92,7 @@ def test_split_object_equals_the_reference_on_edge_cases():
                                              min_extent_m=0.0, max_splits=8)):
             for obj in objects:
                 ref = perception_reference.split_reference(pts, obj, axis, cfg)
-                assert same_arrays(perception.split_object(pts, obj, axis, cfg), ref)
+                assert same_arrays(perception.split_object(obj, pts[obj, :2], pts[obj, 2], axis, cfg), ref)
                 cut += len(ref) > 1
     assert cut >= 8
 
@@ -178,3 +178,74 @@ def test_unite_fitting_runs_the_reference_test_at_a_bound(monkeypatch):
     pa, pb = np.triu_indices(k, 1)
     assert_unions_equal(pts, objects, st, pa, pb, CFG)
     assert_unions_equal(pts, objects, st, pa, pb, WIDE)
+
+
+# --- selection and fit ----------------------------------------------------------------------------------
+
+def test_batched_box_fits_equal_one_by_one_fits(highway):
+    from sensors.boxfit import fit_vehicle_box_unchecked, fit_vehicle_boxes_unchecked
+
+    n_fits = 0
+    for pts, objects, st, _ in highway[::2]:
+        keys = np.arange(len(objects))
+        rng = np.random.default_rng(len(objects))
+        ends = rng.random((len(keys), 2)) < 0.3  # some occluded ends
+        z = st.z - CFG.ground.ground_z_m
+        for hints in (st.axis, None):
+            batch = fit_vehicle_boxes_unchecked(st.xy, z, st.starts, st.n, np.array([1.0, -2.0]), st.top, hints, ends,
+                                                CFG.boxfit)
+            for k, f in zip(keys, batch):
+                one = fit_vehicle_box_unchecked(pts[objects[k], :2], np.array([1.0, -2.0]), top_m=float(st.top[k]),
+                                                heading_hint=None if hints is None else float(hints[k]),
+                                                open_ends=tuple(ends[k]), cfg=CFG.boxfit,
+                                                z=pts[objects[k], 2] - CFG.ground.ground_z_m)
+                for field in dataclasses.fields(one):
+                    a, b = getattr(f, field.name), getattr(one, field.name)
+                    assert type(a) is type(b) and np.array_equal(a, b), field.name
+                n_fits += 1
+    assert n_fits > 100
+
+
+def test_open_ends_equal_the_reference():
+    from testbed.scenario.spec import load_scenario
+    from testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
+
+    scn = load_scenario("highway_benchmark", {"duration_s": 0.5})
+    rngs = rng_streams(scn.seed)
+    sim, static, road = sensing_setup(scn, rngs)
+    n_open = 0
+    for truth in sim.frames():
+        s = scan_frame(truth, static, scn.sensor.lidar, rngs["lidar"])
+        is_ground = segment_ground(s.points, CFG.ground, s.origin)
+        cand = np.flatnonzero(~is_ground & (s.points[:, 2] <= CFG.max_height_m))
+        objects = perception._raw_objects(s.points, cand, cluster(s.points[cand], CFG.cluster))
+        st = perception._stats(s.points, objects, 0.0, s.origin[:2], road)
+        for keys in (np.arange(len(objects)), np.arange(len(objects))[::-3]):
+            got = perception._open_ends(s, st, keys)
+            assert got == perception_reference.open_ends_reference(s, st, keys)
+            n_open += sum(map(sum, got))
+    assert n_open > 10
+
+
+def test_min_area_rectangle_with_the_compiled_hull_equals_qhull(highway):
+    from sensors.boxfit import min_area_rectangle
+
+    sets = [pts[o, :2] for pts, objects, _, _ in highway[::3] for o in objects]
+    rng = np.random.default_rng(1)
+    sets += [o[:, :2] for o in EDGE_OBJECTS[2:]] + [
+        rng.normal(size=(50, 2)) * [3.0, 1.0] + [1e4, -3e3],  # far from the origin
+        np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 0.5]]),  # a square, one point inside
+        np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 1e-13], [1.0, 1.0]]),  # an almost collinear vertex
+        np.repeat([[1.0, 2.0], [3.0, 2.5], [2.0, 4.0]], 3, axis=0),  # a triangle, each vertex thrice
+    ]
+    for xy in sets:
+        got, ref = min_area_rectangle(xy), min_area_rectangle(xy, compiled_hull=False)
+        assert np.array_equal(got[0], ref[0]) and got[1:] == ref[1:]
+
+
+def test_nearest_range_of_the_object_sums_is_numpys_smallest_hypot(highway):
+    for pts, objects, st, _ in highway[::4]:
+        for k, o in enumerate(objects[:40]):
+            ref = np.min(np.hypot(pts[o, 0] - 1.5, pts[o, 1] + 0.5))
+            got = perception._stats(pts, [o], 0.0, np.array([1.5, -0.5]), None).d_min[0]
+            assert got == ref
