@@ -76,12 +76,22 @@ SHAPES = ("vehicle", "thin_long", "post", "panel")
 """shape_class results; only "vehicle" is completed by fit_vehicle_box."""
 
 
-def min_area_rectangle(xy: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """Minimum-area enclosing rectangle; collinear or repeated points give one along their principal axis."""
+HULL_TOL = 1e-9
+"""min_area_rectangle's compiled hull hands a point set to qhull when a vertex decision lies within this fraction
+of the set's extent of collinear (boxfit_jit.convex_hull)."""
+
+
+def min_area_rectangle(xy: np.ndarray, compiled_hull: bool = True) -> tuple[np.ndarray, float, float]:
+    """Minimum-area enclosing rectangle; collinear or repeated points give one along their principal axis.
+
+    The hull's vertices come from boxfit_jit.convex_hull, qhull's (scipy.spatial.ConvexHull) where that one
+    cannot decide within rounding or with compiled_hull=False: the same vertices, counter-clockwise, so the
+    same rectangle bit for bit (tests/test_perception_identical.py)."""
     origin = xy.mean(axis=0)
     local = xy - origin  # well conditioned far from the world origin
     try:
-        hull = local[ConvexHull(local).vertices]
+        vertices = boxfit_jit.convex_hull(np.ascontiguousarray(local), HULL_TOL) if compiled_hull else ()
+        hull = local[vertices if len(vertices) else ConvexHull(local).vertices]
         edges = np.diff(np.vstack([hull, hull[:1]]), axis=0)
         angles = np.unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
     except (QhullError, ValueError):  # fewer than 3 points, or all collinear
@@ -351,19 +361,37 @@ def fit_vehicle_box_unchecked(xy: np.ndarray, sensor_xy: np.ndarray, *, top_m: f
 
 def _fit_compiled(xy: np.ndarray, sensor: np.ndarray, top_m: float, prior: SizePrior, hint: float | None,
                   open_ends: tuple[bool, bool], z: np.ndarray | None, cfg: BoxFitConfig) -> BoxFit:
-    """fit_vehicle_box's steps by the compiled kernel (sensors/boxfit_jit.py) on validated inputs."""
+    """fit_vehicle_box's steps by the compiled kernel (sensors/boxfit_jit.py) on validated inputs (prior:
+    cfg.prior(top_m)): a batch of one."""
+    return fit_vehicle_boxes_unchecked(xy, z, _ONE_START, np.array([len(xy)]), sensor, np.array([top_m]),
+                                       None if hint is None else np.array([float(hint)]),
+                                       np.array([[bool(open_ends[0]), bool(open_ends[1])]]), cfg)[0]
+
+
+_ONE_START = np.zeros(1, np.int64)
+
+
+def fit_vehicle_boxes_unchecked(xy: np.ndarray, z: np.ndarray | None, starts: np.ndarray, n: np.ndarray,
+                                sensor_xy: np.ndarray, tops: np.ndarray, hints: np.ndarray | None,
+                                open_ends: np.ndarray, cfg: BoxFitConfig) -> list[BoxFit]:
+    """fit_vehicle_box_unchecked of K objects in one compiled call, for callers holding them packed: object k's
+    points are xy[starts[k] : starts[k] + n[k]] (sum n, 2) [m] with heights z (sum n,) above the road [m] (or
+    None), its top tops[k] (K,) [m], its heading hint hints[k] (K,) [rad] (hints None: none), its open ends
+    open_ends[k] (K, 2) bool. The same BoxFits, bit for bit (the same kernel on the same numbers)."""
     window, n_inner, refine, free = _grids(cfg.step_deg, cfg.coarse_step_deg, cfg.hint_window_deg)
-    r = boxfit_jit.fit(np.ascontiguousarray(xy), sensor, top_m,
-                        np.array([prior.length_m, prior.width_m, prior.length_std_m, prior.width_std_m,
-                                  prior.min_length_m]),
-                        hint is not None, 0.0 if hint is None else float(hint), bool(open_ends[0]),
-                        bool(open_ends[1]), _NO_Z if z is None else z, z is not None, window, n_inner, refine,
-                        free, _params(cfg))
-    cx, cy, heading, length, width, seen_l, seen_w, faces, completed, rxx, rxy, ryy, shape, scx, scy = r
-    return BoxFit(centre=np.array([cx, cy]), heading=heading, length=length, width=width, seen_length=seen_l,
-                  seen_width=seen_w, faces=int(faces), completed=bool(completed),
-                  R=np.array([[rxx, rxy], [rxy, ryy]]), shape=boxfit_jit.SHAPE_CODES[shape],
-                  size_class=prior.name, seen_centre=np.array([scx, scy]))
+    priors = [cfg.prior(float(t)) for t in tops]
+    rows = boxfit_jit.fit_many(
+        np.ascontiguousarray(xy, np.float64), _NO_Z if z is None else np.ascontiguousarray(z, np.float64),
+        np.asarray(starts, np.int64), np.asarray(n, np.int64), np.ascontiguousarray(sensor_xy, np.float64),
+        np.asarray(tops, np.float64),
+        np.array([[p.length_m, p.width_m, p.length_std_m, p.width_std_m, p.min_length_m] for p in priors],
+                 np.float64).reshape(-1, 5),
+        hints is not None, np.zeros(len(starts)) if hints is None else np.asarray(hints, np.float64),
+        open_ends[:, 0].copy(), open_ends[:, 1].copy(), z is not None, window, n_inner, refine, free, _params(cfg))
+    return [BoxFit(centre=np.array([r[0], r[1]]), heading=r[2], length=r[3], width=r[4], seen_length=r[5],
+                   seen_width=r[6], faces=int(r[7]), completed=bool(r[8]), R=np.array([[r[9], r[10]], [r[10], r[11]]]),
+                   shape=boxfit_jit.SHAPE_CODES[int(r[12])], size_class=p.name, seen_centre=np.array([r[13], r[14]]))
+            for r, p in zip(rows.tolist(), priors)]
 
 
 _NO_Z = np.zeros(0)

@@ -2,8 +2,8 @@
 the per-call cost of dozens of small numpy operations (a fit of a 300-point cluster took ~0.2 ms, mostly
 interpreter overhead). Validation, the size prior and the result dataclass stay in boxfit.py.
 
-`fit(...)` returns a flat tuple (see `FIELDS`); `params(cfg)` packs a BoxFitConfig into the float64
-array the kernel reads (`P_*` indices). Results equal the former numpy code up to floating-point
+`fit_many(...)` fits K objects and returns one row of `FIELDS` per object; `params(cfg)` packs a BoxFitConfig
+into the float64 array the kernel reads (`P_*` indices). Results equal the former numpy code up to floating-point
 summation order (~1e-15 relative).
 """
 
@@ -374,7 +374,7 @@ def _seen_faces(u, v, ext, end, side, tol, min_face):
 
 
 @njit(cache=True)
-def fit(xy, sensor, top, prior, has_hint, hint, open0, open1, z, has_z, window, n_inner, refine, free, p):
+def _fit(xy, sensor, top, prior, has_hint, hint, open0, open1, z, has_z, window, n_inner, refine, free, p):
     """boxfit.fit_vehicle_box on validated inputs: xy (n >= 1, 2), sensor (2,), prior (5,) the size prior's
     (length, width, length std, width std, min length; 0: the length is the prior's where the points allow);
     z (n,) when has_z. Returns the FIELDS tuple."""
@@ -441,3 +441,81 @@ def fit(xy, sensor, top, prior, has_hint, hint, open0, open1, z, has_z, window, 
     wrapped = ref + np.fmod(np.fmod(hdg - ref + math.pi / 2, math.pi) + math.pi, math.pi) - math.pi / 2
     return (cx, cy, wrapped, length, width, u1 - u0, v1 - v0, faces, math.hypot(du, dv) > 0.05,
             xx, xy_, yy, shape, scx, scy)
+
+
+@njit(cache=True)
+def fit_many(xy, z, starts, n, sensor, tops, priors, has_hint, hints, open0, open1, has_z, window, n_inner, refine,
+             free, p):
+    """`_fit` of each of K objects, packed: object k's points xy[starts[k] : starts[k] + n[k]] (sum n, 2), heights
+    z (same rows, when has_z), tops (K,), priors (K, 5), hints (K,), open0, open1 (K,) bool. Returns (K, 15)
+    float64, one row of FIELDS per object (faces, completed and shape as numbers)."""
+    out = np.empty((len(starts), 15))
+    for k in range(len(starts)):
+        s0, s1 = starts[k], starts[k] + n[k]
+        r = _fit(xy[s0:s1], sensor, tops[k], priors[k], has_hint, hints[k], open0[k], open1[k],
+                z[s0:s1] if has_z else z, has_z, window, n_inner, refine, free, p)
+        cx, cy, heading, length, width, seen_l, seen_w, faces, completed, rxx, rxy, ryy, shape, scx, scy = r
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4] = cx, cy, heading, length, width
+        out[k, 5], out[k, 6], out[k, 7], out[k, 8], out[k, 9] = seen_l, seen_w, faces, completed, rxx
+        out[k, 10], out[k, 11], out[k, 12], out[k, 13], out[k, 14] = rxy, ryy, shape, scx, scy
+    return out
+
+
+@njit(cache=True)
+def _robust_turn(x, y, a, b, q, thr2):
+    """+1 / -1 when a, b, q turn counter-clockwise / clockwise with q farther than sqrt(thr2) [m] from the line
+    a-b, 0 within it (or when a and b coincide)."""
+    bx, by = x[b] - x[a], y[b] - y[a]
+    cross = bx * (y[q] - y[a]) - by * (x[q] - x[a])
+    if cross * cross <= thr2 * (bx * bx + by * by):
+        return 0
+    return 1 if cross > 0.0 else -1
+
+
+@njit(cache=True)
+def convex_hull(xy, tol):
+    """(h,) int64 the convex-hull vertices of the points xy (n, 2), counter-clockwise: scipy's
+    ConvexHull(xy).vertices for 2-D up to its first vertex (Andrew's monotone chain). Empty when a decision lies
+    within tol * (the largest |coordinate|) of collinear, where qhull's own rounding may decide otherwise (so the
+    caller asks qhull), or when there are fewer than 3 distinct points. Repeated points count once."""
+    n = xy.shape[0]
+    x, y = xy[:, 0].copy(), xy[:, 1].copy()
+    order = np.arange(n)
+    for i in range(1, n):
+        if x[i] < x[i - 1] or (x[i] == x[i - 1] and y[i] < y[i - 1]):
+            order = np.argsort(x, kind="mergesort")
+            for j in range(1, n):  # equal x: by y (insertion into the sorted run)
+                q, r = order[j], j
+                while r > 0 and x[order[r - 1]] == x[q] and y[order[r - 1]] > y[q]:
+                    order[r] = order[r - 1]
+                    r -= 1
+                order[r] = q
+            break
+    scale = 0.0
+    for i in range(n):
+        scale = max(scale, abs(x[i]), abs(y[i]))
+    thr2 = (tol * scale) ** 2
+    h = np.empty(2 * n + 1, np.int64)
+    k = 0
+    for step in range(2):  # lower chain left to right, then upper chain back
+        floor = 2 if step == 0 else k + 1
+        for j in range(n) if step == 0 else range(n - 2, -1, -1):
+            q = order[j]
+            if k > 0 and x[h[k - 1]] == x[q] and y[h[k - 1]] == y[q]:
+                continue  # a repeated point
+            while k >= floor:
+                turn = _robust_turn(x, y, h[k - 2], h[k - 1], q, thr2)
+                if turn == 0:
+                    return np.zeros(0, np.int64)
+                if turn > 0:
+                    break
+                k -= 1
+            h[k] = q
+            k += 1
+    k -= 1  # the first point closes the upper chain
+    if k < 3:
+        return np.zeros(0, np.int64)
+    for i in range(k):  # every corner, the two extreme points' too, robustly convex
+        if _robust_turn(x, y, h[i - 1 if i > 0 else k - 1], h[i], h[(i + 1) % k], thr2) <= 0:
+            return np.zeros(0, np.int64)
+    return h[:k].copy()

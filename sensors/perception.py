@@ -60,11 +60,11 @@ scan's truth labels and is meant for scoring, never for the tracker.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from sensors import checks, perception_jit
 from sensors.boxfit import (
@@ -72,6 +72,7 @@ from sensors.boxfit import (
     BoxFit,
     BoxFitConfig,
     fit_vehicle_box_unchecked,
+    fit_vehicle_boxes_unchecked,
     lshape_rectangle,
     min_area_rectangle,
     shape_class,
@@ -80,6 +81,7 @@ from sensors.boxfit import (
 from sensors.clustering import ClusterConfig, cluster, numbered, scan_line_links
 from sensors.ground import GroundConfig, segment_ground
 from sensors.lidar import Scan
+from sensors.perception_reference import hull_points_reference, union_fits_reference
 from sensors.roi import RoadMap
 
 MERGED: int = 1  # fragments were merged into the detection
@@ -488,6 +490,7 @@ class _Stats:
     d_min: np.ndarray  # (K,) nearest horizontal range from the sensor [m]
     u: np.ndarray  # (sum n,) each member's coordinate along its object's axis, from the centroid [m]
     xy: np.ndarray  # (sum n, 2) the members' bird's-eye points [m]
+    z: np.ndarray  # (sum n,) ... and heights (world z) [m]
     rel: np.ndarray  # (sum n, 2) ... relative to their object's centroid [m]
     principal: np.ndarray  # (K,) principal axis of the points [rad]
     thickness: np.ndarray  # (K,) footprint extent across the principal axis [m]
@@ -499,7 +502,7 @@ def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy:
     n = np.fromiter(map(len, objects), np.int64, len(objects))
     members = np.concatenate(objects)
     starts = np.cumsum(n) - n
-    top, lo, hi, centroid, sxx, syy, sxy, d_min, xy, rel = perception_jit.object_sums(
+    top, lo, hi, centroid, sxx, syy, sxy, d_min, xy, z, rel = perception_jit.object_sums(
         pts, members, starts, n, float(road_z), float(sensor_xy[0]), float(sensor_xy[1]))
     principal = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     cos_p, sin_p = np.cos(principal), np.sin(principal)
@@ -509,7 +512,7 @@ def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy:
     cos_a, sin_a = (np.cos(axis), np.sin(axis)) if road is not None else (cos_p, sin_p)
     u, along = perception_jit.along(rel, cos_a, sin_a, starts, n)
     across = _extent(rel, -sin_a, cos_a, n, starts)
-    return _Stats(members, starts, n, top, lo, hi, centroid, axis, along, across, d_min, u, xy, rel, principal,
+    return _Stats(members, starts, n, top, lo, hi, centroid, axis, along, across, d_min, u, xy, z, rel, principal,
                   thickness, p_length)
 
 
@@ -536,19 +539,8 @@ def _split(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: Pe
     out: list[np.ndarray] = []
     out_flags: list[int] = []
     for k, obj in enumerate(objects):
-        if not candidate[k]:
-            out.append(obj)
-            out_flags.append(flags[k])
-            continue
-        queue = [(obj, st.axis[k], 0)]
-        pieces = []
-        while queue:
-            o, axis, depth = queue.pop()
-            cut = _cut(pts, o, axis, cfg) if depth < cfg.max_splits else None
-            if cut is None:
-                pieces.append(o)
-            else:
-                queue += [(cut[0], axis, depth + 1), (cut[1], axis, depth + 1)]
+        rows = slice(st.starts[k], st.starts[k] + st.n[k])
+        pieces = split_object(obj, st.xy[rows], st.z[rows], st.axis[k], cfg) if candidate[k] else [obj]
         out += pieces
         out_flags += [flags[k] | (SPLIT if len(pieces) > 1 else 0)] * len(pieces)
     return out, out_flags, len(out) > len(objects)
@@ -559,37 +551,26 @@ def _too_big(length, width, top, cfg: PerceptionConfig):
     return (length > cfg.max_length_for(top)) | (width > cfg.max_width_m)
 
 
-def _cut(pts: np.ndarray, obj: np.ndarray, axis: float, cfg: PerceptionConfig) -> tuple[np.ndarray, np.ndarray] | None:
-    """The two parts of `obj` at its best gap, or None when it should stay whole."""
-    xy = pts[obj, :2]
+def split_object(obj: np.ndarray, xy: np.ndarray, z: np.ndarray, axis: float,
+                 cfg: PerceptionConfig) -> list[np.ndarray]:
+    """The pieces of the split candidate `obj` (n,) (point indices, canonical order), whose points are xy (n, 2)
+    and z (n,) [m]: cut at its best gap along or across `axis` [rad] (np.float64), then each part again, up to
+    cfg.max_splits deep (module docstring, stage 2); [obj] when it stays whole. Each piece keeps obj's order.
+
+    perception_reference.split_reference, compiled (perception_jit.split_pieces) but for the projections on the
+    axis: those stay numpy's matrix-vector products of the whole object (a compiled x c + y s differs in the last
+    bit from the BLAS kernel's fused multiply-add; a point's product does not depend on the rows around it)."""
     c, s = np.cos(axis), np.sin(axis)
-    uv = np.stack([xy @ np.array([c, s]), xy @ np.array([-s, c])], axis=1)  # along, across the axis
-    extent = np.ptp(uv, axis=0)
-    top = pts[obj, 2].max() - cfg.ground.ground_z_m
-    too_big = bool(_too_big(extent.max(), extent.min(), top, cfg))
-    min_gap = cfg.min_split_gap_m if too_big else cfg.split_gap_m
-    best = None
-    for dim in (0, 1) if too_big else (0,):  # a vehicle-sized object is cut only along the axis
-        order = np.argsort(uv[:, dim], kind="stable")
-        t = uv[order, dim]
-        o = uv[order, 1 - dim]
-        gaps = np.diff(t)
-        n = len(t)
-        # sides of each part: along this dim from t, across from running min/max of the other coordinate
-        left_other = np.maximum.accumulate(o)[:-1] - np.minimum.accumulate(o)[:-1]
-        right_other = (np.maximum.accumulate(o[::-1])[::-1] - np.minimum.accumulate(o[::-1])[::-1])[1:]
-        left_side = np.maximum(t[:-1] - t[0], left_other)
-        right_side = np.maximum(t[-1] - t[1:], right_other)
-        i = np.arange(n - 1)
-        ok = ((gaps >= min_gap) & (i + 1 >= cfg.cluster.min_points) & (n - i - 1 >= cfg.cluster.min_points)
-              & (left_side >= cfg.min_extent_m) & (right_side >= cfg.min_extent_m))
-        if ok.any():
-            j = int(np.flatnonzero(ok)[np.argmax(gaps[ok])])
-            if best is None or gaps[j] > best[0]:
-                best = (gaps[j], order[: j + 1], order[j + 1 :])
-    if best is None:
-        return None
-    return obj[np.sort(best[1])], obj[np.sort(best[2])]  # each part keeps obj's canonical order
+    bounds = np.array([cfg.max_length_m, cfg.max_width_m, cfg.truck_min_top_m, cfg.max_truck_length_m])
+    u, v = xy @ np.array([c, s]), xy @ np.array([-s, c])
+    piece, count = perception_jit.split_pieces(
+        u, v, z, np.argsort(u, kind="stable"), np.argsort(v, kind="stable"),
+        float(cfg.ground.ground_z_m), bounds, float(cfg.min_split_gap_m), float(cfg.split_gap_m),
+        float(cfg.min_extent_m), int(cfg.cluster.min_points), int(cfg.max_splits))
+    if count == 1:
+        return [obj]
+    order = np.argsort(piece, kind="stable")
+    return np.split(obj[order], np.cumsum(np.bincount(piece, minlength=count))[:-1])
 
 
 # --- merge ----------------------------------------------------------------------------------------------
@@ -597,7 +578,7 @@ def _cut(pts: np.ndarray, obj: np.ndarray, axis: float, cfg: PerceptionConfig) -
 def _merge(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: PerceptionConfig,
            st: _Stats) -> tuple[list[np.ndarray], list[int], bool]:
     """Join fragments of one vehicle by the gap between their points (see the module docstring, stage
-    3a); whether any were joined."""
+    3a); whether any were joined. perception_reference.merge_reference, compiled."""
     if len(objects) < 2:
         return objects, flags, False
     fits = ~_too_big(np.maximum(st.p_length, st.thickness), np.minimum(st.p_length, st.thickness), st.top, cfg)
@@ -611,69 +592,72 @@ def _merge(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: Pe
     ii, jj = np.nonzero(np.triu(box_gap <= cfg.merge_gap_m, k=1))
     if len(ii) == 0:
         return objects, flags, False
-    trees: dict[int, cKDTree] = {}
-    pairs = []
-    for a, b in zip(idx[ii], idx[jj]):
-        if len(objects[a]) < len(objects[b]):
-            a, b = b, a
-        if a not in trees:
-            trees[a] = cKDTree(pts[objects[a], :2])
-        d, _ = trees[a].query(pts[objects[b], :2], distance_upper_bound=cfg.merge_gap_m)
-        if np.min(d) <= cfg.merge_gap_m:
-            pairs.append((float(np.min(d)), min(a, b), max(a, b)))
-    parent = list(range(len(objects)))
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    group = {i: objects[i] for i in range(len(objects))}
-    hull: dict[int, np.ndarray] = {}
-    for _, a, b in sorted(pairs):
-        ra, rb = root(a), root(b)
-        if ra == rb:
-            continue
-        union_hull = _union_fits(pts, group, hull, ra, rb, cfg)
-        if union_hull is not None:
-            keep, drop = min(ra, rb), max(ra, rb)
-            parent[drop] = keep
-            group[keep] = np.concatenate([group[ra], group[rb]])
-            hull[keep] = union_hull
-    roots = np.array([root(i) for i in range(len(objects))])
+    pa, pb = idx[ii], idx[jj]  # pa < pb
+    d = perception_jit.pair_gaps(st.xy, st.starts, st.n, pa, pb, float(cfg.merge_gap_m))
+    near = d <= cfg.merge_gap_m
+    order = np.lexsort((pb[near], pa[near], d[near]))  # closest first, ties by the pair
+    roots, groups = unite_fitting(pts, objects, st, pa[near][order], pb[near][order], cfg)
     size = np.bincount(roots, minlength=len(objects))
     joined = np.zeros(len(objects), np.int64)
     np.bitwise_or.at(joined, roots, np.asarray(flags, np.int64))
     out, out_flags = [], []
     for i in np.flatnonzero(roots == np.arange(len(objects))):
         merged = size[i] > 1
-        out.append(_canonical(pts, group[i]) if merged else group[i])
+        out.append(_canonical(pts, groups[i]) if merged else objects[i])
         out_flags.append(int(joined[i]) | (MERGED if merged else 0))
     return out, out_flags, len(out) < len(objects)
 
 
-def _hull_points(xy: np.ndarray) -> np.ndarray:
-    """The convex-hull vertices of xy (n, 2) (all points when they are degenerate): the minimum-area
-    rectangle of a union only needs its parts' hulls."""
-    if len(xy) < 4:
-        return xy
-    try:
-        return xy[ConvexHull(xy - xy.mean(axis=0)).vertices]
-    except QhullError:
-        return xy
+UNION_MARGIN_M = 1e-7
+"""unite_fitting runs the reference test (scipy's hull) on a union whose rectangle side lies this close to its
+bound [m] (or whose minimum-area rectangle is flat or ambiguous): rounding could decide those either way."""
 
 
-def _union_fits(pts: np.ndarray, group: dict, hull: dict, a: int, b: int, cfg: PerceptionConfig) -> np.ndarray | None:
-    """The hull points of groups a and b together if their union fits one vehicle, else None; `hull`
-    caches each group's hull points."""
-    for g in (a, b):
-        if g not in hull:
-            hull[g] = _hull_points(pts[group[g], :2])
-    union = np.concatenate([hull[a], hull[b]])
-    _, length, width = min_area_rectangle(union)
-    top = max(pts[group[a], 2].max(), pts[group[b], 2].max()) - cfg.ground.ground_z_m
-    return union if bool(~_too_big(length, width, top, cfg)) else None
+def unite_fitting(pts: np.ndarray, objects: list[np.ndarray], st: _Stats, pa: np.ndarray, pb: np.ndarray,
+                  cfg: PerceptionConfig) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """The merge's union loop (perception_reference.unite_reference): the groups of objects pa[p] < pb[p] (P,)
+    joined, in order p, when their union's minimum-area rectangle fits one vehicle. Returns the root (K,) of
+    every object (the smallest of its group) and, per joined group's root, its point indices (its parts in the
+    order they were joined). st: the objects' _stats.
+
+    Compiled (perception_jit.merge_pairs, a monotone-chain hull and rotating calipers) but for a test within
+    UNION_MARGIN_M of a bound, or with a flat or ambiguous rectangle: that one is the reference's own."""
+    k_all = len(objects)
+    parent, head, tail = np.arange(k_all), np.arange(k_all), np.arange(k_all)
+    nxt, top = np.full(k_all, -1, np.int64), st.top.copy()
+    bounds = np.array([cfg.max_length_m, cfg.max_width_m, cfg.truck_min_top_m, cfg.max_truck_length_m])
+    p, decided = 0, -1
+    while True:
+        p = perception_jit.merge_pairs(st.xy, st.starts, st.n, pa, pb, p, decided, bounds, UNION_MARGIN_M, parent,
+                                       head, nxt, tail, top)
+        if p >= len(pa):
+            break
+        ra, rb = (_root_of(parent, int(o)) for o in (pa[p], pb[p]))
+        group = {r: np.concatenate([objects[o] for o in _listed(head, nxt, r)]) for r in (ra, rb)}
+        hull = {r: np.concatenate([hull_points_reference(pts[objects[o], :2]) for o in _listed(head, nxt, r)])
+                for r in (ra, rb)}
+        decided = int(union_fits_reference(pts, group, hull, ra, rb, cfg) is not None)
+    roots = parent
+    while np.any(parent[roots] != roots):
+        roots = parent[roots]
+    groups = {int(r): np.concatenate([objects[o] for o in _listed(head, nxt, int(r))])
+              for r in np.flatnonzero(np.bincount(roots, minlength=k_all) > 1)}
+    return roots, groups
+
+
+def _root_of(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        i = int(parent[i])
+    return i
+
+
+def _listed(head: np.ndarray, nxt: np.ndarray, root: int) -> list[int]:
+    """The objects of root's group in order (unite_fitting's lists)."""
+    out, o = [], int(head[root])
+    while o >= 0:
+        out.append(o)
+        o = int(nxt[o])
+    return out
 
 
 # --- selection and fit ----------------------------------------------------------------------------------
@@ -697,7 +681,7 @@ def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: Perce
     road_z = cfg.ground.ground_z_m
     boxfit = _boxfit_for(scan, cfg)
     reason, shape_centre = _screen(scan, st, cfg)
-    pool = _side_pool(pts, is_ground, cfg, boxfit)
+    pool = _SidePool(pts, is_ground, cfg, boxfit)
     fits = _fit_all(scan, st, np.flatnonzero(reason == ""), road is not None, cfg, boxfit, pool)
     if cfg.merge_fragments and len(fits) > 1:
         objects, flags, reason, fits, shape_centre, merged = _merge_boxes(
@@ -766,12 +750,11 @@ def _screen(scan: Scan, st: _Stats, cfg: PerceptionConfig) -> tuple[np.ndarray, 
     shape_centre: dict[int, np.ndarray] = {}
     if not cfg.vehicle_like:
         return reason, shape_centre
-    pts = scan.points
     road_z = cfg.ground.ground_z_m
     diag = np.hypot(*(st.hi - st.lo).T)
     required = _required_top(scan, st.d_min, cfg)
     low = st.top < required
-    z = pts[st.members, 2] - road_z
+    z = st.z - road_z
     if cfg.robust_height:
         low |= ~_body_reaches(z, st, required, cfg.body_bin_m)
     if cfg.shape_filter:  # too big for a vehicle by the points' principal extents: a guard-rail run, a wall
@@ -793,11 +776,12 @@ def _screen(scan: Scan, st: _Stats, cfg: PerceptionConfig) -> tuple[np.ndarray, 
     if cfg.shape_filter:
         reason[(reason == "") & _lifted(z, st, cfg)] = "lifted"
         for k in np.flatnonzero((reason == "") & _maybe_not_vehicle(st, cfg.boxfit)):
-            idx = _members(st, k)
-            shape = shape_class(pts[idx, :2], pts[idx, 2] - road_z, float(st.top[k]), cfg.boxfit)
+            rows = slice(st.starts[k], st.starts[k] + st.n[k])
+            xy = st.xy[rows].copy()  # pts[members, :2] (the members' rows of st.xy)
+            shape = shape_class(xy, z[rows], float(st.top[k]), cfg.boxfit)
             if shape != "vehicle":
                 reason[k] = shape
-                shape_centre[k] = min_area_rectangle(pts[idx, :2])[0]
+                shape_centre[k] = min_area_rectangle(xy)[0]
     return reason, shape_centre
 
 
@@ -864,31 +848,20 @@ def _merge_boxes(pts, objects, flags, reason, fits, shape_centre, st, cfg):
             dist[pair] = d
     if not dist:
         return objects, flags, reason, fits, shape_centre, []
-    parent = {int(k): int(k) for k in keys}
-    group = {int(k): objects[k] for k in keys}
-    hull: dict[int, np.ndarray] = {}
-    for (a, b), _ in sorted(dist.items(), key=lambda item: (item[1], item[0])):
-        ra, rb = parent[a], parent[b]
-        if ra == rb:
-            continue
-        union_hull = _union_fits(pts, group, hull, ra, rb, cfg)
-        if union_hull is not None:
-            keep, drop = min(ra, rb), max(ra, rb)
-            for k, r in parent.items():
-                if r == drop:
-                    parent[k] = keep
-            group[keep] = np.concatenate([group[ra], group[rb]])
-            hull[keep] = union_hull
+    pairs = sorted(dist.items(), key=lambda item: (item[1], item[0]))  # closest first, ties by the pair
+    roots, groups = unite_fitting(pts, objects, st, np.array([a for (a, _), _ in pairs], np.int64),
+                                  np.array([b for (_, b), _ in pairs], np.int64), cfg)
+    size = np.bincount(roots, minlength=len(objects))
+    joined = np.zeros(len(objects), np.int64)
+    np.bitwise_or.at(joined, roots, np.asarray(flags, np.int64))
     out, out_flags, out_reason, out_fits, out_centre, merged = [], [], [], {}, {}, []
     for k in range(len(objects)):
-        root = parent.get(k, k)
-        if root != k:
+        if roots[k] != k:
             continue
-        size = sum(1 for r in parent.values() if r == k) if k in parent else 1
         new = len(out)
-        if size > 1:
-            out.append(_canonical(pts, group[k]))
-            out_flags.append(int(np.bitwise_or.reduce([flags[j] for j, r in parent.items() if r == k])) | MERGED)
+        if size[k] > 1:
+            out.append(_canonical(pts, groups[k]))
+            out_flags.append(int(joined[k]) | MERGED)
             merged.append(new)
         else:
             out.append(objects[k])
@@ -902,110 +875,96 @@ def _merge_boxes(pts, objects, flags, reason, fits, shape_centre, st, cfg):
             merged)
 
 
-@dataclass(frozen=True)
-class _Fit:
-    centre: np.ndarray
-    heading: float
-    length: float
-    width: float
-    seen_length: float
-    seen_width: float
-    completed: bool
-    R: np.ndarray
-    shape: str
-
-
 def _fit_all(scan: Scan, st: _Stats, keys: np.ndarray, hinted: bool, cfg: PerceptionConfig,
-             boxfit: BoxFitConfig, pool: np.ndarray | None = None) -> dict[int, _Fit]:
+             boxfit: BoxFitConfig, pool: _SidePool | None = None) -> dict[int, BoxFit]:
     """The fits of objects `keys` (K,); with a map (hinted) the lane heading at the centroid is the prior;
-    pool: the points a truck's seen side may continue into (_side_pool)."""
-    ends = _open_ends(scan, st, keys) if cfg.fit == "vehicle_box" else [None] * len(keys)
-    return {int(k): _fit(scan, _members(st, k), st.top[k], float(st.axis[k]) if hinted else None, e, cfg, boxfit,
-                         pool) for k, e in zip(keys, ends)}
+    pool: the points a truck's seen side may continue into. Plain representatives are BoxFits with faces 0."""
+    if cfg.fit != "vehicle_box":
+        return {int(k): _representative(scan.points[_members(st, k), :2], scan.origin[:2], cfg) for k in keys}
+    if len(keys) == 0:
+        return {}
+    ends = _open_ends(scan, st, keys)
+    open_ends = np.array([e if e is not None else (False, False) for e in ends], bool).reshape(-1, 2)
+    rows = np.concatenate([np.arange(st.starts[k], st.starts[k] + st.n[k]) for k in keys])
+    n = st.n[keys]
+    fits = fit_vehicle_boxes_unchecked(st.xy[rows], st.z[rows] - cfg.ground.ground_z_m, np.cumsum(n) - n, n,
+                                       scan.origin[:2], st.top[keys], st.axis[keys] if hinted else None, open_ends,
+                                       boxfit)
+    out = {}
+    for k, f, e in zip(keys, fits, ends):
+        if boxfit.prior(st.top[k]).min_length_m > 0 and not (e and any(e)) and pool is not None and len(pool.idx):
+            f = _truck_side(scan, _members(st, k), f, float(st.top[k]), float(st.axis[k]) if hinted else None, e,
+                            cfg, boxfit, pool)
+        out[int(k)] = f
+    return out
 
 
-def _side_pool(pts: np.ndarray, is_ground: np.ndarray, cfg: PerceptionConfig, boxfit: BoxFitConfig) -> np.ndarray:
-    """Indices of the non-ground points between boxfit.side_min_z_m and max_height_m above the road (those a
-    truck's side seen at a grazing angle returns, mostly left as noise or fragments by the clustering)."""
-    z = pts[:, 2] - cfg.ground.ground_z_m
-    return np.flatnonzero(~is_ground & (z >= boxfit.side_min_z_m) & (z <= cfg.max_height_m))
+class _SidePool:
+    """The non-ground points between boxfit.side_min_z_m and max_height_m above the road (those a truck's side
+    seen at a grazing angle returns, mostly left as noise or fragments by the clustering), gathered on first use
+    (a frame without a truck needs none): idx (P,) indices into pts (N, 3), xy (P, 2) [m], z (P,) above the road."""
+
+    def __init__(self, pts: np.ndarray, is_ground: np.ndarray, cfg: PerceptionConfig, boxfit: BoxFitConfig):
+        self._pts, self._is_ground, self._road_z = pts, is_ground, cfg.ground.ground_z_m
+        self._bounds = (boxfit.side_min_z_m, cfg.max_height_m)
+
+    @functools.cached_property
+    def idx(self) -> np.ndarray:
+        z = self._pts[:, 2] - self._road_z
+        return np.flatnonzero(~self._is_ground & (z >= self._bounds[0]) & (z <= self._bounds[1]))
+
+    @functools.cached_property
+    def xy(self) -> np.ndarray:
+        return self._pts[self.idx, :2]
+
+    @functools.cached_property
+    def z(self) -> np.ndarray:
+        return self._pts[self.idx, 2] - self._road_z
 
 
-def _fit(scan: Scan, idx: np.ndarray, top: float, hint: float | None, open_ends: tuple[bool, bool] | None,
-         cfg: PerceptionConfig, boxfit: BoxFitConfig, pool: np.ndarray | None = None) -> _Fit:
-    """The measurement of one object by cfg.fit."""
-    xy = scan.points[idx, :2]
-    if cfg.fit == "vehicle_box":
-        f = _vehicle_box(scan, idx, top, hint, open_ends, cfg, boxfit, pool)
-        return _Fit(f.centre, f.heading, f.length, f.width, f.seen_length, f.seen_width, f.completed, f.R, f.shape)
+def _representative(xy: np.ndarray, sensor_xy: np.ndarray, cfg: PerceptionConfig) -> BoxFit:
+    """The plain representative cfg.fit of the points xy (n, 2) [m] (REPRESENTATIVES), R = DEFAULT_STD_M^2 I."""
     centre, length, width = REPRESENTATIVES[cfg.fit](xy)
     completed = False
     if cfg.complete_one_face and width < cfg.one_face_width_m:
-        centre = _complete_one_face(centre, xy, length, width, scan.origin[:2], cfg.size_prior_m)
+        centre = _complete_one_face(centre, xy, length, width, sensor_xy, cfg.size_prior_m)
         completed = True
-    return _Fit(centre, _principal_angle(xy), length, width, length, width, completed,
-                DEFAULT_STD_M**2 * np.eye(2), "vehicle")
+    return BoxFit(centre=centre, heading=_principal_angle(xy), length=length, width=width, seen_length=length,
+                  seen_width=width, faces=0, completed=completed, R=DEFAULT_STD_M**2 * np.eye(2))
 
 
-def _vehicle_box(scan: Scan, idx: np.ndarray, top: float, hint: float | None, open_ends: tuple[bool, bool] | None,
-                 cfg: PerceptionConfig, boxfit: BoxFitConfig, pool: np.ndarray | None) -> BoxFit:
-    """boxfit.fit_vehicle_box of the points idx; for a class whose length is grown from the seen side
-    (SizePrior.min_length_m > 0: trucks) whose azimuth ends are not occluded, refitted with the points of
+def _truck_side(scan: Scan, idx: np.ndarray, f: BoxFit, top: float, hint: float | None,
+                open_ends: tuple[bool, bool] | None, cfg: PerceptionConfig, boxfit: BoxFitConfig,
+                pool: _SidePool) -> BoxFit:
+    """The fit f of the points idx of an object whose class's length is grown from the seen side
+    (SizePrior.min_length_m > 0: trucks) and whose azimuth ends are not occluded, refitted with the points of
     `pool` that continue its seen side (boxfit.side_continuation: the clustering leaves a side seen at a
-    grazing angle as noise and fragments)."""
+    grazing angle as noise and fragments); f when there are none."""
     pts, road_z = scan.points, cfg.ground.ground_z_m
-    f = fit_vehicle_box_unchecked(pts[idx, :2], scan.origin[:2], top_m=float(top), heading_hint=hint, open_ends=open_ends,
-                         cfg=boxfit, z=pts[idx, 2] - road_z)  # checked inputs
-    if pool is None or len(pool) == 0 or boxfit.prior(top).min_length_m <= 0 or (open_ends and any(open_ends)):
-        return f
-    more = pool[side_continuation(f, pts[pool, :2], pts[pool, 2] - road_z, scan.origin[:2],
-                                  max_length_m=cfg.max_truck_length_m, cfg=boxfit)]
-    more = np.setdiff1d(more, idx)
+    more = pool.idx[side_continuation(f, pool.xy, pool.z, scan.origin[:2], max_length_m=cfg.max_truck_length_m,
+                                      cfg=boxfit)]
+    in_object = np.zeros(len(pts), bool)
+    in_object[idx] = True
+    more = more[~in_object[more]]  # np.setdiff1d(more, idx): more is sorted and unique (one side each)
     if len(more) == 0:
         return f
     both = _canonical(pts, np.concatenate([idx, more]))
-    return fit_vehicle_box_unchecked(pts[both, :2], scan.origin[:2], top_m=float(top), heading_hint=hint,
-                            open_ends=open_ends, cfg=boxfit, z=pts[both, 2] - road_z)
+    return fit_vehicle_box_unchecked(pts[both, :2], scan.origin[:2], top_m=top, heading_hint=hint,
+                                     open_ends=open_ends, cfg=boxfit, z=pts[both, 2] - road_z)
 
 
 def _open_ends(scan: Scan, st: _Stats, keys: np.ndarray, margin_m: float = 0.5,
                look: int = 2) -> list[tuple[bool, bool] | None]:
     """Per object of `keys`: whether its (first, last) azimuth edge, counter-clockwise, is bounded by a
-    nearer return; None for all without a range image.
+    nearer return; None for all without a range image (or with a point of unknown ray).
 
     sensors/boxfit.open_ends_from_ranges for all objects at once (same rule, same arguments; the tests
-    check they agree): an object's columns start after the widest empty arc of its azimuth columns, and
-    an edge is open when in one of the `look` columns beyond it a beam the object uses at that edge
-    returns more than margin_m nearer than the object's nearest return in that edge column."""
+    check they agree): perception_reference.open_ends_reference, compiled (perception_jit.open_ends)."""
     if scan.ranges.size == 0 or len(keys) == 0:
         return [None] * len(keys)
-    members = np.concatenate([_members(st, k) for k in keys])
-    ray = scan.ray[members]
-    if np.any(ray < 0):
-        return [None] * len(keys)
-    n_az, n_beams = scan.ranges.shape
-    owner = np.repeat(np.arange(len(keys)), st.n[keys])
-    az, beam = ray // n_beams, ray % n_beams
-    cols = np.unique(owner * n_az + az)  # sorted (object, column) pairs
-    c_owner, c_az = cols // n_az, cols % n_az
-    start = np.flatnonzero(np.r_[True, c_owner[1:] != c_owner[:-1]])
-    end = np.r_[start[1:], len(cols)] - 1
-    nxt = np.r_[c_az[1:], 0]
-    nxt[end] = c_az[start] + n_az  # the arc from an object's last column round to its first
-    gap = nxt - c_az
-    widest = np.lexsort((np.arange(len(cols)), -gap, c_owner))[start]  # first widest gap of each object
-    first = np.where(widest == end, c_az[start], c_az[np.minimum(widest + 1, len(cols) - 1)])
-    last = c_az[widest]
-    out = []
-    for edge, step in ((first, -1), (last, +1)):
-        at_edge = az == edge[owner]
-        o, b = owner[at_edge], beam[at_edge]
-        here = np.full(len(keys), np.inf)
-        np.minimum.at(here, o, scan.ranges[edge[o], b])
-        beyond = (edge[o][:, None] + step * np.arange(1, look + 1)[None, :]) % n_az
-        nearer = np.any(scan.ranges[beyond, b[:, None]] < (here[o] - margin_m)[:, None], axis=1)
-        out.append(np.bincount(o, weights=nearer, minlength=len(keys)) > 0)
-    return [(bool(a), bool(b)) for a, b in zip(*out)]
+    ends, known = perception_jit.open_ends(scan.ray, st.members, st.starts, st.n, np.asarray(keys, np.int64),
+                                           np.ascontiguousarray(scan.ranges), float(margin_m), int(look))
+    return [(bool(a), bool(b)) for a, b in ends] if known else [None] * len(keys)
 
 
 def _principal_angle(xy: np.ndarray) -> float:

@@ -2,11 +2,18 @@
 
 Each kernel computes what the former numpy code computed, bit for bit: sums follow numpy's pairwise
 summation (the order `np.add.reduceat` adds in, `_reduceat_add`), products and differences are the same
-float64 operations, and trigonometry stays in numpy (the callers pass cos/sin arrays). Objects are packed:
-`starts` (K,) and `n` (K,) index the members' rows of the (sum n, ...) arrays, object by object.
+float64 operations, and trigonometry and matrix products stay in numpy (the callers pass cos/sin arrays and
+projections: numpy's transcendental functions and BLAS kernels round differently in the last bit). The merge's
+union test (`merge_pairs`) only decides a comparison: it uses its own hull and rectangle, and hands the
+decision back to the reference (sensors/perception_reference.py) where rounding could flip it. The former code
+of the split, merge and link loops is kept in sensors/perception_reference.py and
+tests/test_perception_identical.py checks the kernels against it. Objects are packed: `starts` (K,) and `n`
+(K,) index the members' rows of the (sum n, ...) arrays, object by object.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
@@ -61,24 +68,33 @@ def _reduceat_add(a, starts, n):
 def object_sums(pts, members, starts, n, road_z, sx, sy):
     """Per object: top above the road (K,), footprint corners lo, hi (K, 2), centroid (K, 2), the second
     moments sxx, syy, sxy (K,) about it, the nearest horizontal range d_min (K,) from the sensor (sx, sy);
-    per member: xy (sum n, 2) and rel = xy - its object's centroid (sum n, 2). pts (N, 3) [m]."""
+    per member: xy (sum n, 2), z (sum n,) and rel = xy - its object's centroid (sum n, 2). pts (N, 3) [m].
+
+    d_min is the smallest np.hypot, taken only over the points whose dx * dx + dy * dy lies within 1e-12
+    (relative) of the smallest: every other point's hypot is larger (both are within a few ulp of the range)."""
     k_all, m = len(starts), len(members)
     xy = np.empty((m, 2))
-    x, y = np.empty(m), np.empty(m)
+    x, y, z, d2 = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
     top = np.empty(k_all)
     lo, hi = np.empty((k_all, 2)), np.empty((k_all, 2))
     d_min = np.empty(k_all)
     for k in range(k_all):
-        s0 = starts[k]
-        t, xl, xh, yl, yh, d = -np.inf, np.inf, -np.inf, np.inf, -np.inf, np.inf
-        for i in range(s0, s0 + n[k]):
+        s0, s1 = starts[k], starts[k] + n[k]
+        t, xl, xh, yl, yh, d2_min = -np.inf, np.inf, -np.inf, np.inf, -np.inf, np.inf
+        for i in range(s0, s1):
             p = members[i]
             px, py, pz = pts[p, 0], pts[p, 1], pts[p, 2]
             xy[i, 0], xy[i, 1] = px, py
-            x[i], y[i] = px, py
+            x[i], y[i], z[i] = px, py, pz
             t = max(t, pz)
             xl, xh, yl, yh = min(xl, px), max(xh, px), min(yl, py), max(yh, py)
-            d = min(d, np.hypot(px - sx, py - sy))
+            dx, dy = px - sx, py - sy
+            d2[i] = dx * dx + dy * dy
+            d2_min = min(d2_min, d2[i])
+        near, d = d2_min * (1.0 + 1e-12) + 1e-290, np.inf
+        for i in range(s0, s1):
+            if d2[i] <= near:
+                d = min(d, np.hypot(x[i] - sx, y[i] - sy))
         top[k] = t - road_z
         lo[k, 0], lo[k, 1], hi[k, 0], hi[k, 1] = xl, yl, xh, yh
         d_min[k] = d
@@ -93,7 +109,7 @@ def object_sums(pts, members, starts, n, road_z, sx, sy):
             rel[i, 0], rel[i, 1] = rx, ry
             xx[i], yy[i], xy_[i] = rx * rx, ry * ry, rx * ry
     return (top, lo, hi, centroid, _reduceat_add(xx, starts, n), _reduceat_add(yy, starts, n),
-            _reduceat_add(xy_, starts, n), d_min, xy, rel)
+            _reduceat_add(xy_, starts, n), d_min, xy, z, rel)
 
 
 @njit(cache=True)
@@ -255,3 +271,339 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
 def _foot_key(x, y, inv):
     """One int64 per (floor(x inv), floor(y inv)) cell (distinct cells, distinct keys, within +-2^31 cells)."""
     return np.int64(np.floor(x * inv)) * 4294967296 + np.int64(np.floor(y * inv))
+
+
+# --- split (sensors/perception_reference.split_reference) ---------------------------------------------------
+
+@njit(cache=True)
+def _best_cut(u, v, z, by_u, by_v, road_z, bounds, min_split_gap, split_gap, min_extent, min_points):
+    """perception_reference.cut_reference on one part of an object: (dim, j), its first piece being the points
+    by_u[: j + 1] (dim 0) or by_v[: j + 1] (dim 1), or (-1, -1) when the part stays whole. u, v (n,) the object's
+    points along / across its axis, z (n,) their heights [m]; by_u, by_v (m,) the part's points sorted by u and
+    by v (stable: ties in point order, as the reference's argsort of the part); bounds (4,) max_length_m,
+    max_width_m, truck_min_top_m, max_truck_length_m."""
+    m = len(by_u)
+    ext_u, ext_v = u[by_u[m - 1]] - u[by_u[0]], v[by_v[m - 1]] - v[by_v[0]]
+    top = -np.inf
+    for i in range(m):
+        top = max(top, z[by_u[i]])
+    top -= road_z
+    max_length = bounds[3] if top >= bounds[2] else bounds[0]
+    too_big = max(ext_u, ext_v) > max_length or min(ext_u, ext_v) > bounds[1]
+    min_gap = min_split_gap if too_big else split_gap
+    best_dim, best_j, best_gap = -1, -1, 0.0
+    r_hi, r_lo = np.empty(m), np.empty(m)
+    for dim in range(2 if too_big else 1):  # a vehicle-sized object is cut only along the axis
+        order, t, o = (by_u, u, v) if dim == 0 else (by_v, v, u)
+        hi, lo = -np.inf, np.inf
+        for i in range(m - 1, -1, -1):  # the other coordinate's range from i on
+            hi, lo = max(hi, o[order[i]]), min(lo, o[order[i]])
+            r_hi[i], r_lo[i] = hi, lo
+        hi, lo = -np.inf, np.inf
+        j, j_gap = -1, 0.0
+        t0, t1 = t[order[0]], t[order[m - 1]]
+        for i in range(m - 1):
+            hi, lo = max(hi, o[order[i]]), min(lo, o[order[i]])
+            gap = t[order[i + 1]] - t[order[i]]
+            left = max(t[order[i]] - t0, hi - lo)
+            right = max(t1 - t[order[i + 1]], r_hi[i + 1] - r_lo[i + 1])
+            if (gap >= min_gap and i + 1 >= min_points and m - i - 1 >= min_points and left >= min_extent
+                    and right >= min_extent and (j < 0 or gap > j_gap)):
+                j, j_gap = i, gap  # the first widest gap
+        if j >= 0 and (best_j < 0 or j_gap > best_gap):
+            best_dim, best_j, best_gap = dim, j, j_gap
+    return best_dim, best_j
+
+
+@njit(cache=True)
+def split_pieces(u, v, z, by_u, by_v, road_z, bounds, min_split_gap, split_gap, min_extent, min_points,
+                 max_splits):
+    """perception_reference.split_reference of one object: piece (n,) int64 the piece of each point, numbered
+    in the reference's order of the pieces, and their count. u, v (n,) the points along / across the object's
+    axis (numpy's products, as the reference computes them), z (n,) their heights [m], by_u, by_v (n,) their
+    stable argsorts; bounds as _best_cut. Each part keeps the object's sorted orders (a stable sort of a part is
+    its points in the object's order)."""
+    n = len(u)
+    piece = np.empty(n, np.int64)
+    first = np.zeros(n, np.bool_)
+    stack_u, stack_v = [by_u], [by_v]
+    depth = [0]
+    count = 0
+    while len(depth) > 0:
+        by_u, by_v, d = stack_u.pop(), stack_v.pop(), depth.pop()
+        dim, j = -1, -1
+        if d < max_splits:
+            dim, j = _best_cut(u, v, z, by_u, by_v, road_z, bounds, min_split_gap, split_gap, min_extent,
+                               min_points)
+        if dim < 0:
+            piece[by_u] = count
+            count += 1
+            continue
+        cut = by_u if dim == 0 else by_v
+        first[cut[: j + 1]] = True
+        in_u, in_v = first[by_u], first[by_v]
+        for part in (True, False):  # the reference queues (first, second) and takes the second first
+            stack_u.append(by_u[in_u == part])
+            stack_v.append(by_v[in_v == part])
+            depth.append(d + 1)
+        first[cut[: j + 1]] = False
+    return piece, count
+
+
+# --- merge (sensors/perception_reference.merge_reference, union_fits_reference) ----------------------------
+
+@njit(cache=True)
+def _sorted_by_x(xy, s0, m):
+    for i in range(s0 + 1, s0 + m):
+        if xy[i, 0] < xy[i - 1, 0]:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _nearest_sq(xy, sa, na, sb, nb, bound):
+    """The smallest squared distance dx*dx + dy*dy (cKDTree's arithmetic) below `bound` between the points
+    xy[sa : sa + na] and xy[sb : sb + nb] [m], else bound. Each run sorted by x: a sweep in x that skips only
+    pairs whose dx*dx alone exceeds the best so far; otherwise (unsorted) all pairs."""
+    best = bound
+    if not (_sorted_by_x(xy, sa, na) and _sorted_by_x(xy, sb, nb)):
+        for j in range(sb, sb + nb):
+            for i in range(sa, sa + na):
+                dx, dy = xy[i, 0] - xy[j, 0], xy[i, 1] - xy[j, 1]
+                best = min(best, dx * dx + dy * dy)
+        return best
+    lo = sa
+    for j in range(sb, sb + nb):
+        xb, yb = xy[j, 0], xy[j, 1]
+        while lo < sa + na and xy[lo, 0] < xb and (xb - xy[lo, 0]) * (xb - xy[lo, 0]) > best:
+            lo += 1  # farther left than the best distance, for this point and every later (larger x) one
+        for i in range(lo, sa + na):
+            dx = xy[i, 0] - xb
+            if dx >= 0.0 and dx * dx > best:
+                break
+            dy = xy[i, 1] - yb
+            best = min(best, dx * dx + dy * dy)
+    return best
+
+
+@njit(cache=True)
+def pair_gaps(xy, starts, n, pa, pb, gap):
+    """(P,) the smallest distance [m] between the points of objects pa (P,) and pb (P,) when it is below gap [m],
+    else inf: the cKDTree query of perception_reference.merge_reference (distance_upper_bound=gap reports a
+    neighbour when its squared distance is below gap * gap). xy (sum n, 2) the objects' points, packed by starts,
+    n (K,), each object's in canonical (x-sorted) order."""
+    out = np.empty(len(pa))
+    bound = gap * gap
+    for p in range(len(pa)):
+        a, b = pa[p], pb[p]
+        best = _nearest_sq(xy, starts[a], n[a], starts[b], n[b], bound)
+        out[p] = np.sqrt(best) if best < bound else np.inf
+    return out
+
+
+@njit(cache=True)
+def _turn(x, y, a, b, q):
+    """> 0 when the points a, b, q turn counter-clockwise."""
+    return (x[b] - x[a]) * (y[q] - y[a]) - (y[b] - y[a]) * (x[q] - x[a])
+
+
+@njit(cache=True)
+def _hull_ccw(x, y):
+    """Indices of the convex-hull vertices of the points (x, y) (m,), sorted by x then y, counter-clockwise
+    (Andrew's monotone chain; points on an edge left out). Fewer than 3 for collinear points."""
+    m = len(x)
+    h = np.empty(2 * m + 1, np.int64)
+    k = 0
+    for q in range(m):  # lower chain, left to right
+        while k >= 2 and _turn(x, y, h[k - 2], h[k - 1], q) <= 0.0:
+            k -= 1
+        h[k] = q
+        k += 1
+    lower = k + 1
+    for q in range(m - 2, -1, -1):  # upper chain, back
+        while k >= lower and _turn(x, y, h[k - 2], h[k - 1], q) <= 0.0:
+            k -= 1
+        h[k] = q
+        k += 1
+    return h[: max(k - 1, 0)]
+
+
+@njit(cache=True)
+def _sort_xy(x, y):
+    """The order sorting the points (x, y) (m,) by x, then y."""
+    order = np.argsort(x, kind="mergesort")
+    i = 0
+    while i < len(order):  # runs of equal x: by y (insertion sort, runs are short)
+        j = i + 1
+        while j < len(order) and x[order[j]] == x[order[i]]:
+            q, r = order[j], j
+            while r > i and y[order[r - 1]] > y[q]:
+                order[r] = order[r - 1]
+                r -= 1
+            order[r] = q
+            j += 1
+        i = j
+    return order
+
+
+@njit(cache=True)
+def _object_hull(xy, s0, m, out_x, out_y, k):
+    """Append the convex-hull vertices of the points xy[s0 : s0 + m] to out_x, out_y from k on; returns the new k."""
+    x, y = xy[s0 : s0 + m, 0].copy(), xy[s0 : s0 + m, 1].copy()
+    ordered = True
+    for i in range(1, m):
+        if x[i] < x[i - 1] or (x[i] == x[i - 1] and y[i] < y[i - 1]):
+            ordered = False
+            break
+    if not ordered:
+        order = _sort_xy(x, y)
+        x, y = x[order], y[order]
+    for q in _hull_ccw(x, y) if m >= 3 else np.arange(m):
+        out_x[k], out_y[k] = x[q], y[q]
+        k += 1
+    return k
+
+
+@njit(cache=True)
+def _group_hull(xy, starts, n, head, nxt, ra, rb):
+    """(x, y) the convex-hull vertices (counter-clockwise, relative to the first point) of the points of the
+    objects listed from head[ra] and head[rb] along nxt (-1 ends a list)."""
+    size = 0
+    for r in (ra, rb):
+        o = head[r]
+        while o >= 0:
+            size += n[o]
+            o = nxt[o]
+    hx, hy = np.empty(size), np.empty(size)
+    k = 0
+    for r in (ra, rb):
+        o = head[r]
+        while o >= 0:
+            k = _object_hull(xy, starts[o], n[o], hx, hy, k)
+            o = nxt[o]
+    hx, hy = hx[:k] - hx[0], hy[:k] - hy[0]
+    order = _sort_xy(hx, hy)
+    hx, hy = hx[order], hy[order]
+    keep = _hull_ccw(hx, hy)
+    return hx[keep], hy[keep]
+
+
+@njit(cache=True)
+def _min_area_box(x, y, area_tol, side_tol):
+    """(length, width, clear): the sides [m] of the minimum-area rectangle around the convex polygon (x, y)
+    (h >= 3 vertices, counter-clockwise), one side on an edge (rotating calipers). clear is False when the
+    polygon is flat (width <= side_tol) or another edge's rectangle comes within area_tol (relative) of the
+    smallest area with sides more than side_tol apart (a reference on its own hull may pick either)."""
+    h = len(x)
+    area, length, width = np.empty(h), np.empty(h), np.empty(h)
+    for e in range(h):
+        f = (e + 1) % h
+        ex, ey = x[f] - x[e], y[f] - y[e]
+        norm = math.hypot(ex, ey)
+        c, s = ex / norm, ey / norm
+        u_lo, u_hi, v_lo, v_hi = np.inf, -np.inf, np.inf, -np.inf
+        for q in range(h):
+            u, v = x[q] * c + y[q] * s, y[q] * c - x[q] * s
+            u_lo, u_hi, v_lo, v_hi = min(u_lo, u), max(u_hi, u), min(v_lo, v), max(v_hi, v)
+        du, dv = u_hi - u_lo, v_hi - v_lo
+        area[e], length[e], width[e] = du * dv, max(du, dv), min(du, dv)
+    k = np.argmin(area)
+    clear = width[k] > side_tol
+    for e in range(h):
+        if area[e] <= area[k] * (1.0 + area_tol) and (abs(length[e] - length[k]) > side_tol
+                                                      or abs(width[e] - width[k]) > side_tol):
+            clear = False
+    return length[k], width[k], clear
+
+
+@njit(cache=True)
+def _root(parent, i):
+    while parent[i] != i:
+        i = parent[i]
+    return i
+
+
+@njit(cache=True)
+def _unite(ra, rb, parent, head, nxt, tail, top):
+    """Join the groups of roots ra, rb: the smaller root stays, its list is ra's then rb's objects."""
+    keep, drop = min(ra, rb), max(ra, rb)
+    first, last = head[ra], tail[rb]
+    nxt[tail[ra]] = head[rb]
+    parent[drop] = keep
+    head[keep], tail[keep] = first, last
+    top[keep] = max(top[ra], top[rb])
+
+
+@njit(cache=True)
+def merge_pairs(xy, starts, n, pa, pb, first, decided, bounds, margin, parent, head, nxt, tail, top):
+    """The merge's union loop (perception_reference.unite_reference) from pair `first` on: the groups of objects
+    pa[p] and pb[p] (P,) are joined, in order p, when the minimum-area rectangle of their points fits one
+    vehicle; bounds as _cut_mask. State, updated in place, per object (K,): parent (its group's root is reached
+    along it), head/tail (a root's first and last object), nxt (the next object in its group, -1 last), top
+    (a root's highest point above the road [m]). decided >= 0: the test of pair `first` (1 join, 0 not).
+
+    Returns the first pair whose test is not clear (flat or ambiguous rectangle, or a side within margin [m] of
+    its bound: rounding could flip it; the caller runs the reference test and calls again with its result), or
+    P when done."""
+    for p in range(first, len(pa)):
+        ra, rb = _root(parent, pa[p]), _root(parent, pb[p])
+        if ra == rb:
+            continue
+        if p == first and decided >= 0:
+            fits = decided == 1
+        else:
+            hx, hy = _group_hull(xy, starts, n, head, nxt, ra, rb)
+            if len(hx) < 3:
+                return p
+            length, width, clear = _min_area_box(hx, hy, 1e-9, margin)
+            t = max(top[ra], top[rb])
+            max_length = bounds[3] if t >= bounds[2] else bounds[0]
+            if not clear or abs(length - max_length) <= margin or abs(width - bounds[1]) <= margin:
+                return p
+            fits = not (length > max_length or width > bounds[1])
+        if fits:
+            _unite(ra, rb, parent, head, nxt, tail, top)
+    return len(pa)
+
+
+# --- box fit inputs (sensors/perception_reference.open_ends_reference) -------------------------------------
+
+@njit(cache=True)
+def open_ends(ray, members, starts, n, keys, ranges, margin, look):
+    """(K, 2) bool per object of keys (K,): whether its (first, last) azimuth edge, counter-clockwise, is bounded
+    by a nearer return (perception_reference.open_ends_reference), and whether every member's ray (N,) is known
+    (else the ends are not computed). An object's columns start after the widest empty arc of its azimuth
+    columns (the first widest, counter-clockwise); an edge is open when in one of the `look` columns beyond it
+    a beam the object uses at that edge returns more than margin [m] nearer than the object's nearest return in
+    that column. ranges (A, B) [m]."""
+    n_az, n_beams = ranges.shape
+    out = np.zeros((len(keys), 2), np.bool_)
+    for k in keys:
+        for i in range(starts[k], starts[k] + n[k]):
+            if ray[members[i]] < 0:
+                return out, False
+    for q in range(len(keys)):
+        s0, m = starts[keys[q]], n[keys[q]]
+        az = np.empty(m, np.int64)
+        for i in range(m):
+            az[i] = ray[members[s0 + i]] // n_beams
+        cols = np.unique(az)
+        widest, widest_gap = 0, -1
+        for i in range(len(cols)):
+            gap = (cols[i + 1] if i + 1 < len(cols) else cols[0] + n_az) - cols[i]
+            if gap > widest_gap:
+                widest, widest_gap = i, gap
+        edges = (cols[(widest + 1) % len(cols)], cols[widest])  # (first, last)
+        for e in range(2):
+            edge, step = edges[e], -1 if e == 0 else 1
+            here = np.inf
+            for i in range(m):
+                if az[i] == edge:
+                    here = min(here, ranges[edge, ray[members[s0 + i]] % n_beams])
+            for i in range(m):
+                if az[i] == edge and not out[q, e]:
+                    b = ray[members[s0 + i]] % n_beams
+                    for step_k in range(1, look + 1):
+                        if ranges[(edge + step * step_k) % n_az, b] < here - margin:
+                            out[q, e] = True
+    return out, True

@@ -1,0 +1,204 @@
+"""Pure-numpy reference versions of the per-object loops that sensors/perception.py runs compiled.
+
+Each function here is the former numpy code of a perception step, kept as the specification of its compiled
+replacement (sensors/perception_jit.py): tests/test_perception_identical.py checks, on ray-cast scans and on
+hand-made edge cases, that the compiled path gives the same bits. `union_fits_reference` is also the compiled
+merge test's fallback when its decision lies within rounding of a bound.
+
+`cfg` is a sensors.perception.PerceptionConfig (read by attribute; not imported, perception imports this module).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError, cKDTree
+
+from sensors.boxfit import min_area_rectangle
+
+
+def too_big_reference(length, width, top, cfg):
+    """Whether footprints of these sides (length >= width) [m] and tops [m] exceed one vehicle's bounds."""
+    return (length > cfg.max_length_for(top)) | (width > cfg.max_width_m)
+
+
+def cut_reference(pts: np.ndarray, obj: np.ndarray, axis: float, cfg) -> tuple[np.ndarray, np.ndarray] | None:
+    """The two parts of `obj` (point indices into pts (N, 3) [m]) at its best gap along / across `axis` [rad],
+    or None when it should stay whole (module docstring of sensors/perception.py, stage 2)."""
+    xy = pts[obj, :2]
+    c, s = np.cos(axis), np.sin(axis)
+    uv = np.stack([xy @ np.array([c, s]), xy @ np.array([-s, c])], axis=1)  # along, across the axis
+    extent = np.ptp(uv, axis=0)
+    top = pts[obj, 2].max() - cfg.ground.ground_z_m
+    too_big = bool(too_big_reference(extent.max(), extent.min(), top, cfg))
+    min_gap = cfg.min_split_gap_m if too_big else cfg.split_gap_m
+    best = None
+    for dim in (0, 1) if too_big else (0,):  # a vehicle-sized object is cut only along the axis
+        order = np.argsort(uv[:, dim], kind="stable")
+        t = uv[order, dim]
+        o = uv[order, 1 - dim]
+        gaps = np.diff(t)
+        n = len(t)
+        # sides of each part: along this dim from t, across from running min/max of the other coordinate
+        left_other = np.maximum.accumulate(o)[:-1] - np.minimum.accumulate(o)[:-1]
+        right_other = (np.maximum.accumulate(o[::-1])[::-1] - np.minimum.accumulate(o[::-1])[::-1])[1:]
+        left_side = np.maximum(t[:-1] - t[0], left_other)
+        right_side = np.maximum(t[-1] - t[1:], right_other)
+        i = np.arange(n - 1)
+        ok = ((gaps >= min_gap) & (i + 1 >= cfg.cluster.min_points) & (n - i - 1 >= cfg.cluster.min_points)
+              & (left_side >= cfg.min_extent_m) & (right_side >= cfg.min_extent_m))
+        if ok.any():
+            j = int(np.flatnonzero(ok)[np.argmax(gaps[ok])])
+            if best is None or gaps[j] > best[0]:
+                best = (gaps[j], order[: j + 1], order[j + 1 :])
+    if best is None:
+        return None
+    return obj[np.sort(best[1])], obj[np.sort(best[2])]  # each part keeps obj's canonical order
+
+
+def split_reference(pts: np.ndarray, obj: np.ndarray, axis: float, cfg) -> list[np.ndarray]:
+    """The pieces of one split candidate `obj`: cut_reference again on each part, up to cfg.max_splits deep,
+    in the order sensors/perception lists them (the second part of a cut first)."""
+    queue = [(obj, 0)]
+    pieces = []
+    while queue:
+        o, depth = queue.pop()
+        cut = cut_reference(pts, o, axis, cfg) if depth < cfg.max_splits else None
+        if cut is None:
+            pieces.append(o)
+        else:
+            queue += [(cut[0], depth + 1), (cut[1], depth + 1)]
+    return pieces
+
+
+def hull_points_reference(xy: np.ndarray) -> np.ndarray:
+    """The convex-hull vertices of xy (n, 2) (all points when they are degenerate): the minimum-area
+    rectangle of a union only needs its parts' hulls."""
+    if len(xy) < 4:
+        return xy
+    try:
+        return xy[ConvexHull(xy - xy.mean(axis=0)).vertices]
+    except QhullError:
+        return xy
+
+
+def union_fits_reference(pts: np.ndarray, group: dict, hull: dict, a: int, b: int, cfg) -> np.ndarray | None:
+    """The hull points of groups a and b together (group: root -> point indices) if their union fits one
+    vehicle, else None; `hull` caches each group's hull points (a joined group's are its parts' together)."""
+    for g in (a, b):
+        if g not in hull:
+            hull[g] = hull_points_reference(pts[group[g], :2])
+    union = np.concatenate([hull[a], hull[b]])
+    _, length, width = min_area_rectangle(union)
+    top = max(pts[group[a], 2].max(), pts[group[b], 2].max()) - cfg.ground.ground_z_m
+    return union if bool(~too_big_reference(length, width, top, cfg)) else None
+
+
+def unite_reference(pts: np.ndarray, objects: list[np.ndarray], pairs, cfg) -> tuple[np.ndarray, dict]:
+    """The merge's union loop: the groups of objects a and b of each pair (a < b), in order, are joined when
+    union_fits_reference says their union fits one vehicle. Returns the root (K,) of every object (the smallest
+    object of its group) and each root's point indices (its parts in the order they were joined)."""
+    parent = list(range(len(objects)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    group = {i: objects[i] for i in range(len(objects))}
+    hull: dict[int, np.ndarray] = {}
+    for a, b in pairs:
+        ra, rb = root(a), root(b)
+        if ra == rb:
+            continue
+        union_hull = union_fits_reference(pts, group, hull, ra, rb, cfg)
+        if union_hull is not None:
+            keep, drop = min(ra, rb), max(ra, rb)
+            parent[drop] = keep
+            group[keep] = np.concatenate([group[ra], group[rb]])
+            hull[keep] = union_hull
+    return np.array([root(i) for i in range(len(objects))], np.int64), group
+
+
+def point_gap_reference(pts: np.ndarray, a: np.ndarray, b: np.ndarray, gap: float) -> float:
+    """The smallest distance [m] between the points a and b (indices into pts (N, 3)) if at most gap, else inf
+    (the k-d tree on the larger one)."""
+    if len(a) < len(b):
+        a, b = b, a
+    d, _ = cKDTree(pts[a, :2]).query(pts[b, :2], distance_upper_bound=gap)
+    return float(np.min(d)) if np.min(d) <= gap else np.inf
+
+
+def merge_reference(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg, st,
+                    merged_flag: int) -> tuple[list[np.ndarray], list[int], bool]:
+    """sensors/perception's point-gap merge (stage 3a): objects whose points come within merge_gap_m, closest
+    pairs first, joined while the union fits one vehicle; st the objects' summaries (p_length, thickness, top,
+    lo, hi). Returns the objects, their flags (merged_flag on joined ones) and whether any were joined."""
+    if len(objects) < 2:
+        return objects, flags, False
+    length, width = np.maximum(st.p_length, st.thickness), np.minimum(st.p_length, st.thickness)
+    idx = np.flatnonzero(~too_big_reference(length, width, st.top, cfg))
+    if len(idx) < 2:
+        return objects, flags, False
+    lo, hi = st.lo[idx], st.hi[idx]
+    # axis-aligned box gap of every pair, a lower bound of the points' gap
+    gap = np.maximum(np.maximum(lo[None] - hi[:, None], lo[:, None] - hi[None]), 0.0)
+    ii, jj = np.nonzero(np.triu(np.hypot(gap[..., 0], gap[..., 1]) <= cfg.merge_gap_m, k=1))
+    if len(ii) == 0:
+        return objects, flags, False
+    pairs = []
+    for a, b in zip(idx[ii], idx[jj]):
+        d = point_gap_reference(pts, objects[a], objects[b], cfg.merge_gap_m)
+        if d <= cfg.merge_gap_m:
+            pairs.append((d, min(a, b), max(a, b)))
+    roots, group = unite_reference(pts, objects, [(a, b) for _, a, b in sorted(pairs)], cfg)
+    size = np.bincount(roots, minlength=len(objects))
+    joined = np.zeros(len(objects), np.int64)
+    np.bitwise_or.at(joined, roots, np.asarray(flags, np.int64))
+    out, out_flags = [], []
+    for i in np.flatnonzero(roots == np.arange(len(objects))):
+        merged = size[i] > 1
+        g = group[i]
+        out.append(g[np.lexsort((pts[g, 2], pts[g, 1], pts[g, 0]))] if merged else g)
+        out_flags.append(int(joined[i]) | (merged_flag if merged else 0))
+    return out, out_flags, len(out) < len(objects)
+
+
+def open_ends_reference(scan, st, keys: np.ndarray, margin_m: float = 0.5,
+                        look: int = 2) -> list[tuple[bool, bool] | None]:
+    """Per object of `keys` (st: the objects' summaries, members by starts and n): whether its (first, last)
+    azimuth edge, counter-clockwise, is bounded by a nearer return; None for all without a range image.
+
+    sensors/boxfit.open_ends_from_ranges for all objects at once (same rule, same arguments): an object's
+    columns start after the widest empty arc of its azimuth columns, and an edge is open when in one of the
+    `look` columns beyond it a beam the object uses at that edge returns more than margin_m nearer than the
+    object's nearest return in that edge column."""
+    if scan.ranges.size == 0 or len(keys) == 0:
+        return [None] * len(keys)
+    members = np.concatenate([st.members[st.starts[k] : st.starts[k] + st.n[k]] for k in keys])
+    ray = scan.ray[members]
+    if np.any(ray < 0):
+        return [None] * len(keys)
+    n_az, n_beams = scan.ranges.shape
+    owner = np.repeat(np.arange(len(keys)), st.n[keys])
+    az, beam = ray // n_beams, ray % n_beams
+    cols = np.unique(owner * n_az + az)  # sorted (object, column) pairs
+    c_owner, c_az = cols // n_az, cols % n_az
+    start = np.flatnonzero(np.r_[True, c_owner[1:] != c_owner[:-1]])
+    end = np.r_[start[1:], len(cols)] - 1
+    nxt = np.r_[c_az[1:], 0]
+    nxt[end] = c_az[start] + n_az  # the arc from an object's last column round to its first
+    gap = nxt - c_az
+    widest = np.lexsort((np.arange(len(cols)), -gap, c_owner))[start]  # first widest gap of each object
+    first = np.where(widest == end, c_az[start], c_az[np.minimum(widest + 1, len(cols) - 1)])
+    last = c_az[widest]
+    out = []
+    for edge, step in ((first, -1), (last, +1)):
+        at_edge = az == edge[owner]
+        o, b = owner[at_edge], beam[at_edge]
+        here = np.full(len(keys), np.inf)
+        np.minimum.at(here, o, scan.ranges[edge[o], b])
+        beyond = (edge[o][:, None] + step * np.arange(1, look + 1)[None, :]) % n_az
+        nearer = np.any(scan.ranges[beyond, b[:, None]] < (here[o] - margin_m)[:, None], axis=1)
+        out.append(np.bincount(o, weights=nearer, minlength=len(keys)) > 0)
+    return [(bool(a), bool(b)) for a, b in zip(*out)]

@@ -1,0 +1,251 @@
+"""The compiled per-object steps of sensors/perception.py give the bits of their pure-numpy references
+(sensors/perception_reference.py), on ray-cast highway scans and on hand-made edge cases: objects of 1-3
+points, collinear and repeated points, a single object, distances and rectangle sides exactly at their bounds."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import sensors.perception as perception
+from sensors import PerceptionConfig, cluster, perception_jit, perception_reference, segment_ground
+
+CFG = PerceptionConfig()
+WIDE = dataclasses.replace(CFG, max_length_m=12.0, max_width_m=5.0)  # more unions pass: both branches run
+
+
+@pytest.fixture(scope="module")
+def highway():
+    """(points (N, 3), objects, _stats, road) of the first 1.5 s of highway_benchmark, every frame: the clusters
+    before split and merge, as perceive sees them."""
+    from testbed.scenario.spec import load_scenario
+    from testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
+
+    scn = load_scenario("highway_benchmark", {"duration_s": 1.5})
+    rngs = rng_streams(scn.seed)
+    sim, static, road = sensing_setup(scn, rngs)
+    cfg = scn.sensor.perception
+    out = []
+    for truth in sim.frames():
+        s = scan_frame(truth, static, scn.sensor.lidar, rngs["lidar"])
+        pts = s.points
+        is_ground = segment_ground(pts, cfg.ground, s.origin)
+        cand = np.flatnonzero(~is_ground & (pts[:, 2] - cfg.ground.ground_z_m <= cfg.max_height_m))
+        objects = perception._raw_objects(pts, cand, cluster(pts[cand], cfg.cluster))
+        out.append((pts, objects, perception._stats(pts, objects, cfg.ground.ground_z_m, s.origin[:2], road), road))
+    return out
+
+
+def same_arrays(a: list[np.ndarray], b: list[np.ndarray]) -> bool:
+    return len(a) == len(b) and all(x.dtype == y.dtype and np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def synthetic(objects_xyz: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray], object]:
+    """Points (N, 3), objects (canonical order) and their _stats (no road) of hand-made objects."""
+    pts = np.concatenate(objects_xyz)
+    ends = np.cumsum([len(o) for o in objects_xyz])
+    objects = [perception._canonical(pts, np.arange(e - len(o), e)) for o, e in zip(objects_xyz, ends)]
+    return pts, objects, perception._stats(pts, objects, 0.0, np.zeros(2), None)
+
+
+def line(x0, x1, y, n, z=1.0):
+    return np.column_stack([np.linspace(x0, x1, n), np.full(n, y), np.full(n, z)])
+
+
+def box(x0, x1, y0, y1, n, z=1.0, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(x0, x1, n), rng.uniform(y0, y1, n), np.full(n, z)])
+
+
+EDGE_OBJECTS = [
+    np.array([[3.0, 1.0, 1.0]]),  # one point
+    np.array([[3.0, 1.0, 1.0], [3.2, 1.1, 1.5]]),  # two
+    np.array([[3.0, 1.0, 1.0], [3.2, 1.1, 1.5], [3.1, 1.4, 0.5]]),  # three
+    line(0.0, 12.0, 2.0, 40),  # collinear, long
+    np.repeat([[5.0, 5.0, 1.2]], 12, axis=0),  # one point repeated
+    np.vstack([line(0.0, 4.0, 0.0, 30), line(5.3, 9.5, 0.0, 30)]),  # collinear with a 1.3 m gap
+    np.vstack([box(0.0, 4.5, 0.0, 1.8, 200), box(4.8, 9.3, 0.0, 1.8, 200, seed=1)]),  # two cars nose to tail
+    np.vstack([box(0.0, 4.5, 0.0, 1.8, 200), box(0.0, 4.5, 2.1, 3.9, 200, seed=1)]),  # side by side
+    np.vstack([line(0.0, 3.0, 0.0, 20), line(4.2, 7.2, 0.0, 20)]),  # gap of exactly split_gap_m
+]
+
+
+# --- split ----------------------------------------------------------------------------------------------
+
+def test_split_object_equals_the_reference_on_highway_scans(highway):
+    n_split = 0
+    for pts, objects, st, _ in highway:
+        for k, obj in enumerate(objects):
+            ref = perception_reference.split_reference(pts, obj, st.axis[k], CFG)
+            assert same_arrays(perception.split_object(obj, pts[obj, :2], pts[obj, 2], st.axis[k], CFG), ref)
+            n_split += len(ref) > 1
+    assert n_split >= 10  # the scans do hold objects that are cut
+
+
+def test_split_object_equals_the_reference_on_edge_cases():
+    pts, objects, _ = synthetic(EDGE_OBJECTS)
+    cut = 0
+    for axis in np.array([0.0, 0.3, np.pi / 2, -2.0]):
+        for cfg in (CFG, dataclasses.replace(CFG, cluster=dataclasses.replace(CFG.cluster, min_points=1),
+                                             min_extent_m=0.0, max_splits=8)):
+            for obj in objects:
+                ref = perception_reference.split_reference(pts, obj, axis, cfg)
+                assert same_arrays(perception.split_object(obj, pts[obj, :2], pts[obj, 2], axis, cfg), ref)
+                cut += len(ref) > 1
+    assert cut >= 8
+
+
+# --- merge ----------------------------------------------------------------------------------------------
+
+def test_merge_equals_the_reference_on_highway_scans(highway):
+    n_joined = 0
+    for pts, objects, st, _ in highway:
+        flags = list(range(len(objects)))  # distinct flags: their union is checked too
+        got = perception._merge(pts, objects, flags, CFG, st)
+        ref = perception_reference.merge_reference(pts, objects, flags, CFG, st, perception.MERGED)
+        assert same_arrays(got[0], ref[0]) and got[1:] == ref[1:]
+        n_joined += len(objects) - len(ref[0])
+    assert n_joined >= 3
+
+
+def test_pair_gaps_equal_the_kdtree_distances(highway):
+    frames = [(pts, objects, st) for pts, objects, st, _ in highway[::3]]
+    pts, objects, st = synthetic(EDGE_OBJECTS + [np.array([[20.0, 0.0, 1.0]]), np.array([[21.0, 0.0, 1.0]]),
+                                                 np.array([[20.6, 10.8, 1.0]]), np.array([[21.2, 10.0, 1.0]])])
+    shuffled = [o[::-1] for o in objects]  # not x-sorted: all pairs are measured
+    frames += [(pts, objects, st), (pts, shuffled, perception._stats(pts, shuffled, 0.0, np.zeros(2), None))]
+    found = 0
+    for pts, objects, st in frames:
+        pa, pb = np.triu_indices(len(objects), 1)
+        for gap in (1.0, 3.0):
+            got = perception_jit.pair_gaps(st.xy, st.starts, st.n, pa, pb, gap)
+            ref = np.array([perception_reference.point_gap_reference(pts, objects[a], objects[b], gap)
+                            for a, b in zip(pa, pb)])
+            assert np.array_equal(got.view(np.int64), ref.view(np.int64))
+            found += int(np.isfinite(got).sum())
+    assert found > 100
+    # points exactly 1 m apart are not within distance_upper_bound = 1 m (the k-d tree's strict bound)
+    assert perception_reference.point_gap_reference(pts, objects[-4], objects[-3], 1.0) == np.inf
+
+
+def _pairs_by_gap(st, k_all: int, gap: float) -> tuple[np.ndarray, np.ndarray]:
+    pa, pb = np.triu_indices(k_all, 1)
+    d = perception_jit.pair_gaps(st.xy, st.starts, st.n, pa, pb, gap)
+    near = np.isfinite(d)
+    order = np.lexsort((pb[near], pa[near], d[near]))
+    return pa[near][order], pb[near][order]
+
+
+def assert_unions_equal(pts, objects, st, pa, pb, cfg) -> int:
+    roots, groups = perception.unite_fitting(pts, objects, st, pa, pb, cfg)
+    ref_roots, ref_groups = perception_reference.unite_reference(pts, objects, list(zip(pa.tolist(), pb.tolist())),
+                                                                 cfg)
+    assert np.array_equal(roots, ref_roots)
+    joined = {int(r) for r in np.unique(ref_roots) if np.sum(ref_roots == r) > 1}
+    assert set(groups) == joined
+    assert all(np.array_equal(groups[r], ref_groups[r]) for r in joined)
+    return int(np.sum(roots != np.arange(len(objects))))  # objects joined to another
+
+
+def test_unite_fitting_equals_the_reference_on_highway_scans(highway):
+    n_joined = 0
+    for pts, objects, st, _ in highway:
+        pa, pb = _pairs_by_gap(st, len(objects), 3.0)
+        for cfg in (CFG, WIDE):
+            n_joined += assert_unions_equal(pts, objects, st, pa, pb, cfg)
+    assert n_joined >= 20
+
+
+def test_unite_fitting_runs_the_reference_test_at_a_bound(monkeypatch):
+    calls = []
+    reference = perception.union_fits_reference
+    monkeypatch.setattr(perception, "union_fits_reference", lambda *a: calls.append(1) or reference(*a))
+    # unions exactly 8 m long (max_length_m) and exactly 3.5 m wide (max_width_m), a right triangle (the rectangle
+    # along its hypotenuse has the same area as the one along its legs), collinear fragments (flat)
+    at_bound = [np.vstack([line(0.0, 3.0, 0.0, 10), line(0.0, 3.0, 1.0, 10)]),
+                np.vstack([line(4.0, 8.0, 0.0, 10), line(4.0, 8.0, 1.0, 10)]),
+                line(20.0, 25.0, 0.0, 5), line(20.0, 25.0, 3.5, 5)]
+    triangle = [np.array([[40.0, 0.0, 1], [41.0, 0.0, 1], [42.0, 0.0, 1]]),
+                np.array([[40.0, 1.0, 1], [40.0, 2.0, 1], [40.0, 3.0, 1]])]
+    flat = [line(60.0, 62.0, 0.0, 8), line(62.5, 64.0, 0.0, 8)]
+    pts, objects, st = synthetic(at_bound + triangle + flat + EDGE_OBJECTS[:3])
+    k = len(objects)
+    pa, pb = np.array([0, 2, 4, 6, 0, 8, 9]), np.array([1, 3, 5, 7, 8, 9, 10])
+    assert assert_unions_equal(pts, objects, st, pa, pb, CFG) >= 4
+    assert len(calls) >= 4  # both bounds, the triangle and the flat pair went to the reference
+    pa, pb = np.triu_indices(k, 1)
+    assert_unions_equal(pts, objects, st, pa, pb, CFG)
+    assert_unions_equal(pts, objects, st, pa, pb, WIDE)
+
+
+# --- selection and fit ----------------------------------------------------------------------------------
+
+def test_batched_box_fits_equal_one_by_one_fits(highway):
+    from sensors.boxfit import fit_vehicle_box_unchecked, fit_vehicle_boxes_unchecked
+
+    n_fits = 0
+    for pts, objects, st, _ in highway[::2]:
+        keys = np.arange(len(objects))
+        rng = np.random.default_rng(len(objects))
+        ends = rng.random((len(keys), 2)) < 0.3  # some occluded ends
+        z = st.z - CFG.ground.ground_z_m
+        for hints in (st.axis, None):
+            batch = fit_vehicle_boxes_unchecked(st.xy, z, st.starts, st.n, np.array([1.0, -2.0]), st.top, hints, ends,
+                                                CFG.boxfit)
+            for k, f in zip(keys, batch):
+                one = fit_vehicle_box_unchecked(pts[objects[k], :2], np.array([1.0, -2.0]), top_m=float(st.top[k]),
+                                                heading_hint=None if hints is None else float(hints[k]),
+                                                open_ends=tuple(ends[k]), cfg=CFG.boxfit,
+                                                z=pts[objects[k], 2] - CFG.ground.ground_z_m)
+                for field in dataclasses.fields(one):
+                    a, b = getattr(f, field.name), getattr(one, field.name)
+                    assert type(a) is type(b) and np.array_equal(a, b), field.name
+                n_fits += 1
+    assert n_fits > 100
+
+
+def test_open_ends_equal_the_reference():
+    from testbed.scenario.spec import load_scenario
+    from testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
+
+    scn = load_scenario("highway_benchmark", {"duration_s": 0.5})
+    rngs = rng_streams(scn.seed)
+    sim, static, road = sensing_setup(scn, rngs)
+    n_open = 0
+    for truth in sim.frames():
+        s = scan_frame(truth, static, scn.sensor.lidar, rngs["lidar"])
+        is_ground = segment_ground(s.points, CFG.ground, s.origin)
+        cand = np.flatnonzero(~is_ground & (s.points[:, 2] <= CFG.max_height_m))
+        objects = perception._raw_objects(s.points, cand, cluster(s.points[cand], CFG.cluster))
+        st = perception._stats(s.points, objects, 0.0, s.origin[:2], road)
+        for keys in (np.arange(len(objects)), np.arange(len(objects))[::-3]):
+            got = perception._open_ends(s, st, keys)
+            assert got == perception_reference.open_ends_reference(s, st, keys)
+            n_open += sum(map(sum, got))
+    assert n_open > 10
+
+
+def test_min_area_rectangle_with_the_compiled_hull_equals_qhull(highway):
+    from sensors.boxfit import min_area_rectangle
+
+    sets = [pts[o, :2] for pts, objects, _, _ in highway[::3] for o in objects]
+    rng = np.random.default_rng(1)
+    sets += [o[:, :2] for o in EDGE_OBJECTS[2:]] + [
+        rng.normal(size=(50, 2)) * [3.0, 1.0] + [1e4, -3e3],  # far from the origin
+        np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 0.5]]),  # a square, one point inside
+        np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 1e-13], [1.0, 1.0]]),  # an almost collinear vertex
+        np.repeat([[1.0, 2.0], [3.0, 2.5], [2.0, 4.0]], 3, axis=0),  # a triangle, each vertex thrice
+    ]
+    for xy in sets:
+        got, ref = min_area_rectangle(xy), min_area_rectangle(xy, compiled_hull=False)
+        assert np.array_equal(got[0], ref[0]) and got[1:] == ref[1:]
+
+
+def test_nearest_range_of_the_object_sums_is_numpys_smallest_hypot(highway):
+    for pts, objects, st, _ in highway[::4]:
+        for k, o in enumerate(objects[:40]):
+            ref = np.min(np.hypot(pts[o, 0] - 1.5, pts[o, 1] + 0.5))
+            got = perception._stats(pts, [o], 0.0, np.array([1.5, -0.5]), None).d_min[0]
+            assert got == ref
