@@ -31,7 +31,7 @@ TOL = dict(cars_tracked=0, false_tracks=1, relabel_events=1, cars_relabelled=1, 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
-    scn = load_scenario("cut_in_out", {"duration_s": DURATION})
+    scn = load_scenario("cut_in_out", {"duration_s": DURATION, "record.level": "full"})  # every entity
     return run_scenario(scn, out_dir=out, record=True)
 
 

@@ -20,7 +20,7 @@ from ..config import ConfigError, parse_sets
 from .check import cmd_check
 from ..common.errors import (describe_os_error, exit_code, guarded, interruption, interruption_behind,
                              interruption_cause, one_line, signum_of)
-from ..recording.view import WEB_VIEWER_PORT, cmd_view, port_arg
+from ..recording.view import WEB_VIEWER_PORT, at_arg, cmd_view, port_arg
 
 
 class _Parser(argparse.ArgumentParser):
@@ -43,6 +43,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         overrides["tracker.name"] = args.tracker  # "" is refused by the loader, not silently ignored
     if args.seed is not None:
         overrides["seed"] = args.seed
+    if args.record is not None:
+        overrides["record.level"] = args.record  # checked by the loader: an unknown level names the allowed ones
     scn = load_scenario(args.scenario, overrides)
     policy = _policy(args.policy, scn) if args.policy is not None else None
     tracker = load_tracker(args.tracker) if user else None  # imported once, before any simulation
@@ -326,6 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--policy", metavar="MODULE:FUNCTION", help="your own ego policy for a scenario with [env]: "
                    "f(observation, info) -> action, from an importable module or a file (path/to/file.py:f); "
                    "replaces the file's env.policy (a scenario file itself names no code)")
+    r.add_argument("--record", metavar="LEVEL", help="what the recording keeps, overriding the scenario's "
+                   "record.level: full (every LiDAR point), default (the point cloud thinned), light (no point "
+                   "cloud), tracks (truth and tracks only); see README, Output files")
     r.add_argument("--no-record", action="store_true", help="skip the rerun recording")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_run)
@@ -356,6 +361,8 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1 instead of a window")
     v.add_argument("--port", type=port_arg, help=f"port of the web viewer (default {WEB_VIEWER_PORT}), or of the "
                    "native viewer's server (default: rerun's, 9876); refused if in use")
+    v.add_argument("--at", type=at_arg, metavar="SECONDS", help="open the recording at this simulated time, "
+                   "paused (0 .. the recording's end)")
     v.set_defaults(func=cmd_view)
     ch = sub.add_parser("check", help="validate a scenario or campaign file fully without running it (one line)")
     ch.add_argument("file", help="scenario or campaign file, or the name of a shipped one")

@@ -304,7 +304,8 @@ def _recorder(scn: Scenario, path: Path, tracker_name: str, sim, static: np.ndar
     rec = Recorder(path, recording_id=f"{scn.name}-seed{scn.seed}-{tracker_name}",
                    lidar_every=scn.record.lidar_every, ground_decimation=scn.record.ground_decimation,
                    write_footer=scn.n_frames <= FOOTER_MAX_FRAMES,
-                   occlusion=sensors.OcclusionConfig.from_lidar(scn.sensor.lidar), max_range_m=scn.sensor.lidar.max_range_m)
+                   occlusion=sensors.OcclusionConfig.from_lidar(scn.sensor.lidar), max_range_m=scn.sensor.lidar.max_range_m,
+                   level=scn.record.level, rate_hz=scn.rate_hz)
     rec.static(lane_polylines(sim.network), static)
     return rec
 

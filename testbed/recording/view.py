@@ -1,14 +1,19 @@
-"""``testbed view RUN [--web] [--port N]``: the rerun viewer on a run's recording.
+"""``testbed view RUN [--web] [--port N] [--at SECONDS]``: the rerun viewer on a run's recording.
 
 The recording is read back first (a corrupt or truncated file is one line, exit 2); the port is checked free;
 the viewer process dies with testbed (PR_SET_PDEATHSIG) and SIGTERM / SIGINT / SIGHUP are passed on to it.
-On a machine's first use, rerun's analytics are switched off (``rerun analytics disable``) so its banner does
-not appear; an existing choice is left alone.
+rerun's own INFO lines are off (``RUST_LOG=warn`` unless set): testbed prints the one line that matters, the
+web viewer's address. ``--at`` opens the recording at that simulated time, paused (testbed/recording/
+timecursor.py). On a machine's first use, rerun's analytics are switched off (``rerun analytics disable``) so
+its banner does not appear; an existing choice is left alone.
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
+import math
+import threading
+import urllib.parse
 import warnings
 import os
 import subprocess
@@ -18,34 +23,84 @@ from pathlib import Path
 from ..config import ConfigError
 from ..common.errors import one_line
 
+
 def cmd_view(args: argparse.Namespace) -> int:
     path = Path(args.run_dir)
     rrd = path if path.suffix == ".rrd" else path / "run.rrd"
     if not rrd.is_file():
         raise ConfigError("", f"{rrd}: no recording (run `testbed run SCENARIO --out {path}` first)")
-    _check_recording(rrd)
+    end_s = _check_recording(rrd)
+    at = getattr(args, "at", None)
+    if at is not None and at > end_s + 1e-9:
+        raise ConfigError("--at", f"{at:g} s is past the end of the recording ({rrd} ends at {end_s:g} s); "
+                                  f"allowed: 0..{end_s:g}")
     incomplete = rrd.parent / "INCOMPLETE"
     if incomplete.is_file():
         reason = one_line(incomplete.read_text(errors="replace")) or "no reason recorded"
         print(f"note: {rrd.parent} holds an incomplete run ({reason})", file=sys.stderr)
     headless = sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-    web = args.web or headless
-    exe = _rerun_exe()
-    if web:
-        port = args.port if args.port is not None else WEB_VIEWER_PORT
-        _require_free_port(port)
-        cmd = [exe, "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(port), "--port",
-               str(_free_port()), str(rrd)]
-    else:
-        if args.port is not None:
-            _require_free_port(args.port)
-        cmd = [exe, *(["--port", str(args.port)] if args.port is not None else []), str(rrd)]
     if headless and not args.web:
-        print("no display found: serving the web viewer on 127.0.0.1 instead (open the URL rerun prints; "
-              "Ctrl-C to stop)", file=sys.stderr)
+        print("no display found: serving the web viewer on 127.0.0.1 instead (Ctrl-C to stop)", file=sys.stderr)
+    exe = _rerun_exe()
     env = dict(os.environ)
+    env.setdefault("RUST_LOG", "warn")  # rerun's INFO lines (telemetry, "Loading ...", "Listening ...") off
     _rerun_analytics_off(exe, env)
-    return _supervise(cmd, env)
+    cmd, on_start = (_web_viewer if args.web or headless else _native_viewer)(exe, rrd, args.port, at)
+    return _supervise(cmd, env, on_start)
+
+
+def _web_viewer(exe: str, rrd: Path, port: int | None, at: float | None):
+    """The ``rerun --serve-web`` command, and what to do once it runs: print the page's address (and with
+    ``at``, serve the page with its start time on ``port``, rerun's own page on an internal one)."""
+    port = port if port is not None else WEB_VIEWER_PORT
+    _require_free_port(port)
+    grpc = _free_port()
+    inner = port if at is None else _free_port()
+    cmd = [exe, "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(inner), "--port", str(grpc), str(rrd)]
+    url = f"http://127.0.0.1:{port}/?url=" + urllib.parse.quote(f"rerun+http://127.0.0.1:{grpc}/proxy", safe="")
+
+    def on_start() -> None:
+        if at is not None:
+            from .webpage import serve_page
+
+            serve_page(port, inner, at)
+        when = f" (opening at {at:g} s, paused)" if at is not None else ""
+        print(f"web viewer{when}, Ctrl-C to stop: {url}", flush=True)
+
+    return cmd, on_start
+
+
+def _native_viewer(exe: str, rrd: Path, port: int | None, at: float | None):
+    """The native viewer's command, and (with ``at``) a thread that moves its cursor once the file is in."""
+    if port is not None:
+        _require_free_port(port)
+    elif at is not None:
+        port = _free_port()  # the cursor is moved through the viewer's own gRPC server
+    cmd = [exe, *(["--port", str(port)] if port is not None else []), str(rrd)]
+
+    def on_start() -> None:
+        if at is None:
+            return
+        from .timecursor import seek_native
+
+        def seek() -> None:
+            if not seek_native(port, at):
+                print(f"warning: the viewer did not take the start time {at:g} s", file=sys.stderr)
+
+        threading.Thread(target=seek, name="testbed-view-seek", daemon=True).start()
+
+    return cmd, on_start
+
+
+def at_arg(text: str) -> float:
+    """``--at SECONDS``: a finite time >= 0 (checked against the recording's end once it is read)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds >= 0, got {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"expected seconds >= 0, got {text}")
+    return value
 
 
 WEB_VIEWER_PORT = 9090  # rerun's default web viewer port
@@ -53,15 +108,20 @@ STOP_SIGNALS = ("SIGTERM", "SIGINT", "SIGHUP")
 STOP_GRACE_S = 5.0  # seconds the viewer is given to exit after SIGTERM before it is killed
 
 
-def _check_recording(rrd: Path) -> None:
-    """ConfigError unless ``rrd`` reads back as a rerun recording with data (rerun's own reader; a whole
-    file is streamed, about 50 ms per 100 MB)."""
+def _check_recording(rrd: Path) -> float:
+    """The last ``sim_time`` [s] of ``rrd``; ConfigError unless it reads back as a rerun recording with data
+    (rerun's own reader; a whole file is streamed, about 50 ms per 100 MB)."""
     from rerun.chunk import RrdReader
 
+    chunks, end_ns = 0, 0
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # "no footer/manifest": a long run's recording, readable
-            chunks = sum(1 for _ in RrdReader(str(rrd)).stream())
+            for chunk in RrdReader(str(rrd)).stream():
+                chunks += 1
+                if "sim_time" in chunk.timeline_names:
+                    times = chunk.to_record_batch().column("sim_time").cast("int64").to_numpy(zero_copy_only=False)
+                    end_ns = max(end_ns, int(times.max())) if len(times) else end_ns
     except BaseException as err:  # noqa: BLE001 - rerun raises RuntimeError, ValueError, PanicException
         if isinstance(err, KeyboardInterrupt | SystemExit):
             raise
@@ -69,6 +129,7 @@ def _check_recording(rrd: Path) -> None:
                           f"run the scenario again") from None
     if chunks == 0:
         raise ConfigError("", f"{rrd}: the recording holds no data; run the scenario again")
+    return end_ns / 1e9
 
 
 def _rerun_exe() -> str:
@@ -165,14 +226,16 @@ def _die_with_parent():
     return preexec
 
 
-def _supervise(cmd: list[str], env: dict) -> int:
-    """Run the viewer ``cmd`` until it exits. SIGTERM, SIGINT and SIGHUP to us are passed on as SIGTERM and
-    the viewer is waited for (killed after ``STOP_GRACE_S``); if we are killed, the kernel kills it. Returns
-    128 + the signal, or 1 with one line if the viewer failed."""
+def _supervise(cmd: list[str], env: dict, on_start=None) -> int:
+    """Run the viewer ``cmd`` until it exits (``on_start()`` once it is started). SIGTERM, SIGINT and SIGHUP
+    to us are passed on as SIGTERM and the viewer is waited for (killed after ``STOP_GRACE_S``); if we are
+    killed, the kernel kills it. Returns 128 + the signal, or 1 with one line if the viewer failed."""
     import signal
     import time
 
     proc = subprocess.Popen(cmd, env=env, preexec_fn=_die_with_parent())
+    if on_start is not None:
+        on_start()
     got: list[tuple[int, float]] = []  # (signal, when)
 
     def forward(signum, _frame) -> None:

@@ -24,6 +24,8 @@ SCENARIO_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 BEHAVIOURS = ("idm", "hold_speed", "follow")
 ROAD_KINDS = ("straight", "curved", "u_turn", "motorway")
 PIPELINES = ("full", "thesis")
+RECORD_LEVELS = ("full", "default", "light", "tracks")
+"""What a run's recording keeps, most first (testbed/recording/levels.py says what each level holds)."""
 LANE_WIDTH_M = 4.0  # highway-env's StraightLane.DEFAULT_WIDTH (testbed/world/simulation.py LANE_WIDTH): lanes' spacing
 
 
@@ -316,8 +318,14 @@ class ScoringSpec:
 
 @dataclass(frozen=True)
 class RecordSpec:
+    level: str = field("default", doc="what the recording keeps: full (every LiDAR point, the truth-coloured "
+                       "copy, occlusion shadows), default (the point cloud thinned: every ground_decimation-th "
+                       "ground point, up to about 256 points per vehicle or detection, every 8th other object point), "
+                       "light (no point cloud), tracks (truth and tracks only); testbed run --record overrides it",
+                       choices=RECORD_LEVELS)
     lidar_every: int = field(1, doc="log the point cloud every N frames (0 = never)", **non_negative())
-    ground_decimation: int = field(4, doc="log every Nth ground point", **positive())
+    ground_decimation: int = field(16, doc="the default level logs every Nth ground point (full: all)",
+                                   **positive())
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,163 @@
+"""What one frame draws in the 3-D scene: the point cloud, the detections and the tracks, as rerun archetypes.
+
+Each function logs onto an explicit recording stream at the stream's current time (see
+testbed/recording/recorder.py for the entity paths). Arrays go to rerun whole (an (N, K, 3) array of line
+strips, quaternions for box yaws): per-item Python objects cost more than the logging itself.
+"""
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+
+import sensors
+
+from .levels import thinned
+
+GROUND_LABEL = sensors.GROUND
+CLUSTER_PALETTE = np.array([[230, 159, 0], [86, 180, 233], [0, 158, 115], [240, 228, 66], [0, 114, 178],
+                            [213, 94, 0], [204, 121, 167], [170, 170, 255]], dtype=np.uint8)
+GREEN, RED, GREY = (np.array(c, np.uint8) for c in ([40, 220, 40], [230, 40, 40], [200, 200, 200]))
+
+
+def ellipses(centers: np.ndarray, covs: np.ndarray, scale: float, z: float, n: int = 36) -> np.ndarray:
+    """Polylines (T, n+1, 3) of the ellipses ``{c + scale * L u : |u| = 1}``, ``covs`` (T, 2, 2)."""
+    if len(centers) == 0:
+        return np.zeros((0, n + 1, 3))
+    t = np.linspace(0.0, 2 * np.pi, n + 1)
+    circle = np.stack([np.cos(t), np.sin(t)])  # (2, n+1)
+    w, v = np.linalg.eigh(0.5 * (covs + np.swapaxes(covs, -1, -2)))
+    axes = v * np.sqrt(np.clip(w, 0.0, None))[:, None, :]  # (T, 2, 2)
+    pts = centers[:, :, None] + scale * axes @ circle  # (T, 2, n+1)
+    out = np.concatenate([pts, np.full((len(centers), 1, n + 1), z)], axis=1)
+    return np.swapaxes(out, 1, 2)
+
+
+def boxes(centers_xy, size, yaw, z_bottom=None) -> dict:
+    """Boxes3D arguments of boxes standing on ``z_bottom`` (default 0): centres (K, 2), sizes (K, 3) [L, W, H],
+    yaws (K,) [rad]."""
+    size = np.asarray(size, dtype=np.float64).reshape(-1, 3)
+    yaw = np.asarray(yaw, dtype=np.float64).reshape(-1)
+    zb = np.zeros(len(size)) if z_bottom is None else np.asarray(z_bottom, dtype=np.float64)
+    centers = np.column_stack([np.asarray(centers_xy, dtype=np.float64).reshape(-1, 2), zb + size[:, 2] / 2])
+    quats = np.column_stack([np.zeros((len(yaw), 2)), np.sin(yaw / 2), np.cos(yaw / 2)])  # xyzw about z
+    return dict(centers=centers, half_sizes=size / 2, quaternions=quats)
+
+
+def log_lidar(rec: rr.RecordingStream, scan, perception, points: str, ground_every: int, truth_copy: bool,
+              occlusion: sensors.OcclusionConfig | None) -> None:
+    """The point cloud: ``points`` "all" or "thinned" (testbed/recording/levels.py); ``truth_copy`` adds the
+    truth-coloured copy and the occlusion shadows (with ``occlusion``)."""
+    g = perception.is_ground
+    if points == "all":
+        ground, objects = np.flatnonzero(g), np.flatnonzero(~g)
+    else:
+        ground, objects = thinned(g, perception.labels, scan.source, ground_every)
+    rec.log("world/lidar/ground", rr.Points3D(scan.points[ground], colors=[90, 90, 90], radii=0.03))
+    pts, src, lab = scan.points[objects], scan.source[objects], perception.labels[objects]
+    colors = np.where((lab >= 0)[:, None], CLUSTER_PALETTE[lab % len(CLUSTER_PALETTE)], GREY)
+    rec.log("world/lidar/objects", rr.Points3D(pts, colors=colors, radii=0.05),
+            rr.AnyValues(vehicle_id=src.astype(np.int32), detection=lab.astype(np.int32)))
+    _ground_errors(rec, scan, g)
+    if truth_copy:
+        truth_class = np.where(src >= 0, 1, np.where(src == -1, 2, 0))
+        rec.log("world/lidar/truth", rr.Points3D(pts, class_ids=truth_class, radii=0.05))
+        if occlusion is not None and len(scan.ranges):
+            polys = sensors.shadows(scan, occlusion, is_ground=g)
+            rec.log("world/lidar/shadows", rr.LineStrips3D(
+                [np.column_stack([np.vstack([p, p[:1]]), np.full(len(p) + 1, 0.05)]) for p in polys],
+                colors=[70, 70, 160], radii=0.04))
+
+
+def _ground_errors(rec: rr.RecordingStream, scan, g: np.ndarray) -> None:
+    """Points the ground segmentation got wrong: red an object called road, magenta road called an object."""
+    gt = scan.source == GROUND_LABEL
+    wrong_obj, wrong_road = np.flatnonzero(g & ~gt), np.flatnonzero(~g & gt)
+    colors = np.concatenate([np.tile([230, 30, 30], (len(wrong_obj), 1)),
+                             np.tile([230, 0, 230], (len(wrong_road), 1))]).astype(np.uint8).reshape(-1, 3)
+    rec.log("world/lidar/ground_errors", rr.Points3D(scan.points[np.concatenate([wrong_obj, wrong_road])],
+                                                     colors=colors, radii=0.08))
+
+
+def log_detections(rec: rr.RecordingStream, detections, perception) -> None:
+    """Detections (green from a vehicle, red clutter), fitted boxes coloured by their merge / split /
+    completion flags, and the objects the selection rejected, labelled with the test they failed."""
+    z, prov, f = detections.z, detections.provenance, detections.flags
+    rec.log("world/detections", rr.Points3D(
+        np.column_stack([z, np.full(len(z), 0.3)]), radii=0.35, colors=np.where((prov >= 0)[:, None], GREEN, RED),
+        labels=[f"v{p}" if p >= 0 else "clutter" for p in prov], show_labels=False))
+    color = np.where((prov >= 0)[:, None], GREEN, RED)
+    color = np.where((f & sensors.COMPLETED)[:, None] > 0, np.array([240, 210, 40], np.uint8), color)
+    color = np.where((f & sensors.SPLIT)[:, None] > 0, np.array([0, 210, 230], np.uint8), color)
+    color = np.where((f & sensors.MERGED)[:, None] > 0, np.array([230, 0, 230], np.uint8), color)
+    tags = [" ".join(t for bit, t in ((sensors.MERGED, "merged"), (sensors.SPLIT, "split"),
+                                      (sensors.COMPLETED, "completed")) if v & bit) or "box" for v in f]
+    size = detections.extent.copy()
+    size[:, 2] = np.maximum(size[:, 2], 0.1)
+    rec.log("world/detections/boxes", rr.Boxes3D(**boxes(z, size, detections.heading), colors=color,
+                                                 labels=tags, show_labels=False, radii=0.03))
+    rj = perception.rejected if perception is not None else None
+    if rj is not None:
+        rec.log("world/detections/rejected", rr.Points3D(
+            np.column_stack([rj.centre, np.full(len(rj), 0.5)]), radii=0.2, colors=[150, 110, 70],
+            labels=[str(r) for r in rj.reason], show_labels=False))
+
+
+def log_track_points(rec: rr.RecordingStream, ts) -> None:
+    """Track estimates (confirmed labelled T<id> and their regime, tentative, static) and the confirmed
+    tracks' velocity over 1 s."""
+    status, pos, ids, regime = ts.status, ts.xy, ts.ids, ts.regime
+    for name, sel, radius in (("confirmed", status == "confirmed", 0.5), ("tentative", status == "tentative", 0.25),
+                              ("static", status == "static", 0.35)):
+        rec.log(f"world/tracks/{name}", rr.Points3D(
+            np.column_stack([pos[sel], np.full(int(sel.sum()), 1.0)]), radii=radius,
+            labels=[f"T{i} {r}" for i, r in zip(ids[sel], regime[sel])], class_ids=ids[sel],
+            show_labels=name == "confirmed"))
+    conf = status == "confirmed"
+    rec.log("world/tracks/velocity", rr.Arrows3D(origins=np.column_stack([pos[conf], np.ones(int(conf.sum()))]),
+                                                 vectors=np.column_stack([ts.v[conf], np.zeros(int(conf.sum()))]),
+                                                 class_ids=ids[conf]))
+
+
+def log_track_extras(rec: rr.RecordingStream, ts, layers_before: bool) -> bool:
+    """2-sigma covariance ellipses, the validation gates and the SVSF boundary layers (a box of the layer's
+    half widths around each updated estimate, thesis §2.1, §3.4; logged once any track has had one, so they
+    clear). Returns whether layers have been logged."""
+    info, pos, ids = ts.info, ts.xy, ts.ids
+    ppos = ts.cov[:, :2, :2]
+    given = np.isfinite(ppos).all(axis=(1, 2))
+    rec.log("world/tracks/covariance", rr.LineStrips3D(ellipses(pos[given], ppos[given], 2.0, 1.0),
+                                                       class_ids=ids[given], radii=0.04))
+    gated = info is not None and len(info.ids)
+    rec.log("world/tracks/gates", rr.LineStrips3D(
+        ellipses(info.z_hat, info.S, float(np.sqrt(ts.gate_alpha)), 0.2) if gated else np.zeros((0, 2, 3)),
+        class_ids=info.ids if gated else [], radii=0.03))
+    where = {int(i): k for k, i in enumerate(ids)}
+    rows = [] if info is None else [(k, where[int(i)]) for k, i in enumerate(info.ids)
+                                    if int(i) in where and np.isfinite(info.layers[k]).all()]
+    if not rows and not layers_before:
+        return False
+    lk = np.array([r[0] for r in rows], dtype=np.int64)
+    tk = np.array([r[1] for r in rows], dtype=np.int64)
+    half = info.layers[lk][:, :2] if rows else np.zeros((0, 2))
+    rec.log("world/tracks/layers", rr.Boxes3D(
+        centers=np.column_stack([pos[tk], np.full(len(tk), 1.0)]) if rows else np.zeros((0, 3)),
+        half_sizes=np.column_stack([half, np.full(len(tk), 0.05)]), class_ids=ids[tk] if rows else [],
+        colors=[255, 140, 0]))
+    return True
+
+
+class Trails:
+    """The confirmed tracks' trails: each frame logs one segment per track confirmed in this frame and the
+    one before (previous estimate -> this one) to ``world/tracks/trajectories``; the blueprint shows that
+    entity over the last 30 s (testbed/recording/layout.py), which draws each track's path."""
+
+    def __init__(self):
+        self.last: dict[int, np.ndarray] = {}
+
+    def log(self, rec: rr.RecordingStream, ts) -> None:
+        conf = np.flatnonzero(ts.status == "confirmed")
+        now = {int(ts.ids[k]): ts.xy[k] for k in conf}
+        both = [i for i in now if i in self.last]
+        segs = np.array([[[*self.last[i], 1.0], [*now[i], 1.0]] for i in both]).reshape(-1, 2, 3)
+        rec.log("world/tracks/trajectories", rr.LineStrips3D(segs, class_ids=both, radii=0.08))
+        self.last = now
