@@ -1,9 +1,9 @@
 """The web viewer on a run, in headless Chromium: how long until it shows the last frame, and screenshots.
 
-    .venv/bin/python benchmarks/web_viewer.py RUN [--at SECONDS] [--shot out.png] [--views] [--port 19190]
+    .venv/bin/python benchmarks/bench_web_viewer.py RUN [--at SECONDS] [--shot out.png] [--views] [--port 19190]
 
 Starts ``testbed view RUN --web`` (with ``--at``: opened at that time), opens the address it prints in a
-headless Chromium (benchmarks/cdp.py; Debian's ``chromium``, software WebGL) and reads the viewer's state
+headless Chromium (benchmarks/support/cdp.py; Debian's ``chromium``, software WebGL) and reads the viewer's state
 from the page (``WebHandle.viewer_state()``, a protobuf ``GetStateResponse`` decoded here) every 0.1 s.
 Prints the seconds from opening the page to: the viewer running, the recording's last frame received (the
 ``frame`` timeline's end reaching the run's last frame), and the cursor standing on it (or on ``--at``).
@@ -21,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent / "support"))
 from cdp import Browser  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
