@@ -310,11 +310,8 @@ def _cmd_keys(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="testbed", description="roadtrack: simulator-coupled target tracking testbed")
-    p.add_argument("--debug", action="store_true", help="show the traceback of an error (also accepted after "
-                   "the command)")
-    sub = p.add_subparsers(dest="command", required=True)
+def _add_run_parser(sub) -> None:
+    """Add ``run`` (scenario, tracker, overrides, output and recording options) to the sub-commands."""
     r = sub.add_parser("run", help="run a scenario end to end: recording, tables, scores")
     r.add_argument("scenario", help="scenario file, or the name of a shipped one (see `testbed scenarios`)")
     r.add_argument("--tracker", help="tracker name overriding the scenario's, e.g. jpda-kf (see `testbed trackers`), or "
@@ -334,6 +331,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-record", action="store_true", help="skip the rerun recording")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_run)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="testbed", description="roadtrack: simulator-coupled target tracking testbed")
+    p.add_argument("--debug", action="store_true", help="show the traceback of an error (also accepted after "
+                   "the command)")
+    sub = p.add_subparsers(dest="command", required=True)
+    _add_run_parser(sub)
     sc = sub.add_parser("score", help="score a run's tracks, or any tracks table (CSV or parquet, e.g. from another "
                                       "program), against the run's truth")
     sc.add_argument("run", help="a run folder (testbed run ... --out RUN)")
