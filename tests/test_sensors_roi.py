@@ -114,13 +114,14 @@ def test_the_box_fit_gets_the_lane_heading_at_the_centroid(monkeypatch):
     boxes = np.array([car(*c, yaw=theta) for c in cars])
     s = scan(LidarConfig(), np.array([*(-1.75 * normal), theta]), boxes, np.arange(3), np.random.default_rng(3))
     seen = []
-    real = perception.fit_vehicle_box_unchecked  # perception's entry to boxfit.fit_vehicle_box (inputs already checked)
+    real = perception.fit_vehicle_boxes_unchecked  # perception's entry to boxfit: all fits of a frame in one call
 
-    def spy(xy, sensor_xy, **kw):
-        seen.append((xy.mean(axis=0), kw["heading_hint"]))
-        return real(xy, sensor_xy, **kw)
+    def spy(xy, z, starts, n, sensor_xy, tops, hints, open_ends, cfg):
+        for k in range(len(starts)):
+            seen.append((xy[starts[k]:starts[k] + n[k]].mean(axis=0), None if hints is None else hints[k]))
+        return real(xy, z, starts, n, sensor_xy, tops, hints, open_ends, cfg)
 
-    monkeypatch.setattr(perception, "fit_vehicle_box_unchecked", spy)
+    monkeypatch.setattr(perception, "fit_vehicle_boxes_unchecked", spy)
     det = perceive(s, PerceptionConfig(), road).detections
     assert sorted(det.provenance.tolist()) == [0, 1, 2] and len(seen) >= 3
     for centroid, hint in seen:
