@@ -20,8 +20,8 @@ from trackers.initiation import pair_candidates, single_point, two_point
 from trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
                                  position_std, score_decide, score_increment)
 from trackers.state import FilterState
-from trackers.trackloss.regime import (RegimeState, advance, alpha_of, assess_window, gamma_best_fast, initial_state,
-                                      window_from_history)
+from trackers.trackloss.regime import (RegimeState, advance, alpha_of, assess_windows, gamma_best_fast, initial_state,
+                                      windows_from_histories)
 
 PdInput = np.ndarray | float | Callable[[np.ndarray], np.ndarray] | None
 
@@ -31,7 +31,7 @@ class ScanRecord:
     """What one scan told a track: nu_c (m,) combined innovation; S (m, m); n_gated measurements in the gate;
     gate_volume [m^m]; nis = nu_c^T S^-1 nu_c; detected (at least one gated measurement); pd used; d2 (M,) the
     squared Mahalanobis distances of every measurement of the scan (gated or not; the KS regime detector
-    re-gates them, trackers.trackloss.regime)."""
+    re-gates them, trackers.trackloss.regime); root_det = |S|^(1/2) (None: computed from S when needed)."""
 
     nu_c: np.ndarray
     S: np.ndarray
@@ -41,6 +41,7 @@ class ScanRecord:
     detected: bool
     pd: float
     d2: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    root_det: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -327,12 +328,14 @@ class Tracker:
         lam = mp.regime_clutter_density or self.association.clutter_density
         states = [tr.regime_state or initial_state(cfg) for tr in live]
         ready = [t for t in range(T) if len(histories[t]) >= states[t].n]
-        windows = [window_from_history(histories[t], states[t].n) for t in ready]
-        gammas = np.atleast_1d(gamma_best_fast(lam * np.array([w[0].mean() for w in windows]), nz))
         out = [advance(s, None, cfg) for s in states]
-        for i, t in enumerate(ready):
-            test = assess_window(*windows[i], lam, nz, alpha_of(states[t], cfg), gamma=float(gammas[i]))
-            out[t] = advance(states[t], test, cfg)
+        for n in sorted({states[t].n for t in ready}):  # one batch per window length (several when adaptive)
+            group = [t for t in ready if states[t].n == n]
+            root_det, d2_scans, pd = windows_from_histories([histories[t] for t in group], n)
+            gammas = np.atleast_1d(gamma_best_fast(lam * root_det.mean(axis=1), nz))
+            tests = assess_windows(root_det, d2_scans, pd, lam, nz, [alpha_of(states[t], cfg) for t in group], gammas)
+            for t, test in zip(group, tests):
+                out[t] = advance(states[t], test, cfg)
         code = {"tracking": 1.0, "ambiguous": 0.0, "track-lost": -1.0}
         for name, get in (("ks_regime", lambda r: code.get(r.label, np.nan)), ("ks_D_T", lambda r: r.last.D_T),
                           ("ks_D_L", lambda r: r.last.D_L), ("ks_d_n", lambda r: r.last.d_n),
@@ -358,9 +361,10 @@ class Tracker:
         nu_c = np.einsum("tj,tjm->tm", W, inp.nu) if T else np.zeros((0, inp.nu.shape[-1]))
         nis = np.einsum("tm,tm->t", nu_c, np.linalg.solve(inp.S, nu_c[..., None])[..., 0]) if T else np.zeros(0)
         n_gated = inp.gated.sum(axis=1)
+        root_det = np.sqrt(np.linalg.det(inp.S)) if T else np.zeros(0)  # once per record, for the KS windows
         records = [ScanRecord(nu_c=nu_c[t], S=inp.S[t], n_gated=int(n_gated[t]), gate_volume=float(inp.gate_volume[t]),
-                              nis=float(nis[t]), detected=bool(hit[t]), pd=float(inp.pd[t]), d2=inp.d2[t])
-                   for t in range(T)]
+                              nis=float(nis[t]), detected=bool(hit[t]), pd=float(inp.pd[t]), d2=inp.d2[t],
+                              root_det=float(root_det[t])) for t in range(T)]
         diag = {"nis": nis, "n_gated": n_gated.astype(np.float64), "gate_volume": inp.gate_volume.astype(np.float64),
                 "pd": inp.pd.astype(np.float64)}
         for t, s in enumerate(states):

@@ -216,6 +216,39 @@ def assess_window(root_det: np.ndarray, d2_scans: Sequence[np.ndarray], pd: np.n
                       volume=volume, lam=lam, pd=pd_mean, counts_ng=ng, counts_cg=cg)
 
 
+def assess_windows(root_det: np.ndarray, d2_scans: Sequence[Sequence[np.ndarray]], pd: np.ndarray, lam: float,
+                   nz: int, alphas: np.ndarray, gammas: np.ndarray) -> list[RegimeTest]:
+    """assess_window of T tracks' windows of one length n at once (a tracker's per-scan batch): root_det (T, n),
+    d2_scans T sequences of n arrays, pd (T, n), alphas (T,), gammas (T,) the TRD gates. The same RegimeTests as
+    T calls of assess_window(root_det[t], d2_scans[t], pd[t], lam, nz, alphas[t], gammas[t]) (tested to 1e-12)."""
+    root_det, pd = np.asarray(root_det, dtype=np.float64), np.asarray(pd, dtype=np.float64)
+    g = np.asarray(gammas, dtype=np.float64)
+    T, n = root_det.shape
+    if T == 0:
+        return []
+    sigma_n = root_det.mean(axis=1)  # paper 002 (8): Sigma_n = mean |S(j)|^(1/2), per track
+    volume = unit_ball_volume(nz) * g ** (0.5 * nz) * sigma_n  # paper 002 (8): V_c = c gamma^(nz/2) Sigma_n
+    thr_cg = g[:, None] / constant_gate_scale(root_det, sigma_n[:, None], nz)  # paper 002 (9): CG gate
+    flat, owner = _flatten([a for scans in d2_scans for a in scans])  # owner = t * n + j
+    ng = np.bincount(owner[flat <= g[owner // n]], minlength=T * n).reshape(T, n)  # paper 002 (10): NG gate
+    cg = np.bincount(owner[flat <= thr_cg.ravel()[owner]], minlength=T * n).reshape(T, n)
+    mu, pd_mean = lam * volume, pd.mean(axis=1)
+    pdpg = pd_mean * gate_probability(g, nz)  # F_T is linear in P_D: the window's mixture uses mean P_D
+    top = np.maximum(ng.max(axis=1), cg.max(axis=1))
+    m = np.arange(int(top.max()) + 1)
+    rows = np.arange(T)[:, None] * len(m)
+    below = m[None, :] <= ng.max(axis=1)[:, None]  # ks_distance_counts: the sup over m = 0..max(counts)
+    sample = np.cumsum(np.bincount((rows + ng).ravel(), minlength=T * len(m)).reshape(T, -1), axis=1) / n
+    F_T = tracking_cdf(m[None, :], mu[:, None], pdpg[:, None])
+    D_T = np.max(np.where(below, np.abs(sample - F_T), -np.inf), axis=1)  # paper 002 §V step 4: NG vs F_T(V_c)
+    below = m[None, :] <= cg.max(axis=1)[:, None]
+    sample = np.cumsum(np.bincount((rows + cg).ravel(), minlength=T * len(m)).reshape(T, -1), axis=1) / n
+    D_L = np.max(np.where(below, np.abs(sample - lost_cdf(m[None, :], mu[:, None])), -np.inf), axis=1)  # step 4
+    return [RegimeTest(n=n, alpha=float(a), d_n=critical_value(n, float(a)), D_T=float(D_T[t]), D_L=float(D_L[t]),
+                       gamma=float(g[t]), sigma_n=float(sigma_n[t]), volume=float(volume[t]), lam=lam,
+                       pd=float(pd_mean[t]), counts_ng=ng[t], counts_cg=cg[t]) for t, a in enumerate(alphas)]
+
+
 # ------------------------------------------------------------------------------------------ per track
 @dataclass(frozen=True)
 class RegimeConfig:
@@ -302,6 +335,21 @@ def window_from_history(history: Sequence, n: int) -> tuple[np.ndarray, list[np.
     recs = history[len(history) - n:]
     root_det = np.sqrt(np.linalg.det(np.stack([r.S for r in recs])))
     return root_det, [r.d2 for r in recs], np.array([r.pd for r in recs], dtype=np.float64)
+
+
+def windows_from_histories(histories: Sequence[Sequence], n: int) -> tuple[np.ndarray, list, np.ndarray]:
+    """window_from_history of T histories with one window length n: (root_det (T, n), d2_scans T lists of n
+    arrays, pd (T, n)), for assess_windows; a record's stored root_det (|S|^(1/2)) is used where it has one.
+    Every history needs len >= n."""
+    recs = [h[len(h) - n:] for h in histories]
+    root_det = np.array([[getattr(r, "root_det", None) for r in rs] for rs in recs], dtype=object).reshape(len(recs), n)
+    missing = np.equal(root_det, None)
+    if missing.any():  # records without a stored |S|^(1/2): from S, as window_from_history does
+        S = np.stack([r.S for rs in recs for r in rs])
+        root_det[missing] = np.sqrt(np.linalg.det(S)).reshape(len(recs), n)[missing]
+    root_det = root_det.astype(np.float64)
+    pd = np.array([[r.pd for r in rs] for rs in recs], dtype=np.float64).reshape(len(recs), n)
+    return root_det, [[r.d2 for r in rs] for rs in recs], pd
 
 
 # ------------------------------------------------------------------------------------------ a scan series
