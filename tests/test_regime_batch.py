@@ -64,3 +64,20 @@ def test_windows_from_histories_read_the_stored_root_det_or_compute_it_from_S():
         np.testing.assert_allclose(root_det[t], one[0], rtol=1e-14)
         np.testing.assert_array_equal(pd[t], one[2])
         assert all(np.array_equal(x, y) for x, y in zip(d2[t], one[1]))
+
+
+def test_mismatched_windows_are_one_clear_error():
+    with pytest.raises(ValueError, match="assess_windows needs"):
+        assess_windows(np.ones((2, 5)), [[np.zeros(0)] * 5], np.ones((2, 5)), 0.1, 2, [0.05] * 2, np.ones(2))
+    with pytest.raises(ValueError, match="assess_windows needs"):
+        assess_windows(np.ones(5), [[np.zeros(0)] * 5], np.ones(5), 0.1, 2, [0.05], np.ones(1))
+
+
+def test_the_batched_ks_distance_equals_the_single_one():
+    from trackers.trackloss.ks import ks_distance_counts, ks_distances_counts
+
+    rng = np.random.default_rng(2)
+    counts = rng.integers(0, 6, (7, 20))
+    cdf = np.sort(rng.uniform(size=(7, 9)), axis=1)
+    expect = [ks_distance_counts(c, f) for c, f in zip(counts, cdf)]
+    np.testing.assert_array_equal(ks_distances_counts(counts, cdf), expect)

@@ -70,3 +70,14 @@ def ks_distance_counts(counts: np.ndarray, cdf: np.ndarray) -> float:
     if len(cdf) < sample.size:
         raise ValueError(f"cdf has {len(cdf)} values; need m = 0..{sample.size - 1}")
     return float(np.max(np.abs(sample - cdf[: sample.size])))  # paper 002 (4) at m = 0..max(counts) [R]
+
+
+def ks_distances_counts(counts: np.ndarray, cdf: np.ndarray) -> np.ndarray:
+    """ks_distance_counts of T samples at once: counts (T, n) integers >= 0 against cdfs (T, M) given at
+    m = 0..M-1 (M > counts.max()); (T,) distances, each the max over m = 0..max(counts[t]) (paper 002 (4)) [R]."""
+    counts, cdf = np.asarray(counts), np.asarray(cdf, dtype=np.float64)
+    T, n = counts.shape
+    M = cdf.shape[1]
+    hist = np.bincount((np.arange(T)[:, None] * M + counts).ravel(), minlength=T * M).reshape(T, M)
+    seen = np.arange(M)[None, :] <= counts.max(axis=1)[:, None]
+    return np.max(np.where(seen, np.abs(np.cumsum(hist, axis=1) / n - cdf), -np.inf), axis=1)  # paper 002 (4)

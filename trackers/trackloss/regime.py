@@ -27,7 +27,7 @@ from typing import Sequence
 import numpy as np
 from scipy.special import gammainc, gammaln, pdtr, xlogy
 
-from trackers.trackloss.ks import critical_value, ks_distance_counts
+from trackers.trackloss.ks import critical_value, ks_distance_counts, ks_distances_counts
 
 VERDICTS = ("tracking", "track-lost", "both", "neither")
 LABELS = ("unknown", "tracking", "track-lost", "ambiguous")
@@ -223,6 +223,11 @@ def assess_windows(root_det: np.ndarray, d2_scans: Sequence[Sequence[np.ndarray]
     T calls of assess_window(root_det[t], d2_scans[t], pd[t], lam, nz, alphas[t], gammas[t]) (tested to 1e-12)."""
     root_det, pd = np.asarray(root_det, dtype=np.float64), np.asarray(pd, dtype=np.float64)
     g = np.asarray(gammas, dtype=np.float64)
+    if root_det.ndim != 2 or pd.shape != root_det.shape or not len(d2_scans) == len(alphas) == len(g) == len(pd) \
+            or any(len(scans) != root_det.shape[1] for scans in d2_scans):
+        raise ValueError(f"assess_windows needs root_det and pd (T, n), T windows of n scans, T alphas and gammas; "
+                         f"got root_det {root_det.shape}, pd {pd.shape}, {len(d2_scans)} windows, {len(alphas)} "
+                         f"alphas, {len(g)} gammas")
     T, n = root_det.shape
     if T == 0:
         return []
@@ -234,16 +239,9 @@ def assess_windows(root_det: np.ndarray, d2_scans: Sequence[Sequence[np.ndarray]
     cg = np.bincount(owner[flat <= thr_cg.ravel()[owner]], minlength=T * n).reshape(T, n)
     mu, pd_mean = lam * volume, pd.mean(axis=1)
     pdpg = pd_mean * gate_probability(g, nz)  # F_T is linear in P_D: the window's mixture uses mean P_D
-    top = np.maximum(ng.max(axis=1), cg.max(axis=1))
-    m = np.arange(int(top.max()) + 1)
-    rows = np.arange(T)[:, None] * len(m)
-    below = m[None, :] <= ng.max(axis=1)[:, None]  # ks_distance_counts: the sup over m = 0..max(counts)
-    sample = np.cumsum(np.bincount((rows + ng).ravel(), minlength=T * len(m)).reshape(T, -1), axis=1) / n
-    F_T = tracking_cdf(m[None, :], mu[:, None], pdpg[:, None])
-    D_T = np.max(np.where(below, np.abs(sample - F_T), -np.inf), axis=1)  # paper 002 §V step 4: NG vs F_T(V_c)
-    below = m[None, :] <= cg.max(axis=1)[:, None]
-    sample = np.cumsum(np.bincount((rows + cg).ravel(), minlength=T * len(m)).reshape(T, -1), axis=1) / n
-    D_L = np.max(np.where(below, np.abs(sample - lost_cdf(m[None, :], mu[:, None])), -np.inf), axis=1)  # step 4
+    m = np.arange(int(max(ng.max(), cg.max())) + 1)[None, :]
+    D_T = ks_distances_counts(ng, tracking_cdf(m, mu[:, None], pdpg[:, None]))  # paper 002 §V step 4: NG vs F_T
+    D_L = ks_distances_counts(cg, lost_cdf(m, mu[:, None]))  # paper 002 §V step 4: CG counts vs F_L(V_c)
     return [RegimeTest(n=n, alpha=float(a), d_n=critical_value(n, float(a)), D_T=float(D_T[t]), D_L=float(D_L[t]),
                        gamma=float(g[t]), sigma_n=float(sigma_n[t]), volume=float(volume[t]), lam=lam,
                        pd=float(pd_mean[t]), counts_ng=ng[t], counts_cg=cg[t]) for t, a in enumerate(alphas)]
@@ -342,12 +340,11 @@ def windows_from_histories(histories: Sequence[Sequence], n: int) -> tuple[np.nd
     arrays, pd (T, n)), for assess_windows; a record's stored root_det (|S|^(1/2)) is used where it has one.
     Every history needs len >= n."""
     recs = [h[len(h) - n:] for h in histories]
-    root_det = np.array([[getattr(r, "root_det", None) for r in rs] for rs in recs], dtype=object).reshape(len(recs), n)
-    missing = np.equal(root_det, None)
+    stored = [[getattr(r, "root_det", None) for r in rs] for rs in recs]
+    root_det = np.array([[np.nan if v is None else v for v in row] for row in stored], np.float64).reshape(len(recs), n)
+    missing = np.isnan(root_det)
     if missing.any():  # records without a stored |S|^(1/2): from S, as window_from_history does
-        S = np.stack([r.S for rs in recs for r in rs])
-        root_det[missing] = np.sqrt(np.linalg.det(S)).reshape(len(recs), n)[missing]
-    root_det = root_det.astype(np.float64)
+        root_det[missing] = np.sqrt(np.linalg.det(np.stack([r.S for rs in recs for r in rs]))).reshape(-1, n)[missing]
     pd = np.array([[r.pd for r in rs] for rs in recs], dtype=np.float64).reshape(len(recs), n)
     return root_det, [[r.d2 for r in rs] for rs in recs], pd
 
