@@ -72,7 +72,7 @@ def test_each_level_holds_what_it_promises(recordings):
         for path in every - set(want[level]):
             assert path not in rows, (level, path)
         assert rows["/world/road/lanes"] == 1 and rows["/world/roadside"] == 1  # static, once
-        diag = any(p.startswith("/world/tracks/") and p.count("/") == 4 for p in rows)
+        diag = any(p.startswith("/diagnostics/") and p.count("/") == 4 for p in rows)
         assert diag == content(level).diagnostics, level
 
 

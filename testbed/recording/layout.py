@@ -1,4 +1,5 @@
-"""The recording's default blueprint: a chase view and a top-down view in the sensor car's frame, the counts.
+"""The recording's default blueprint: a chase view and a top-down view in the sensor car's frame, the legend,
+the counts and the per-track diagnostics (one tab per quantity, testbed/recording/diagnostics.py).
 
 Why the views' origin is the sensor car (``world/ego``, its pose logged there as a Transform3D each frame) and
 not ``EyeControls3D(tracking_entity=...)``: rerun 0.41 follows a tracked entity through the bounding box of
@@ -13,6 +14,8 @@ from __future__ import annotations
 
 import rerun.blueprint as rrb
 
+from .diagnostics import titles
+
 EGO = "/world/ego"
 CHASE_EYE = dict(position=[-45.0, -30.0, 35.0], look_target=[15.0, 0.0, 0.0], eye_up=[0.0, 0.0, 1.0])
 """Behind, left of and above the car, looking 15 m ahead of it."""
@@ -23,7 +26,8 @@ TRAIL_S = 30.0  # the track trails show the last 30 s
 
 
 def blueprint(rate_hz: float = 10.0) -> rrb.Blueprint:
-    """The chase view, the top-down view and the count plots; panels collapsed."""
+    """The chase view, the top-down view, the legend, the count plots and the diagnostics tabs; panels
+    collapsed."""
     hidden = {"/world/lidar/truth": rrb.EntityBehavior(visible=False)}
     trails = {"/world/tracks/trajectories": trail_ranges(rate_hz)}
     return rrb.Blueprint(
@@ -31,9 +35,12 @@ def blueprint(rate_hz: float = 10.0) -> rrb.Blueprint:
             rrb.Spatial3DView(name="chase (sensor car's frame)", origin=EGO, contents="/world/**",
                               eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, **CHASE_EYE),
                               overrides={**hidden, **trails}),
-            rrb.Spatial3DView(name="top-down (sensor car's frame)", origin=EGO, contents="/world/**",
-                              eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, **TOP_DOWN_EYE),
-                              line_grid=rrb.LineGrid3D(visible=False), overrides={**hidden, **trails}),
+            rrb.Vertical(
+                rrb.Spatial3DView(name="top-down (sensor car's frame)", origin=EGO, contents="/world/**",
+                                  eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, **TOP_DOWN_EYE),
+                                  line_grid=rrb.LineGrid3D(visible=False), overrides={**hidden, **trails}),
+                rrb.Spatial2DView(name="legend", origin="/legend"),
+                row_shares=[1.4, 1]),
             _plots(),
             column_shares=[3, 1.4, 1.2],
         ),
@@ -64,5 +71,7 @@ def _plots() -> rrb.Vertical:
         rrb.TimeSeriesView(name="merged / split / rejected", origin="/metrics",
                            contents=["/metrics/merged_detections", "/metrics/split_detections",
                                      "/metrics/rejected_objects"]),
-        rrb.TimeSeriesView(name="track diagnostics (score, NIS, layers, mode probabilities)", origin="/world/tracks"),
+        rrb.Tabs(*(rrb.TimeSeriesView(name=title, origin=f"/diagnostics/{key}") for key, title in titles()),
+                 name="track diagnostics, one tab per quantity (a line per confirmed track)"),
+        row_shares=[1, 1, 1, 1, 2.4],
     )

@@ -37,7 +37,7 @@ class Content:
     lidar_truth: bool  # world/lidar/truth and world/lidar/shadows
     detections: bool  # world/detections, its boxes and rejected objects
     track_extras: bool  # covariance ellipses, gates, boundary layers
-    diagnostics: bool  # per-track diagnostic series world/tracks/<id>/<name>
+    diagnostics: bool  # per-track diagnostic series diagnostics/<group>/<id>/<name>
 
 
 LEVELS = {

@@ -32,7 +32,10 @@ Entity paths (all in the world frame, z up, metres):
 ``world/tracks/layers``            SVSF boundary layers around the updated estimates (Boxes3D)
 ``world/tracks/trajectories``      trails: one segment per confirmed track and frame (previous estimate to this
                                    one, LineStrips3D); the blueprint shows the last 30 s of them
-``world/tracks/<id>/<name>``       per-track diagnostic series of confirmed tracks (Scalars, sent in columns)
+``diagnostics/<group>/<id>/<name>`` per-track diagnostic series of confirmed tracks, grouped by quantity (score,
+                                   NIS, gate volume, layers, mode probabilities, ...; testbed/recording/diagnostics.py;
+                                   Scalars, sent in columns every :data:`SERIES_FLUSH_FRAMES` frames)
+``legend``                         the colour key (static Image, testbed/recording/legend.py)
 ``metrics/<name>``                 per-frame counts: tracks, detections, clutter, points; and the measured
                                    perception statistics: ground precision / recall, P_D of the vehicles in
                                    range, merged / split detections, rejected objects (Scalars)
@@ -53,7 +56,10 @@ import rerun as rr
 import sensors
 
 from ..common.safe_io import refuse_link
+from . import palette as pal
+from .diagnostics import series_label, series_path
 from .layout import blueprint
+from .legend import legend_image
 from .levels import content
 from .scene import (GROUND_LABEL, Trails, boxes, log_detections, log_lidar, log_track_extras,
                     log_track_points)
@@ -69,7 +75,9 @@ rerun 0.41 can block forever in ``flush()`` and ``disconnect()`` once its file w
 upstream race, seen in CI): the recording is then given up on, so a run ends with its one line within this
 bound. A slow disk that is still being written is waited for."""
 CLOSE_POLL_S = 0.5  # how often close() looks at the file's size
-SERIES_FLUSH_FRAMES = 200  # the metrics and per-track diagnostic series are buffered and sent in columns every N frames
+SERIES_FLUSH_FRAMES = 30
+"""The metrics and per-track diagnostic series are buffered and sent in columns every N frames (3 s at 10 Hz:
+a viewer following a live run sees them within seconds)."""
 FOOTER_MAX_FRAMES = 1200
 """Recordings of up to this many frames end with an rrd footer (a manifest of every chunk, for random access).
 rerun keeps that manifest in memory until the file is closed: ~17 kB per frame here (about 3.5 chunks a
@@ -100,20 +108,22 @@ class Recorder:
             [rr.AnnotationInfo(id=i, label=name, color=c) for i, name, c in TRUTH_CLASSES]), static=True)
         for name in METRICS:
             self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " ")), static=True)
+        self.rec.log("legend", rr.Image(legend_image()), static=True)
         self.trails = Trails()
         self.series: dict[tuple[int, str], tuple[list[int], list[float], list[float]]] = {}
         self.metrics: dict[str, tuple[list[int], list[float], list[float]]] = {}
         self.series_frames = 0
+        self.named: set[str] = set()
         self.layers_logged = False
 
     def static(self, lanes: list[np.ndarray], roadside: np.ndarray) -> None:
         """Road lane borders (list of (P, 2)) and roadside boxes (K, 7) [cx, cy, L, W, H, yaw, z_bottom], logged
         once as static data (shown at every time)."""
         strips = [np.column_stack([ln, np.zeros(len(ln))]) for ln in lanes]
-        self.rec.log("world/road/lanes", rr.LineStrips3D(strips, colors=[200, 200, 200], radii=0.05), static=True)
+        self.rec.log("world/road/lanes", rr.LineStrips3D(strips, colors=[pal.ROAD], radii=0.05), static=True)
         if len(roadside):
             self.rec.log("world/roadside", rr.Boxes3D(**boxes(roadside[:, :2], roadside[:, 2:5], roadside[:, 5],
-                                                              roadside[:, 6]), colors=[120, 120, 120]), static=True)
+                                                              roadside[:, 6]), colors=[pal.ROADSIDE]), static=True)
 
     def frame(self, truth, scan, perception, detections, ts) -> None:
         """Log one frame. ``ts``: the tracker's testbed.tracking.TrackSet after the step, its status "confirmed",
@@ -153,7 +163,7 @@ class Recorder:
         self.rec.log("world/ego", rr.Transform3D(translation=[truth.xy[0, 0], truth.xy[0, 1], 0.0],
                                                  quaternion=[0.0, 0.0, np.sin(half), np.cos(half)]))
         self.rec.log("world/truth/ego", rr.Boxes3D(**boxes(truth.xy[:1], truth.size[:1], truth.heading[:1]),
-                                                   labels=labels[:1], colors=[255, 80, 0], radii=0.06))
+                                                   labels=["sensor car"], colors=[pal.EGO], fill_mode="solid"))
         self.rec.log("world/truth/vehicles", rr.Boxes3D(**boxes(truth.xy[1:], truth.size[1:], truth.heading[1:]),
                                                         labels=labels[1:], class_ids=truth.ids[1:],
                                                         show_labels=False))
@@ -165,8 +175,8 @@ class Recorder:
             f.append(int(truth.frame)); tm.append(float(truth.time)); vs.append(float(value))
 
     def _diagnostics(self, truth, conf: np.ndarray, ts) -> None:
-        """Buffer the confirmed tracks' (ids ``conf``) diagnostics as series ``world/tracks/<id>/<name>``; sent in
-        columns."""
+        """Buffer the confirmed tracks' (ids ``conf``) diagnostics as series ``diagnostics/<group>/<id>/<name>``;
+        sent in columns."""
         if not ts.diagnostics:
             return
         row = {int(i): k for k, i in enumerate(ts.diagnostic_ids)}
@@ -182,7 +192,13 @@ class Recorder:
 
     def _flush_series(self) -> None:
         """Send the buffered per-track series and the metrics, one column each."""
-        paths = {f"world/tracks/{tid}/{name}": cols for (tid, name), cols in self.series.items()}
+        paths = {}
+        for (tid, name), cols in self.series.items():
+            path = series_path(tid, name)
+            if path not in self.named:  # the line's legend name, once
+                self.rec.log(path, rr.SeriesLines(names=series_label(tid, name)), static=True)
+                self.named.add(path)
+            paths[path] = cols
         paths.update({f"metrics/{name}": cols for name, cols in self.metrics.items()})
         for path, (f, tm, vs) in paths.items():
             if f:

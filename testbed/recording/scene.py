@@ -11,12 +11,22 @@ import rerun as rr
 
 import sensors
 
+from . import palette as pal
 from .levels import thinned
 
 GROUND_LABEL = sensors.GROUND
-CLUSTER_PALETTE = np.array([[230, 159, 0], [86, 180, 233], [0, 158, 115], [240, 228, 66], [0, 114, 178],
-                            [213, 94, 0], [204, 121, 167], [170, 170, 255]], dtype=np.uint8)
-GREEN, RED, GREY = (np.array(c, np.uint8) for c in ([40, 220, 40], [230, 40, 40], [200, 200, 200]))
+CLUSTER_PALETTE = pal.CLUSTERS
+GREEN, RED, GREY = (np.array(c, np.uint8) for c in (pal.DETECTION, pal.CLUTTER, pal.UNLABELLED))
+REGIME_NAMES = {"unknown": "warming up"}
+"""How a track's KS regime (paper 002) is named in its label: "unknown" is the regime before the test's window
+is full, which read like an unknown object class."""
+
+
+def track_label(track_id: int, regime: str) -> str:
+    """A track's compact label: ``T<id>``, plus the KS regime when it is not "tracking" (e.g. "T3 warming up",
+    "T5 track-lost")."""
+    r = str(regime)
+    return f"T{int(track_id)}" if r in ("tracking", "") else f"T{int(track_id)} {REGIME_NAMES.get(r, r)}"
 
 
 def ellipses(centers: np.ndarray, covs: np.ndarray, scale: float, z: float, n: int = 36) -> np.ndarray:
@@ -52,7 +62,7 @@ def log_lidar(rec: rr.RecordingStream, scan, perception, points: str, ground_eve
         ground, objects = np.flatnonzero(g), np.flatnonzero(~g)
     else:
         ground, objects = thinned(g, perception.labels, scan.source, ground_every)
-    rec.log("world/lidar/ground", rr.Points3D(scan.points[ground], colors=[90, 90, 90], radii=0.03))
+    rec.log("world/lidar/ground", rr.Points3D(scan.points[ground], colors=[pal.GROUND], radii=0.03))
     pts, src, lab = scan.points[objects], scan.source[objects], perception.labels[objects]
     colors = np.where((lab >= 0)[:, None], CLUSTER_PALETTE[lab % len(CLUSTER_PALETTE)], GREY)
     rec.log("world/lidar/objects", rr.Points3D(pts, colors=colors, radii=0.05),
@@ -65,15 +75,15 @@ def log_lidar(rec: rr.RecordingStream, scan, perception, points: str, ground_eve
             polys = sensors.shadows(scan, occlusion, is_ground=g)
             rec.log("world/lidar/shadows", rr.LineStrips3D(
                 [np.column_stack([np.vstack([p, p[:1]]), np.full(len(p) + 1, 0.05)]) for p in polys],
-                colors=[70, 70, 160], radii=0.04))
+                colors=[pal.SHADOW], radii=0.015))  # faint: context, not the scene's subject
 
 
 def _ground_errors(rec: rr.RecordingStream, scan, g: np.ndarray) -> None:
     """Points the ground segmentation got wrong: red an object called road, magenta road called an object."""
     gt = scan.source == GROUND_LABEL
     wrong_obj, wrong_road = np.flatnonzero(g & ~gt), np.flatnonzero(~g & gt)
-    colors = np.concatenate([np.tile([230, 30, 30], (len(wrong_obj), 1)),
-                             np.tile([230, 0, 230], (len(wrong_road), 1))]).astype(np.uint8).reshape(-1, 3)
+    colors = np.concatenate([np.tile(pal.OBJECT_AS_ROAD, (len(wrong_obj), 1)),
+                             np.tile(pal.ROAD_AS_OBJECT, (len(wrong_road), 1))]).astype(np.uint8).reshape(-1, 3)
     rec.log("world/lidar/ground_errors", rr.Points3D(scan.points[np.concatenate([wrong_obj, wrong_road])],
                                                      colors=colors, radii=0.08))
 
@@ -86,9 +96,9 @@ def log_detections(rec: rr.RecordingStream, detections, perception) -> None:
         np.column_stack([z, np.full(len(z), 0.3)]), radii=0.35, colors=np.where((prov >= 0)[:, None], GREEN, RED),
         labels=[f"v{p}" if p >= 0 else "clutter" for p in prov], show_labels=False))
     color = np.where((prov >= 0)[:, None], GREEN, RED)
-    color = np.where((f & sensors.COMPLETED)[:, None] > 0, np.array([240, 210, 40], np.uint8), color)
-    color = np.where((f & sensors.SPLIT)[:, None] > 0, np.array([0, 210, 230], np.uint8), color)
-    color = np.where((f & sensors.MERGED)[:, None] > 0, np.array([230, 0, 230], np.uint8), color)
+    color = np.where((f & sensors.COMPLETED)[:, None] > 0, np.array(pal.COMPLETED, np.uint8), color)
+    color = np.where((f & sensors.SPLIT)[:, None] > 0, np.array(pal.SPLIT, np.uint8), color)
+    color = np.where((f & sensors.MERGED)[:, None] > 0, np.array(pal.MERGED, np.uint8), color)
     tags = [" ".join(t for bit, t in ((sensors.MERGED, "merged"), (sensors.SPLIT, "split"),
                                       (sensors.COMPLETED, "completed")) if v & bit) or "box" for v in f]
     size = detections.extent.copy()
@@ -98,19 +108,19 @@ def log_detections(rec: rr.RecordingStream, detections, perception) -> None:
     rj = perception.rejected if perception is not None else None
     if rj is not None:
         rec.log("world/detections/rejected", rr.Points3D(
-            np.column_stack([rj.centre, np.full(len(rj), 0.5)]), radii=0.2, colors=[150, 110, 70],
+            np.column_stack([rj.centre, np.full(len(rj), 0.5)]), radii=0.2, colors=[pal.REJECTED],
             labels=[str(r) for r in rj.reason], show_labels=False))
 
 
 def log_track_points(rec: rr.RecordingStream, ts) -> None:
-    """Track estimates (confirmed labelled T<id> and their regime, tentative, static) and the confirmed
+    """Track estimates (confirmed labelled compactly, :func:`track_label`; tentative, static) and the confirmed
     tracks' velocity over 1 s."""
     status, pos, ids, regime = ts.status, ts.xy, ts.ids, ts.regime
     for name, sel, radius in (("confirmed", status == "confirmed", 0.5), ("tentative", status == "tentative", 0.25),
                               ("static", status == "static", 0.35)):
         rec.log(f"world/tracks/{name}", rr.Points3D(
             np.column_stack([pos[sel], np.full(int(sel.sum()), 1.0)]), radii=radius,
-            labels=[f"T{i} {r}" for i, r in zip(ids[sel], regime[sel])], class_ids=ids[sel],
+            labels=[track_label(i, r) for i, r in zip(ids[sel], regime[sel])], class_ids=ids[sel],
             show_labels=name == "confirmed"))
     conf = status == "confirmed"
     rec.log("world/tracks/velocity", rr.Arrows3D(origins=np.column_stack([pos[conf], np.ones(int(conf.sum()))]),
@@ -142,7 +152,7 @@ def log_track_extras(rec: rr.RecordingStream, ts, layers_before: bool) -> bool:
     rec.log("world/tracks/layers", rr.Boxes3D(
         centers=np.column_stack([pos[tk], np.full(len(tk), 1.0)]) if rows else np.zeros((0, 3)),
         half_sizes=np.column_stack([half, np.full(len(tk), 0.05)]), class_ids=ids[tk] if rows else [],
-        colors=[255, 140, 0]))
+        colors=[pal.LAYER], fill_mode="solid"))  # the only translucent filled boxes of the scene
     return True
 
 

@@ -1,0 +1,115 @@
+"""A legible scene (issue 20.3-20.4): compact track labels, the colour key drawn from the scene's palette, a
+sensor car and boundary layers in styles no other entity uses, and the per-track diagnostics one plot per
+quantity (recording and blueprint read back)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+from testbed.pipeline.run import run_scenario
+from testbed.recording import diagnostics as dg, palette as pal
+from testbed.recording.legend import BACKGROUND, ENTRIES, ROW_PX, legend_image
+from testbed.recording.recorder import Recorder
+from testbed.recording.scene import track_label
+from testbed.scenario.spec import load_scenario
+
+SOLID = 3  # rerun 0.41 FillMode.Solid
+
+
+def test_track_labels_are_compact_and_name_the_warm_up():
+    assert track_label(3, "tracking") == "T3"
+    assert track_label(3, "unknown") == "T3 warming up"  # the KS window is not full yet
+    assert track_label(12, "track-lost") == "T12 track-lost"
+    assert track_label(4, "ambiguous") == "T4 ambiguous"
+
+
+@pytest.mark.parametrize("name, group", [
+    ("score", "score"), ("nis", "nis"), ("gate_volume", "gate"), ("position_std", "position_std"),
+    ("w0", "association"), ("n_gated", "association"), ("pd", "association"), ("mu_0", "modes"),
+    ("psi_z_1", "layer_z"), ("ct.psi_z_0", "layer_z"), ("cv.psi_y_1", "layer_y"), ("psi_v_0", "layer_y"),
+    ("ct.chatter_1", "chatter"), ("chatter_0", "chatter"), ("cv.regime_y", "svsf_regime"),
+    ("ks_D_T", "ks"), ("ks_regime", "ks"), ("my_quantity", "other")])
+def test_each_diagnostic_goes_to_the_plot_of_its_quantity(name, group):
+    assert dg.group_of(name) == group
+    assert dg.series_path(7, name) == f"diagnostics/{group}/7/{name}"
+
+
+def test_every_group_title_names_its_units_or_scale():
+    for key, title in dg.titles():
+        if key not in ("other", "modes", "svsf_regime", "association", "ks", "score", "nis"):
+            assert "[" in title, title  # a quantity with a unit says it
+
+
+def test_the_legend_is_drawn_in_the_scenes_colours():
+    img = legend_image()
+    assert img.dtype == np.uint8 and img.shape == (ROW_PX * (len(ENTRIES) + 1), img.shape[1], 3)
+    flat = img.reshape(-1, 3)
+
+    def has(c):
+        return bool(np.all(flat == np.array(c, np.uint8), axis=1).any())
+
+    assert has(pal.EGO) and has(pal.DETECTION) and has(pal.CLUTTER) and has(pal.MERGED)
+    a = pal.LAYER[3] / 255  # translucent: drawn blended on the background, as the viewer shows it
+    assert has([round(a * v + (1 - a) * b) for v, b in zip(pal.LAYER[:3], BACKGROUND)])
+    # one swatch per row: each row has non-background pixels left of the label
+    for row in range(1, len(ENTRIES) + 1):
+        block = img[row * ROW_PX: (row + 1) * ROW_PX, :60]
+        assert (block != np.array(BACKGROUND, np.uint8)).any(axis=2).sum() > 20, ENTRIES[row - 1][0]
+
+
+def test_only_the_sensor_car_is_solid_and_only_layers_are_translucent():
+    assert len(pal.LAYER) == 4 and pal.LAYER[3] < 128 and len(pal.EGO) == 3
+    others = [pal.DETECTION, pal.CLUTTER, pal.MERGED, pal.SPLIT, pal.COMPLETED, pal.REJECTED, pal.ROAD_AS_OBJECT,
+              pal.OBJECT_AS_ROAD, *map(tuple, pal.CLUSTERS)]
+    assert tuple(pal.EGO) not in {tuple(int(v) for v in c) for c in others}
+
+
+def _rows(rrd) -> dict[str, list]:
+    out: dict[str, list] = {}
+    for chunk in RrdReader(str(rrd)).stream():
+        out.setdefault(chunk.entity_path, []).append(chunk.to_record_batch())
+    return out
+
+
+def test_recording_has_the_legend_diagnostics_per_quantity_and_compact_labels(tmp_path):
+    """4 s of cut_in_out with imm-jpda-gvbl-svsf: the legend image is static; every diagnostic series is under
+    diagnostics/<its group>/<id>/, named "T<id> ..." in its plot's legend; the confirmed tracks' labels carry no
+    "tracking" and say "warming up" before the KS window is full; the ego box is solid; the blueprint has one
+    time-series tab per group."""
+    scn = load_scenario("cut_in_out", {"duration_s": 4.0, "record.lidar_every": 0})
+    run_scenario(scn, out_dir=tmp_path, record=True, tracker="imm-jpda-gvbl-svsf")
+    rows = _rows(tmp_path / "run.rrd")
+    (legend,) = rows["/legend"]
+    assert "frame" not in legend.schema.names  # static
+    diag = [p for p in rows if p.startswith("/diagnostics/")]
+    assert {p.split("/")[2] for p in diag} >= {"score", "nis", "gate", "modes", "layer_z", "layer_y", "chatter"}
+    for p in diag:
+        _, _, group, tid, name = p.split("/")
+        assert dg.group_of(name) == group
+        names = [rb.column("SeriesLines:names").to_pylist() for rb in rows[p] if "SeriesLines:names" in rb.schema.names]
+        assert names and names[0][0][0].startswith(f"T{tid} "), (p, names)
+    labels = [v for rb in rows["/world/tracks/confirmed"] if "Points3D:labels" in rb.schema.names
+              for row in rb.column("Points3D:labels").to_pylist() if row for v in row]
+    assert labels and not any("tracking" in v or "unknown" in v for v in labels)
+    assert any(v.endswith("warming up") for v in labels) and any(v.startswith("T") and " " not in v for v in labels)
+    ego = rows["/world/truth/ego"][0]
+    assert ego.column("Boxes3D:fill_mode").to_pylist()[0] == [SOLID]  # FillMode.Solid
+    layers = [rb for rb in rows["/world/tracks/layers"] if "Boxes3D:fill_mode" in rb.schema.names]
+    assert layers and layers[0].column("Boxes3D:fill_mode").to_pylist()[0] == [SOLID]
+
+
+def test_blueprint_has_one_diagnostics_tab_per_quantity_and_the_legend(tmp_path):
+    rec = Recorder(tmp_path / "run.rrd", "blueprint", rate_hz=10.0)
+    rec.close()
+    reader = RrdReader(str(tmp_path / "run.rrd"))
+    (store,) = reader.blueprints()
+    views: dict[str, str] = {}
+    for chunk in reader.stream(store=store):
+        rb = chunk.to_record_batch()
+        if "ViewBlueprint:display_name" in rb.schema.names and "ViewBlueprint:space_origin" in rb.schema.names:
+            views[rb.column("ViewBlueprint:display_name").to_pylist()[-1][0]] = \
+                rb.column("ViewBlueprint:space_origin").to_pylist()[-1][0]
+    for key, title in dg.titles():
+        assert views.get(title) == f"/diagnostics/{key}", (title, views.get(title))
+    assert views.get("legend") == "/legend"
