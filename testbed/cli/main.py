@@ -52,6 +52,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     stage = Staging(out, RUN_FILES)  # refused up front (exit 2), before any simulation
     try:
         res = _run_with_progress(scn, stage.tmp, args, policy, tracker)
+        if not args.no_plot:
+            from ..pipeline.plots import write_run_plots
+
+            write_run_plots(stage.tmp)
     except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - kept, marked INCOMPLETE, one line
         return _failed(err, stage, args.debug)
     _commit(stage)
@@ -160,6 +164,8 @@ def _print_run(res, args: argparse.Namespace, out: str) -> None:
     written = ["scores.json", "truth.parquet", "detections.parquet", "tracks.parquet", "diagnostics.parquet"]
     if not args.no_record:
         written.insert(0, "run.rrd")
+    if not args.no_plot:
+        written.append("timeline.png")
     print(f"wrote {', '.join(written)} to {out}/")
     if not args.no_record:
         print(f"view it: testbed view {out}")
@@ -329,6 +335,8 @@ def _add_run_parser(sub) -> None:
                    "record.level: full (every LiDAR point), default (the point cloud thinned), light (no point "
                    "cloud), tracks (truth and tracks only); see README, Output files")
     r.add_argument("--no-record", action="store_true", help="skip the rerun recording")
+    r.add_argument("--no-plot", action="store_true",
+                   help="skip timeline.png (each car seen as a bar coloured by the track covering it, and its error)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_run)
 

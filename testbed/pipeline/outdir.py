@@ -33,7 +33,7 @@ from ..common.errors import RunError
 
 INCOMPLETE = "INCOMPLETE"
 _TMP_FILE = ".*.tmp-*"  # a write_atomic temporary (a crash between write and rename)
-RUN_FILES = ("run.rrd", "scores.json", "*.parquet", INCOMPLETE, _TMP_FILE)
+RUN_FILES = ("run.rrd", "scores.json", "*.parquet", "timeline.png", INCOMPLETE, _TMP_FILE)
 REPORT_FILES = ("report.md", "summary.json", "*.png", INCOMPLETE, _TMP_FILE)
 _STALE = re.compile(r"^\..+\.(partial|old)-(\d+)$")
 

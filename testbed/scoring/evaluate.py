@@ -67,6 +67,27 @@ def score(truth, tracks, scoring: ScoringSpec | None = None, n_frames: int | Non
     ConfigError (one line, naming the table and column) on a missing column, a non-numeric or non-finite
     position, or a track time that matches no frame."""
     sc = scoring or ScoringSpec()
+    truth_rows, track_rows = scoring_rows(truth, tracks, sc)
+    conf = track_rows["confirmed"]
+    g_frame = truth_rows["frame"]
+    n = int(n_frames) if n_frames is not None else (int(g_frame.max()) + 1 if len(g_frame) else 0)
+    scores = score_run(truth_rows, track_rows, match_distance_m=sc.match_distance_m,
+                       correct_fraction=sc.correct_fraction)
+    scale = sc.similarity_scale_m or sc.match_distance_m
+    g_all = {k: truth_rows[k] for k in ("frame", "vehicle_id", "xy", "visible")}
+    t_all = {k: track_rows[k][conf] for k in ("frame", "track_id", "xy")}
+    g_vis, t_vis = visible_truth(g_all, t_all, scale)
+    kw = dict(similarity_scale_m=scale, gospa_c=sc.match_distance_m)
+    metrics = mot_metrics(g_vis, t_vis, n, **kw)
+    metrics.update({f"{k}_all": val for k, val in mot_metrics(g_all, t_all, n, **kw).items()})
+    return Evaluation(scores, metrics)
+
+
+def scoring_rows(truth, tracks, sc: ScoringSpec) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """The truth and tracks tables (schemas in the module docstring) checked and as the arrays
+    testbed.scoring.rates.score_run takes: truth frame, vehicle_id (N,), xy, v (N, 2), visible (N,) bool (at least
+    ``sc.visible_min_points`` points; the ego's rows dropped); tracks frame, track_id (Q,), confirmed (Q,) bool,
+    xy, v (Q, 2). ConfigError as :func:`score`."""
     g = _frame(truth, "truth")
     t = _frame(tracks, "tracks")
     for col in ("frame", "vehicle_id", "x", "y", "vx", "vy", "n_points"):
@@ -92,17 +113,7 @@ def score(truth, tracks, scoring: ScoringSpec | None = None, n_frames: int | Non
     v = np.column_stack([_numbers(t, c, "tracks") if c in t.columns else np.full(len(t), np.nan) for c in ("vx", "vy")])
     conf = (t["status"].astype(str).to_numpy() == "confirmed") if "status" in t.columns else np.ones(len(t), bool)
     track_rows = dict(frame=frame, track_id=ids, confirmed=conf, xy=xy, v=v)
-    n = int(n_frames) if n_frames is not None else (int(g_frame.max()) + 1 if len(g_frame) else 0)
-    scores = score_run(truth_rows, track_rows, match_distance_m=sc.match_distance_m,
-                       correct_fraction=sc.correct_fraction)
-    scale = sc.similarity_scale_m or sc.match_distance_m
-    g_all = {k: truth_rows[k] for k in ("frame", "vehicle_id", "xy", "visible")}
-    t_all = {k: track_rows[k][conf] for k in ("frame", "track_id", "xy")}
-    g_vis, t_vis = visible_truth(g_all, t_all, scale)
-    kw = dict(similarity_scale_m=scale, gospa_c=sc.match_distance_m)
-    metrics = mot_metrics(g_vis, t_vis, n, **kw)
-    metrics.update({f"{k}_all": val for k, val in mot_metrics(g_all, t_all, n, **kw).items()})
-    return Evaluation(scores, metrics)
+    return truth_rows, track_rows
 
 
 def _track_frames(t: pd.DataFrame, g: pd.DataFrame, col: str) -> np.ndarray:

@@ -114,9 +114,10 @@ def assign_frames(t_frame, t_xy, g_frame, g_xy, match_distance_m: float) -> tupl
     return np.concatenate(rows_t).astype(np.int64), np.concatenate(rows_g).astype(np.int64)
 
 
-def _track_cars(t_id: np.ndarray, pair_tid: np.ndarray, pair_vid: np.ndarray,
+def track_cars(t_id: np.ndarray, pair_tid: np.ndarray, pair_vid: np.ndarray,
                 correct_fraction: float) -> dict[int, int]:
-    """Correct tracks: {track id: its car}, from the per-frame pairs (thesis-form rule 3)."""
+    """Correct tracks: {track id: its car}, from the per-frame pairs (thesis-form rule 3): t_id (Q,) the confirmed
+    rows' track ids, pair_tid / pair_vid (P,) the track and vehicle id of each per-frame pair."""
     ids, life = np.unique(t_id, return_counts=True)
     best: dict[int, int] = {}
     for tid, n_life in zip(ids, life):
@@ -154,7 +155,7 @@ def score_run(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray],
 
     rt, rg = assign_frames(t_frame, t_xy, g_frame, g_xy, match_distance_m)
     pair_tid, pair_vid = t_id[rt], g_id[rg]
-    best = _track_cars(t_id, pair_tid, pair_vid, correct_fraction)
+    best = track_cars(t_id, pair_tid, pair_vid, correct_fraction)
     relabels = _relabels(pair_tid, pair_vid)
 
     seen = set(np.unique(g_id[visible]).tolist())

@@ -1,0 +1,163 @@
+"""A run's tracks against its cars over time: the thesis's break-ups at a glance (``timeline.png``).
+
+    car_timeline(truth, tracks, scoring=None) -> Timeline       from a run's truth and tracks tables
+    draw_timeline(tl, path, rate_hz, title="") -> Path          the figure
+
+Per car seen (the scores' denominator, testbed/scoring/rates.py): a bar over the frames it was visible (hit by
+a beam), coloured by the confirmed track assigned to it in that frame (the scores' per-frame assignment), grey
+where no confirmed track covered it; a relabel (the assigned label changes: a break-up) is a black tick; a
+frame whose track is not the car's correct track is hatched. Below, one row per false confirmed track (a
+track no car claims as correct), red over its confirmed life. The lower panel: each car's position error to
+its assigned track [m] against time, coloured as the bars.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..common.safe_io import save_figure
+from ..scenario.spec import ScoringSpec
+from .evaluate import scoring_rows
+from .rates import assign_frames, track_cars
+
+MAX_ROWS = 160
+"""At most this many car rows are drawn (the cars seen longest); the title says how many were left out."""
+
+
+@dataclass(frozen=True, eq=False)
+class Timeline:
+    """cars (C,) vehicle ids of the cars seen, by first visible frame; per car c: visible[c] (frames,) and
+    assigned[c] (frames,) the confirmed track id assigned in each of its frames (-1: none; aligned with
+    frames[c]), err[c] (frames,) position error [m] (NaN when none); correct: {track id: its car};
+    false_tracks: {track id: (frames,)} confirmed frames of each false track."""
+
+    cars: np.ndarray
+    frames: list[np.ndarray]
+    visible: list[np.ndarray]
+    assigned: list[np.ndarray]
+    err: list[np.ndarray]
+    correct: dict[int, int]
+    false_tracks: dict[int, np.ndarray]
+
+    def relabels(self, c: int) -> np.ndarray:
+        """Frames at which car c's assigned confirmed label changes to another label (a break-up)."""
+        a, f = self.assigned[c], self.frames[c]
+        on = a >= 0
+        lab, fr = a[on], f[on]
+        return fr[1:][lab[1:] != lab[:-1]]
+
+
+def car_timeline(truth, tracks, scoring: ScoringSpec | None = None) -> Timeline:
+    """The :class:`Timeline` of a run's truth and tracks tables (testbed.scoring.evaluate's schemas)."""
+    sc = scoring or ScoringSpec()
+    g, t = scoring_rows(truth, tracks, sc)
+    conf = t["confirmed"]
+    t_frame, t_id, t_xy = t["frame"][conf], t["track_id"][conf], t["xy"][conf]
+    rt, rg = assign_frames(t_frame, t_xy, g["frame"], g["xy"], sc.match_distance_m)
+    correct = track_cars(t_id, t_id[rt], g["vehicle_id"][rg], sc.correct_fraction)
+    pair_track = np.full(len(g["frame"]), -1, np.int64)
+    pair_track[rg] = t_id[rt]
+    pair_err = np.full(len(g["frame"]), np.nan)
+    pair_err[rg] = np.hypot(*(t_xy[rt] - g["xy"][rg]).T)
+    vis = g["visible"]
+    seen = np.unique(g["vehicle_id"][vis])
+    first = {int(v): int(g["frame"][vis & (g["vehicle_id"] == v)].min()) for v in seen}
+    cars = np.array(sorted(first, key=lambda v: (first[v], v)), dtype=np.int64)
+    frames, visible, assigned, err = [], [], [], []
+    for v in cars:
+        rows = np.flatnonzero(g["vehicle_id"] == v)
+        rows = rows[np.argsort(g["frame"][rows], kind="stable")]
+        frames.append(g["frame"][rows]); visible.append(vis[rows])
+        assigned.append(pair_track[rows]); err.append(pair_err[rows])
+    false = {int(i): np.unique(t_frame[t_id == i]) for i in np.unique(t_id) if int(i) not in correct}
+    return Timeline(cars=cars, frames=frames, visible=visible, assigned=assigned, err=err, correct=correct,
+                    false_tracks=false)
+
+
+def _runs(mask: np.ndarray, frames: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) frame spans where ``mask`` holds over consecutive ``frames`` (sorted, (K,))."""
+    idx = np.flatnonzero(mask)
+    if not len(idx):
+        return []
+    f = frames[idx]
+    cut = np.flatnonzero(np.diff(f) != 1) + 1  # a gap in the frames, or a frame where mask fails
+    cut = np.union1d(cut, np.flatnonzero(np.diff(idx) != 1) + 1)
+    starts = np.r_[0, cut]
+    stops = np.r_[cut, len(f)]
+    return [(int(f[a]), int(f[b - 1]) + 1) for a, b in zip(starts, stops)]
+
+
+_TRACK_COLOURS = (0, 1, 2, 3, 4, 5, 8, 9, 10, 11, 12, 13, 16, 17, 18, 19)
+"""tab20 without its reds (false tracks) and greys (uncovered frames)."""
+
+
+def _colour(track_id: int):
+    import matplotlib
+
+    return matplotlib.colormaps["tab20"](_TRACK_COLOURS[int(track_id) % len(_TRACK_COLOURS)])
+
+
+def draw_timeline(tl: Timeline, path: str | Path, rate_hz: float, title: str = "") -> Path:
+    """Draw ``tl`` into ``path`` (PNG): car bars (upper panel, time [s] across) and position errors (lower)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+    from matplotlib.lines import Line2D
+
+    dt = 1.0 / rate_hz
+    order = np.argsort([-int(v.sum()) for v in tl.visible], kind="stable")[:MAX_ROWS] if len(tl.cars) else []
+    shown = sorted(int(c) for c in order)  # keep first-seen order among the cars drawn
+    n_false = len(tl.false_tracks)
+    rows = len(shown) + min(n_false, MAX_ROWS // 4)
+    h_bars = max(2.0, min(0.16 * rows + 1.0, 30.0))
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(13, h_bars + 3.2), sharex=True,
+                                  gridspec_kw=dict(height_ratios=[h_bars, 3.0]))
+    labels = []
+    last = max([int(f[-1]) for f in tl.frames if len(f)] + [1])
+    span_s = (last + 1) * dt
+    for r, c in enumerate(shown):
+        y = -r
+        f, vis, a = tl.frames[c], tl.visible[c], tl.assigned[c]
+        for s, e in _runs(vis, f):
+            ax.broken_barh([(s * dt, (e - s) * dt)], (y - 0.35, 0.7), color="0.85", lw=0)
+        for tid in np.unique(a[a >= 0]):
+            good = tl.correct.get(int(tid)) == int(tl.cars[c])
+            for s, e in _runs(a == tid, f):
+                ax.broken_barh([(s * dt, (e - s) * dt)], (y - 0.35, 0.7), color=_colour(tid), lw=0,
+                               hatch=None if good else "////", edgecolor="k" if not good else None)
+                if len(shown) <= 40 and (e - s) * dt >= span_s / 40:  # room for the label
+                    ax.text(s * dt, y, f" T{int(tid)}", va="center", ha="left", fontsize=7)
+        for fr in tl.relabels(c):
+            ax.plot([fr * dt, fr * dt], [y - 0.5, y + 0.5], color="k", lw=1.4)
+        labels.append(f"car {int(tl.cars[c])}")
+        for tid in np.unique(a[a >= 0]):  # one line per stretch of one track on this car
+            for s, e in _runs(a == tid, f):
+                sel = (f >= s) & (f < e)
+                ax2.plot(f[sel] * dt, tl.err[c][sel], "-", lw=0.9, color=_colour(tid))
+    for k, (tid, fr) in enumerate(list(tl.false_tracks.items())[:MAX_ROWS // 4]):
+        y = -(len(shown) + k)
+        for s, e in _runs(np.ones(len(fr), bool), fr):
+            ax.broken_barh([(s * dt, (e - s) * dt)], (y - 0.35, 0.7), color="tab:red", lw=0)
+        labels.append(f"false T{tid}")
+    ax.set_yticks(-np.arange(len(labels)))
+    ax.set_yticklabels(labels, fontsize=6 if len(labels) > 40 else 8)
+    ax.set_ylim(-len(labels) + 0.4, 0.6)
+    left = len(tl.cars) - len(shown)
+    head = title + (" - " if title else "") + f"{len(tl.cars)} cars seen, {len(tl.correct)} correct tracks, " \
+        f"{n_false} false tracks" + (f" ({left} cars seen least are not drawn)" if left > 0 else "")
+    ax.set_title(head, fontsize=10, loc="left")
+    ax.legend(handles=[Patch(color="0.85", label="visible, no confirmed track"),
+                       Patch(facecolor="tab:blue", label="covered by a track (colour: its id)"),
+                       Patch(facecolor="white", edgecolor="k", hatch="////", label="by a track not its own"),
+                       Line2D([], [], color="k", lw=1.4, label="relabel (break-up)"),
+                       Patch(color="tab:red", label="false track (confirmed life)")],
+              fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
+    ax2.set_ylabel("position error [m]")
+    ax2.set_xlabel("time [s]")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    out = Path(path)
+    save_figure(fig, out, dpi=110)
+    plt.close(fig)
+    return out
