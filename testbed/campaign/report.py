@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common import safe_io
+from ..common.stats import mean_ci
 from . import store
 
 BOUNDS = {"tp_pct": (0.0, 100.0), "fp_pct": (0.0, math.inf), "breakup_pct": (0.0, 100.0),
@@ -62,19 +63,7 @@ class Report:
 
 def mean_sd_ci(values) -> tuple[int, float, float, float, float]:
     """(n, mean, sd, ci_lo, ci_hi) of the finite values: Student t 95 % interval of the mean."""
-    from scipy import stats
-
-    x = np.asarray(values, dtype=np.float64)
-    x = x[np.isfinite(x)]
-    n = len(x)
-    if n == 0:
-        return 0, math.nan, math.nan, math.nan, math.nan
-    mean = float(np.mean(x))
-    if n < 2:
-        return 1, mean, math.nan, math.nan, math.nan
-    sd = float(np.std(x, ddof=1))
-    half = float(stats.t.ppf(0.975, n - 1)) * sd / math.sqrt(n)
-    return n, mean, sd, mean - half, mean + half
+    return mean_ci(values)
 
 
 def main_scores(columns) -> list[str]:

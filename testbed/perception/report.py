@@ -14,6 +14,7 @@ from .characterise import RANGE_BINS, VIEW_BINS, VISIBLE_BINS, Characterisation
 from ..config import ConfigError
 from ..common.jsonio import json_text
 from ..common.safe_io import refuse_link, save_figure, write_text
+from ..common.stats import wilson
 
 _THESIS_KEYS = (("cars_seen", "cars seen", "d"), ("cars_tracked", "tracked", "d"), ("false_tracks", "false", "d"),
                 ("tp_pct", "TP %", ".1f"), ("fp_pct", "FP %", ".1f"), ("breakup_pct", "break-up %", ".1f"))
@@ -26,28 +27,29 @@ def _plots(ch: Characterisation, out: Path) -> list[str]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     names = []
     mid_r = 0.5 * (RANGE_BINS[:-1] + RANGE_BINS[1:])
     vis = ch.vehicles["visible"] >= 0.5
 
-    fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
-    for label, where, style in (("all in range", None, "k-o"), ("visible >= 50 %", vis, "g-s"),
-                                ("occluded (< 50 % visible)", ~vis, "r-^")):
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4.2))
+    for k, (label, where, colour, marker) in enumerate((("all in range", None, "k", "o"),
+                                                        ("visible >= 50 %", vis, "g", "s"),
+                                                        ("occluded (< 50 % visible)", ~vis, "r", "^"))):
         pd, n = ch.pd_by("range", RANGE_BINS, where)
-        ok = n >= 5
-        ax[0].plot(mid_r[ok], pd[ok], style, label=label, ms=4)
-    ax[0].set(xlabel="range [m]", ylabel="P_D", ylim=(-0.02, 1.02), title="detection probability vs range")
-    ax[0].legend(fontsize=8)
+        _pd_curve(ax[0], mid_r + (k - 1) * 0.6, pd, n, colour, marker, label, counts=k == 0)
+    ax[0].set(xlabel="range [m]", ylabel="P_D", ylim=(-0.02, 1.08),
+              title=f"P_D vs range (95 % Wilson bars; labels: vehicle-frames; bins with < {MIN_BIN} left out)")
+    ax[0].title.set_fontsize(9)
+    ax[0].legend(fontsize=8, loc="lower left")
     ax[0].grid(alpha=0.3)
     pd, n = ch.pd_by("visible", VISIBLE_BINS)
     mid_v = 0.5 * (VISIBLE_BINS[:-1] + np.minimum(VISIBLE_BINS[1:], 1.0))
-    ok = n >= 5
-    ax[1].plot(mid_v[ok], pd[ok], "b-o", ms=4)
-    for x, y, c in zip(mid_v[ok], pd[ok], n[ok]):
-        ax[1].annotate(str(int(c)), (x, y), textcoords="offset points", xytext=(0, 5), fontsize=7, ha="center")
-    ax[1].set(xlabel="visible fraction of the silhouette (range image)", ylabel="P_D", ylim=(-0.02, 1.05),
-              title="P_D vs occlusion (labels: vehicle-frames)")
+    _pd_curve(ax[1], mid_v, pd, n, "b", "o", None, counts=True)
+    ax[1].set(xlabel="visible fraction of the silhouette (range image)", ylabel="P_D", ylim=(-0.02, 1.08), xlim=(0, 1),
+              title="P_D vs occlusion (95 % Wilson bars; labels: vehicle-frames)")
+    ax[1].title.set_fontsize(9)
     ax[1].grid(alpha=0.3)
     fig.tight_layout()
     save_figure(fig, out / "pd.png", dpi=110)
@@ -78,19 +80,43 @@ def _plots(ch: Characterisation, out: Path) -> list[str]:
     if ch.merge_curve:
         gaps = np.array(sorted(ch.merge_curve))
         ax[0].plot(gaps, [ch.merge_curve[g] for g in gaps], "m-o", ms=4)
+    else:
+        ax[0].text(0.5, 0.5, "no two cars side by side or nose to tail\nwithin the measured gaps", ha="center",
+                   va="center", transform=ax[0].transAxes, fontsize=9, color="0.4")
     ax[0].set(xlabel="bumper-to-bumper gap [m]", ylabel="merge rate", ylim=(-0.02, 1.02),
               title="two cars in one detection vs gap")
     ax[0].grid(alpha=0.3)
     c = ch.clutter_per_frame
+    top = int(max(c.max() if len(c) else 0, 3))  # at least 0..3 on the axis: a clutter-free run is not one bar
     if len(c):
-        ax[1].hist(c, bins=np.arange(-0.5, c.max() + 1.5), color="tab:red", alpha=0.8)
-    ax[1].set(xlabel="clutter detections per frame", ylabel="frames", title=f"clutter (mean {c.mean():.2f} / frame)"
-              if len(c) else "clutter")
+        ax[1].hist(c, bins=np.arange(-0.5, top + 1.5), color="tab:red", alpha=0.8, rwidth=0.85)
+    ax[1].set_xlim(-0.6, top + 0.6)
+    ax[1].xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax[1].set(xlabel="clutter detections per frame", ylabel="frames",
+              title=(f"clutter (mean {c.mean():.2f} / frame over {len(c)} frames)" if c.any() else
+                     f"no clutter detection in any of the {len(c)} frames") if len(c) else "clutter (no frames)")
     fig.tight_layout()
     save_figure(fig, out / "merge_clutter.png", dpi=110)
     plt.close(fig)
     names.append("merge_clutter.png")
     return names
+
+
+MIN_BIN = 5  # vehicle-frames a P_D bin needs to be drawn
+
+
+def _pd_curve(ax, x, pd, n, colour, marker, label, counts: bool) -> None:
+    """P_D per bin with its 95 % Wilson interval; bins with fewer than MIN_BIN vehicle-frames are gaps (the
+    line does not join across them); ``counts`` labels each point with its vehicle-frames."""
+    ok = n >= MIN_BIN
+    y = np.where(ok, pd, np.nan)
+    lo, hi = wilson(np.round(np.where(ok, pd, 0) * n), n)
+    ax.plot(x, y, "-", color=colour, marker=marker, ms=4, label=label)
+    ax.errorbar(x[ok], y[ok], yerr=[y[ok] - lo[ok], hi[ok] - y[ok]], fmt="none", ecolor=colour, elinewidth=0.9,
+                capsize=2)
+    if counts:
+        for xi, yi, c in zip(x[ok], y[ok], n[ok]):
+            ax.annotate(str(int(c)), (xi, yi), textcoords="offset points", xytext=(0, 6), fontsize=6, ha="center")
 
 
 def _pd_table(ch: Characterisation) -> list[dict]:
