@@ -27,7 +27,7 @@ import pytest
 from testbed.campaign import store
 from testbed.cli.campaign import add_campaign_parser, main as campaign_main
 from testbed.campaign.engine import EngineOptions, run_campaign
-from testbed.campaign.report import mean_sd_ci, write_report
+from testbed.campaign.report import fmt_ci, mean_sd_ci, paired_differences, write_report
 from testbed.campaign.spec import load_campaign, plan, run_seed
 from testbed.config.strict import ConfigError
 
@@ -137,7 +137,8 @@ BASE = 'scenarios = ["cut_in_out"]\ntrackers = ["jpda-kf"]\nseeds = 2\n'
 
 
 @pytest.mark.parametrize("text, message", [
-    (BASE + "bogus = 1\n", "bogus: unknown key; allowed: base_seed, description, grid, name, overrides, record, "),
+    (BASE + "bogus = 1\n", "bogus: unknown key; allowed: base_seed, baseline, description, grid, name, overrides, record, "),
+    (BASE + 'baseline = "pda-kf"\n', "baseline: 'pda-kf' is not one of the campaign's trackers (jpda-kf)"),
     (BASE.replace("seeds = 2", 'seeds = "2"'), "seeds: expected an integer, got '2'"),
     (BASE.replace("seeds = 2", "seeds = 0"), "seeds: 0 is not allowed; must be > 0"),
     (BASE + "[grid]\nsensor.clutter.densty = [1.0]\n",
@@ -421,10 +422,18 @@ def test_report_tables_and_plots(reference):
         assert args.func(args) == 0
     assert f"wrote {out / 'report.md'}" in buf.getvalue()
     md = (out / "report.md").read_text()
-    assert "| tracker | `tracker.associator.max_events` | n | mean | sd | 95 % CI |" in md
+    # opens with one summary table (n per cell), then warnings, paired differences, the thesis rows once
+    heads = [line for line in md.splitlines() if line.startswith("## ")]
+    assert heads[:4] == ["## Summary", "## Warnings", "## Paired differences against `jpda-kf`",
+                         "## The thesis's published rows (for orientation)"], heads
+    assert "| scenario | tracker | `tracker.associator.max_events` | n | TP [%] |" in md
+    assert "**n < 5** in 4 of 4 cells" in md
+    assert md.count("thesis Table 4.3: JPDA-KF") == 1
+    assert "| tracker | `tracker.associator.max_events` | score | runs | failed | n | sd | mean [95 % CI] |" in md
+    assert md.count("\n|---") <= 6  # summary, paired, thesis rows, thesis form, details, failed runs
     assert "## Failed runs" in md and "JPDAOverflowError" in md
     pngs = sorted(p.name for p in (out / "plots").glob("*.png"))
-    assert pngs == ["rmse_vs_time.png", "scores_vs_tracker.associator.max_events.png"]
+    assert pngs == ["paired_vs_jpda-kf.png", "rmse_vs_time.png", "scores_vs_tracker.associator.max_events.png"]
     for p in pngs:
         assert (out / "plots" / p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert f"](plots/{p})" in md
@@ -444,8 +453,41 @@ def test_report_tables_and_plots(reference):
     seen, tracked, false = (int(ok[c].sum()) for c in ("cars_seen", "cars_tracked", "false_tracks"))
     row = f"| gnn-kf (ours) | 50000 | 2 | {seen} | {tracked} | {false} | {100 * tracked / seen:.4g} |"
     assert "### Thesis-table form" in md and row in md
-    assert "| thesis Table 4.3: JPDA-KF |  | – | 58 | 49 | 9 | 84.48 | 15.52 | 8 |" in md
-    assert "| thesis Table 5.4: JPDA-GVBL-SVSF (text: APDA-SVSF) |  | – | – | – | – | 93.42 | 6.58 | 3.1 |" in md
+    assert "| thesis Table 4.3: JPDA-KF | 58 | 49 | 9 | 84.48 | 15.52 | 8 |" in md
+    assert "| thesis Table 5.4: JPDA-GVBL-SVSF (text: APDA-SVSF) | – | – | – | 93.42 | 6.58 | 3.1 |" in md
+    # paired by seed: gnn-kf minus jpda-kf at max_events 50000, by hand
+    g = df[(df["tracker.associator.max_events"] == 50000)].set_index(["tracker", "seed_index"])["pos_rmse_m"]
+    d = (g["gnn-kf"] - g["jpda-kf"]).to_numpy()
+    n, mean, _, lo, hi = mean_sd_ci(d)
+    section = md.split("## Paired differences")[1].split("\n## ")[0]
+    paired = next(line for line in section.splitlines() if line.startswith("| cut_in_out | gnn-kf | 50000 | 2 | "))
+    assert f"| {fmt_ci(mean, lo, hi)} |" in paired and n == 2
+
+
+def test_intervals_print_with_matching_precision():
+    assert fmt_ci(77.8712, 75.123, 80.619) == "77.9 [75.1, 80.6]"  # half-width 2.7: one decimal
+    assert fmt_ci(0.19083, 0.1664, 0.2153) == "0.191 [0.166, 0.215]"
+    assert fmt_ci(100.0, 100.0, 100.0) == "100 (no spread)"  # never "100 ± 0" or "[77.87, 77.87]"
+    assert fmt_ci(3.5, math.nan, math.nan) == "3.5" and fmt_ci(math.nan, 1, 2) == "–"
+
+
+def test_paired_differences_pair_by_seed_and_warnings_flag_identical_seeds():
+    from testbed.campaign.report import _warnings, summarize
+
+    rows = []
+    for seed in range(4):
+        for tracker, bias in (("jpda-kf", 0.0), ("pda-kf", 1.0)):
+            rows.append(dict(scenario="s", tracker=tracker, seed_index=seed, status="ok", tp_pct=50.0 + 10 * seed + bias,
+                             cars_seen=10, cars_tracked=5, false_tracks=1, cars_relabelled=0))
+            rows.append(dict(scenario="same", tracker=tracker, seed_index=seed, status="ok", tp_pct=80.0,
+                             cars_seen=4, cars_tracked=3, false_tracks=0, cars_relabelled=0))
+    df = pd.DataFrame(rows)
+    pairs = paired_differences(df, "jpda-kf", [], ["tp_pct"])
+    r = pairs[pairs["scenario"] == "s"].iloc[0]
+    assert (r["tracker"], r["n"], r["mean"]) == ("pda-kf", 4, 1.0)  # the seeds' spread of 30 points cancels
+    assert r["ci_lo"] == pytest.approx(1.0) and r["ci_hi"] == pytest.approx(1.0)
+    text = "\n".join(_warnings(df, summarize(df, []), [], ["tp_pct"]))
+    assert "**n < 5** in 4 of 4 cells" in text and "**Seeds gave identical results** in 2 cells (scenarios: same)" in text
 
 
 def test_mean_sd_ci_student_t():

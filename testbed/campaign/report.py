@@ -92,7 +92,7 @@ def summarize(df, grid_keys: tuple[str, ...] | list[str]):
 
 def thesis_form(df, scenario: str, grid_keys) -> list[str]:
     """Markdown lines: per tracker (and grid point) the counts summed over the seeds and the thesis-form
-    percentages of those sums, beside the thesis's Tables 4.3 and 5.4."""
+    percentages of those sums (the thesis's own rows are in :func:`thesis_rows`, once per report)."""
     if not set(THESIS_COUNTS) <= set(df.columns):
         return []
     ok = df[(df["scenario"] == scenario) & (df["status"] == "ok")]
@@ -102,17 +102,161 @@ def thesis_form(df, scenario: str, grid_keys) -> list[str]:
         seen, tracked, false, relab = (int(g[c].sum()) for c in THESIS_COUNTS)
         pct = [100.0 * x / seen if seen else math.nan for x in (tracked, false, relab)]
         rows.append([f"{cell[0]} (ours)", *cell[1:], len(g), seen, tracked, false, *pct])
-    pad = [""] * len(grid_keys)
-    rows += [[f"thesis {table}: {name}", *pad, "–", *("–" if v is None else v for v in vals)]
-             for table, name, *vals in THESIS_TABLES]
     head = ["tracker", *[f"`{k}`" for k in grid_keys], "runs", "cars seen", "correctly tracked", "falsely tracked",
             "TP %", "FP %", "break-ups %"]
     return ["### Thesis-table form (counts summed over the runs)", "",
-            "Our rows: cars seen = cars hit by at least one beam, summed over the runs; TP % = 100 x cars "
-            "correctly tracked / cars seen; FP % = 100 x false confirmed tracks / cars seen; break-ups % = 100 x "
-            "cars relabelled at least once / cars seen (definitions in the README). The thesis rows are its "
-            "published numbers on real QEW data, for orientation only: different data, different perception.",
-            "", _md_table(head, rows), ""]
+            "Cars seen = cars hit by at least one beam, summed over the runs; TP % = 100 x cars correctly tracked / "
+            "cars seen; FP % = 100 x false confirmed tracks / cars seen; break-ups % = 100 x cars relabelled at least "
+            "once / cars seen (definitions in the README).", "", _md_table(head, rows), ""]
+
+
+def thesis_rows() -> list[str]:
+    """Markdown lines: the thesis's published Tables 4.3 and 5.4 rows, once per report."""
+    rows = [[f"thesis {table}: {name}", *("–" if v is None else v for v in vals)] for table, name, *vals in THESIS_TABLES]
+    return ["## The thesis's published rows (for orientation)", "",
+            "Real HDL-32E data on the QEW, another perception: not comparable run for run with ours; the thesis-form "
+            "rows of each scenario below are computed the same way from our runs.", "",
+            _md_table(["thesis row", "cars", "correctly tracked", "falsely tracked", "TP %", "FP %", "break-ups %"],
+                      rows), ""]
+
+
+def fmt_ci(mean: float, lo: float, hi: float) -> str:
+    """``mean [lo, hi]`` with every number to the same decimals, set by the interval's half-width (two
+    significant digits of it); a zero-width interval prints as ``mean (no spread)``, a missing one (n < 2) as
+    the mean alone."""
+    if not np.isfinite(mean):
+        return "–"
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return f"{mean:.4g}"
+    half = (hi - lo) / 2
+    if half <= 0:
+        return f"{mean:.4g} (no spread)"
+    d = int(min(max(1 - math.floor(math.log10(half)), 0), 6))
+    return f"{mean:.{d}f} [{lo:.{d}f}, {hi:.{d}f}]"
+
+
+def paired_differences(df, baseline: str, grid_keys, scores) -> "pd.DataFrame":
+    """Per scenario, tracker (not ``baseline``), grid point and score: the per-seed difference tracker minus
+    baseline over the seeds both finished with a finite score (common random numbers: the same seed is the
+    same traffic and sensor noise), as n, mean, ci_lo, ci_hi (Student t 95 %)."""
+    import pandas as pd
+
+    ok = df[df["status"] == "ok"]
+    keys = ["scenario", *grid_keys, "seed_index"]
+    base = ok[ok["tracker"] == baseline].set_index(keys)
+    rows = []
+    for (scenario, tracker), g in ok[ok["tracker"] != baseline].groupby(["scenario", "tracker"], sort=False):
+        g = g.set_index(keys)
+        for point, gp in (g.groupby(level=list(range(1, 1 + len(grid_keys))), sort=False) if grid_keys
+                          else [((), g)]):
+            point = point if isinstance(point, tuple) else (point,)
+            for score in scores:
+                both = gp[[score]].join(base[[score]], rsuffix="_base", how="inner")
+                d = (both[score] - both[f"{score}_base"]).to_numpy(dtype=np.float64)
+                n, mean, _, lo, hi = mean_ci(d)
+                rows.append(dict(scenario=scenario, tracker=tracker, **dict(zip(grid_keys, point)), score=score,
+                                 n=n, mean=mean, ci_lo=lo, ci_hi=hi))
+    return pd.DataFrame(rows)
+
+
+def _summary_table(summary, scenarios, trackers, grid_keys, scores) -> list[str]:
+    """The report's opening table: per scenario, tracker and grid point, n and every main score as mean [95 % CI]."""
+    rows = []
+    for scenario in scenarios:
+        sub = summary[summary["scenario"] == scenario]
+        for _, cell in sub.drop_duplicates(subset=["tracker", *grid_keys]).iterrows():
+            sel = sub[sub["tracker"] == cell["tracker"]]
+            for k in grid_keys:
+                sel = sel[sel[k] == cell[k]]
+            by = sel.set_index("score")
+            n = int(by["n"].max()) if len(by) else 0
+            rows.append([scenario, cell["tracker"], *[cell[k] for k in grid_keys], n,
+                         *[fmt_ci(*(by.loc[c, ["mean", "ci_lo", "ci_hi"]])) if c in by.index else "–" for c in scores]])
+    return ["## Summary", "",
+            "Mean over the runs of each cell, 95 % Student-t interval of the mean in brackets, n = runs with a "
+            "finite score (per score, n can be smaller where a run has nothing to measure, e.g. no correct track "
+            "for the RMSE; summary.csv has every n).", "",
+            _md_table(["scenario", "tracker", *[f"`{k}`" for k in grid_keys], "n", *[LABELS.get(c, c) for c in scores]],
+                      rows), ""]
+
+
+def _warnings(df, summary, grid_keys, scores) -> list[str]:
+    """Markdown warning lines: cells with fewer than 5 runs, and cells whose seeds gave identical results."""
+    out = []
+    small = summary[(summary["n"] < 5) & (summary["score"] == scores[0])] if scores else summary.iloc[:0]
+    if len(small):
+        out.append(f"- **n < 5** in {len(small)} of {len(summary[summary['score'] == scores[0]])} cells (fewest: "
+                   f"{int(small['n'].min())}): their t intervals are wide and assume near-normal per-run scores; "
+                   "raise `seeds` for conclusions.")
+    ok = df[df["status"] == "ok"]
+    same = []
+    for cell, g in ok.groupby(["scenario", "tracker", *grid_keys], sort=False, dropna=False):
+        cols = [c for c in (*scores, *THESIS_COUNTS) if c in g.columns]
+        if len(g) >= 2 and all(g[c].nunique(dropna=False) == 1 for c in cols):
+            same.append(cell if isinstance(cell, tuple) else (cell,))
+    if same:
+        scen = sorted({c[0] for c in same})
+        out.append(f"- **Seeds gave identical results** in {len(same)} cells (scenarios: {', '.join(scen)}): every "
+                   "score and count is equal across the seeds, so the seed probably does not change the traffic "
+                   "(scripted vehicles, no sensor noise drawn) and the intervals show no spread that is not there; "
+                   "these runs are repeats, not samples.")
+    return (["## Warnings", "", *out, ""] if out else [])
+
+
+def _paired_table(pairs, baseline: str, grid_keys, scores) -> list[str]:
+    if pairs.empty:
+        return []
+    rows = []
+    for (scenario, tracker, *point), g in pairs.groupby(["scenario", "tracker", *grid_keys], sort=False, dropna=False):
+        by = g.set_index("score")
+        rows.append([scenario, tracker, *point, int(by["n"].max()),
+                     *[fmt_ci(*(by.loc[c, ["mean", "ci_lo", "ci_hi"]])) if c in by.index else "–" for c in scores]])
+    return [f"## Paired differences against `{baseline}`", "",
+            f"Per seed, the tracker's score minus `{baseline}`'s on the same seed (same traffic and sensor noise), "
+            "mean over the seeds with a 95 % Student-t interval; an interval that excludes 0 is a difference the "
+            "runs show. n = seeds both finished.", "",
+            _md_table(["scenario", "tracker", *[f"`{k}`" for k in grid_keys], "n",
+                       *[f"Δ {LABELS.get(c, c)}" for c in scores]], rows), ""]
+
+
+def _plot_paired(pairs, baseline: str, scenario: str, grid_keys, scores, path: Path) -> bool:
+    """Forest plot: per score one panel, per tracker (and grid point) the paired difference with its interval."""
+    import matplotlib.pyplot as plt
+
+    sub = pairs[pairs["scenario"] == scenario]
+    if sub.empty:
+        return False
+    labels = []
+    for (tracker, *point), g in sub.groupby(["tracker", *grid_keys], sort=False, dropna=False):
+        if np.isfinite(g["mean"].to_numpy(dtype=np.float64)).any():  # a cell whose baseline failed has no row
+            labels.append((tracker, tuple(point)))
+    if not labels:
+        return False
+    ncol = min(3, len(scores))
+    nrow = math.ceil(len(scores) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.8 * ncol, 0.35 * len(labels) * nrow + 1.6 * nrow),
+                             squeeze=False)
+    for ax, score in zip(axes.flat, scores):
+        s = sub[sub["score"] == score]
+        for i, (tracker, point) in enumerate(labels):
+            sel = s[s["tracker"] == tracker]
+            for k, v in zip(grid_keys, point):
+                sel = sel[sel[k] == v]
+            if sel.empty or not np.isfinite(sel["mean"].iloc[0]):
+                continue
+            r = sel.iloc[0]
+            err = [[r["mean"] - r["ci_lo"]], [r["ci_hi"] - r["mean"]]] if np.isfinite(r["ci_lo"]) else None
+            excl = np.isfinite(r["ci_lo"]) and (r["ci_lo"] > 0 or r["ci_hi"] < 0)
+            ax.errorbar([r["mean"]], [-i], xerr=err, fmt="o", ms=4, capsize=3, color="tab:red" if excl else "tab:blue")
+        ax.axvline(0.0, color="k", lw=0.8)
+        ax.set_ylim(-len(labels) + 0.5, 0.5)
+        ax.set_yticks(-np.arange(len(labels)),
+                      [t + (" (" + ", ".join(_fmt(v) for v in p) + ")" if p else "") for t, p in labels], fontsize=7)
+        ax.set_xlabel(f"Δ {LABELS.get(score, score)}", fontsize=8)
+        ax.grid(alpha=0.3)
+    _save(fig, axes, len(scores), f"{scenario}: paired difference against {baseline} per seed (mean, 95 % CI; red: "
+          "excludes 0)", path)
+    return True
 
 
 def _fmt(x) -> str:
@@ -283,33 +427,18 @@ def _plot_scores_by_tracker(summary, scenario, trackers, path: Path) -> bool:
     return True
 
 
-def _score_tables(sub, scenario: str, grid_keys, rep: Report) -> list[str]:
-    """Markdown lines of one scenario's summary ``sub``: the overview (mean ± CI half-width of every main
-    score per cell) and one table per score; their names are added to ``rep.tables``."""
+def _detail_table(sub, scenario: str, grid_keys, rep: Report) -> list[str]:
+    """Markdown lines: one scenario's every main score per cell, n, mean, sd and 95 % CI (one table)."""
     scores = [s for s in MAIN_SCORES if s in set(sub["score"])]
-    cells = sub.drop_duplicates(subset=["tracker", *grid_keys])[["tracker", *grid_keys, "runs", "failed"]]
     rows = []
-    for _, cell in cells.iterrows():
-        sel = sub[sub["tracker"] == cell["tracker"]]
-        for k in grid_keys:
-            sel = sel[sel[k] == cell[k]]
-        row = [cell["tracker"], *[cell[k] for k in grid_keys], cell["runs"], cell["failed"]]
-        for score in scores:
-            r = sel[sel["score"] == score].iloc[0]
-            half = (r["ci_hi"] - r["ci_lo"]) / 2
-            row.append(f"{_fmt(r['mean'])} ± {_fmt(half)}" if np.isfinite(half) else _fmt(r["mean"]))
-        rows.append(row)
-    md = ["### Overview (per-run mean ± 95 % CI half-width)", "",
-          _md_table(["tracker", *[f"`{k}`" for k in grid_keys], "runs", "failed", *scores], rows), ""]
-    rep.tables.append(f"{scenario}/overview")
-    for score in scores:
-        s = sub[sub["score"] == score]
-        rows = [[r["tracker"], *[r[k] for k in grid_keys], r["n"], r["mean"], r["sd"],
-                 f"[{_fmt(r['ci_lo'])}, {_fmt(r['ci_hi'])}]"] for _, r in s.iterrows()]
-        md += [f"### {LABELS.get(score, score)} (`{score}`)", "",
-               _md_table(["tracker", *[f"`{k}`" for k in grid_keys], "n", "mean", "sd", "95 % CI"], rows), ""]
-        rep.tables.append(f"{scenario}/{score}")
-    return md
+    for _, r in sub[sub["score"].isin(scores)].iterrows():
+        ci = fmt_ci(r["mean"], r["ci_lo"], r["ci_hi"])
+        rows.append([r["tracker"], *[r[k] for k in grid_keys], LABELS.get(r["score"], r["score"]), r["runs"],
+                     r["failed"], r["n"], _fmt(r["sd"]), ci])
+    rep.tables.append(f"{scenario}/details")
+    return ["### Every score (n, sd, mean [95 % CI])", "",
+            _md_table(["tracker", *[f"`{k}`" for k in grid_keys], "score", "runs", "failed", "n", "sd",
+                       "mean [95 % CI]"], rows), ""]
 
 
 def _failed_runs(df) -> list[str]:
@@ -361,13 +490,31 @@ def write_report(out_dir: str | Path, campaign) -> Report:
     md += ["Statistics over the successful runs with a finite score: n, mean, sample standard deviation (sd) "
            "and the Student t 95 % confidence interval of the mean. Files: `results.parquet` (one row per run), "
            "`summary.csv` (these tables).", ""]
+    scores = main_scores(df.columns)
+    md += _summary_table(summary, scenarios, trackers, grid_keys, scores)
+    rep.tables.append("summary")
+    md += _warnings(df, summary, grid_keys, scores)
+    baseline = campaign.baseline_tracker
+    pairs = paired_differences(df, baseline, grid_keys, scores) if baseline in trackers and len(trackers) > 1 \
+        and "seed_index" in df.columns else None
+    if pairs is not None and not pairs.empty:
+        md += _paired_table(pairs, baseline, grid_keys, scores)
+        rep.tables.append("paired")
+    if set(THESIS_COUNTS) <= set(df.columns):
+        md += thesis_rows()
+        rep.tables.append("thesis")
 
     for scenario in scenarios:
         sub = summary[summary["scenario"] == scenario]
         suffix = f"_{_slug(scenario)}" if len(scenarios) > 1 else ""
         md += [f"## Scenario `{scenario}`", ""]
-        md += thesis_form(df, scenario, grid_keys) + _score_tables(sub, scenario, grid_keys, rep)
+        md += thesis_form(df, scenario, grid_keys) + _detail_table(sub, scenario, grid_keys, rep)
         md += ["### Plots", ""]
+        if pairs is not None and not pairs.empty:
+            p = plots / f"paired_vs_{_slug(baseline)}{suffix}.png"
+            if _plot_paired(pairs, baseline, scenario, grid_keys, scores, p):
+                rep.plots.append(p)
+                md += [f"![paired differences against {baseline}]({p.relative_to(out).as_posix()})", ""]
         p = plots / f"rmse_vs_time{suffix}.png"
         if _plot_rmse_vs_time(df, grid_keys, scenario, trackers, p):
             rep.plots.append(p)

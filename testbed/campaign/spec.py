@@ -70,6 +70,8 @@ class CampaignFile:
     overrides: dict[str, Any] = field({}, doc="dotted scenario keys set for every run, e.g. duration_s = 5.0")
     grid: dict[str, Any] = field({}, doc="dotted scenario keys -> list of values; runs cover the full product")
     record: RecordOptions = field(RecordOptions(), doc="what to record besides the scores")
+    baseline: str = field("", doc="tracker the report's paired differences are taken against (paired by scenario, "
+                          "grid point and seed); default: jpda-kf when it is among the trackers, else the first")
 
 
 @dataclass(frozen=True)
@@ -95,6 +97,12 @@ class Campaign:
     grid: tuple[tuple[str, tuple], ...]
     record: RecordOptions
     source: str = ""
+    baseline: str = ""
+
+    @property
+    def baseline_tracker(self) -> str:
+        """The tracker of the paired differences: ``baseline``, else jpda-kf if run, else the first tracker."""
+        return self.baseline or ("jpda-kf" if "jpda-kf" in self.trackers else self.trackers[0])
 
     @property
     def grid_keys(self) -> tuple[str, ...]:
@@ -416,9 +424,13 @@ def parse_campaign(data: dict, source: str = "<dict>", base_dir: Path | None = N
     for i, s in enumerate(spec.record.full_seeds):
         if s >= spec.seeds:
             raise ConfigError(f"record.full_seeds[{i}]", f"{s} is not a seed index; allowed: 0..{spec.seeds - 1}")
+    if spec.baseline and spec.baseline not in spec.trackers:
+        raise ConfigError("baseline", f"{spec.baseline!r} is not one of the campaign's trackers "
+                                      f"({', '.join(spec.trackers)})")
     return Campaign(name=name, description=spec.description, base_seed=spec.base_seed, seeds=spec.seeds,
                     scenarios=tuple(sources), trackers=spec.trackers, overrides=overrides,
-                    grid=tuple((k, tuple(v)) for k, v in grid.items()), record=spec.record, source=source)
+                    grid=tuple((k, tuple(v)) for k, v in grid.items()), record=spec.record, source=source,
+                    baseline=spec.baseline)
 
 
 def _campaign_name(name: str, given: bool) -> str:
