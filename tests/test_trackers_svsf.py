@@ -473,6 +473,8 @@ BATCHED = [("svsf", {}), ("svsf", {"psi_v": 2.0}), ("svsf", {"gamma": 0.0, "psi"
            ("svsf", {"artificial_pda": "combined"}), ("svsf", {"memory_after_miss": "reset"}),
            ("gvbl-svsf", {"psi_max": 0.5, "memory_after_miss": "reset", "apda_layer": "psi_max"}),
            ("gc-svsf", {}), ("ekf", {}), ("kf", {}),  # these three: the generic (or KF) batched predict
+           ("gc-svsf", {"covariance": "joseph"}), ("gc-svsf", {"ey_memory": "a_posteriori", "psi_y": 0.8}),
+           ("gc-svsf", {"memory_after_miss": "reset", "psi_z": 0.2}),  # its batched update (issue 19)
            ("ekf", {"motion": "ct"}), ("gvbl-svsf", {"motion": "ct"}),  # CT: per-track Jacobians (f_many, ...)
            ("gvbl-svsf", {"motion": "ct", "psi_max": 0.5}),
            ("gvbl-svsf", {"motion": "ct", "memory_after_miss": "reset"})]

@@ -62,8 +62,8 @@ from trackers.errors import FilterError
 from trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
                                    combined_innovation, pda_covariance, symmetrise)
 from trackers.filters.svsf import (EY_MEMORY, GAMMA, MEMORY_AFTER_MISS, MEMORY_AFTER_MISS_DOC, Partition,
-                                   after_miss, check_memory_after_miss, generalised_covariance, lower_error,
-                                   promote_state, svsf_gain_factor)
+                                   after_miss, apply_rows, check_memory_after_miss, generalised_covariance,
+                                   lower_error, maps_many, promote_state, svsf_gain_factor)
 from trackers.filters.params import ModelParams
 from trackers.params import POSITIVE, ParamError, param
 from trackers.state import FilterState, derive
@@ -200,7 +200,7 @@ class GVBLSVSF(ModelFilter):
         nua, Wa, b0 = batch_weights(nu, W, w0, active)  # (A, M, m), (A, M), (A,)
         H, R = self.measurement.matrix(self.motion), self.measurement.R
         part = Partition.of(H)
-        Mm, Phi12_pinv, M_pinv = _maps_many(part, [s.F for s in ss])
+        Mm, Phi12_pinv, M_pinv = maps_many(part, [s.F for s in ss])
         X = np.array([s.x for s in ss])
         P = np.array([s.P for s in ss])
         e_post = np.array([s.e_post for s in ss])
@@ -212,9 +212,9 @@ class GVBLSVSF(ModelFilter):
             raise FilterError("innovation covariance S is not positive definite") from None
         e = np.einsum("aj,ajm->am", Wa, nua)  # (2.27)/(4.28) e_{z,k|k-1} := combined innovation
         E_z = np.abs(e) + self.gamma * np.abs(e_post)  # (4.30)
-        e_y = _apply(Mm, e)  # (3.37)
+        e_y = apply_rows(Mm, e)  # (3.37)
         mem = e if self.ey_memory == "a_priori" else e_post
-        E_y = np.abs(e_y) + self.gamma_y * np.abs(_apply(Phi12_pinv, mem))  # (4.34) E_y
+        E_y = np.abs(e_y) + self.gamma_y * np.abs(apply_rows(Phi12_pinv, mem))  # (4.34) E_y
         u, l, H1 = part.u, part.l, part.H1
         psi_z, psi_y = _optimal_layer_diagonals(P, S, part, M_pinv, E_z, E_y)
         trip_z, trip_y = np.any(psi_z > self.psi_max, axis=1), np.any(psi_y > self.psi_max, axis=1)  # §4.5.1 step 2
@@ -248,25 +248,6 @@ class GVBLSVSF(ModelFilter):
         return out
 
 
-def _maps_many(part: Partition, Fs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`Partition.maps` of A transition Jacobians Fs (n, n) and the pseudo-inverse of the first map:
-    (M = Phi22 Phi12^+, Phi12^+, M^+), each 2-D ((n-m, m), (n-m, m), (m, n-m)) when one F is shared by every
-    track (NCV: mapped once), else stacked per track ((A, n-m, m), (A, n-m, m), (A, m, n-m); CT)."""
-    F0 = Fs[0]
-    if all(F is F0 or np.array_equal(F, F0) for F in Fs):
-        M, Phi12_pinv = part.maps(F0)
-        return M, Phi12_pinv, np.linalg.pinv(M)
-    F = np.array(Fs)
-    Phi12 = part.H1 @ F[:, part.u][:, :, part.l]  # (4.31)-(4.32) partition, T = blockdiag(H1, I)
-    Phi22 = F[:, part.l][:, :, part.l]
-    Phi12_pinv = np.linalg.pinv(Phi12)  # §2.3.5 [D]: Phi12^+ (Phi12^-1 for NCV)
-    M = Phi22 @ Phi12_pinv
-    return M, Phi12_pinv, np.linalg.pinv(M)
-
-
-def _apply(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """M v of each row of v (A, k): M (j, k) shared by every track or (A, j, k) per track -> (A, j)."""
-    return v @ M.T if M.ndim == 2 else np.einsum("ajk,ak->aj", M, v)
 
 
 def _optimal_layer_diagonals(P: np.ndarray, S: np.ndarray, part: Partition, M_pinv: np.ndarray, E_z: np.ndarray,

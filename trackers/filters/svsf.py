@@ -128,6 +128,27 @@ class Partition:
         return K  # (4.35): K = [K_u; K_l]
 
 
+def maps_many(part: Partition, Fs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`Partition.maps` of A transition Jacobians Fs (n, n) and the pseudo-inverse of the first map:
+    (M = Phi22 Phi12^+, Phi12^+, M^+), each 2-D ((n-m, m), (n-m, m), (m, n-m)) when one F is shared by every
+    track (NCV: mapped once), else stacked per track ((A, n-m, m), (A, n-m, m), (A, m, n-m); CT)."""
+    F0 = Fs[0]
+    if all(F is F0 or np.array_equal(F, F0) for F in Fs):
+        M, Phi12_pinv = part.maps(F0)
+        return M, Phi12_pinv, np.linalg.pinv(M)
+    F = np.array(Fs)
+    Phi12 = part.H1 @ F[:, part.u][:, :, part.l]  # (4.31)-(4.32) partition, T = blockdiag(H1, I)
+    Phi22 = F[:, part.l][:, :, part.l]
+    Phi12_pinv = np.linalg.pinv(Phi12)  # §2.3.5 [D]: Phi12^+ (Phi12^-1 for NCV)
+    M = Phi22 @ Phi12_pinv
+    return M, Phi12_pinv, np.linalg.pinv(M)
+
+
+def apply_rows(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """M v of each row of v (A, k): M (j, k) shared by every track or (A, j, k) per track -> (A, j)."""
+    return v @ M.T if M.ndim == 2 else np.einsum("ajk,ak->aj", M, v)
+
+
 def lower_error(M: np.ndarray, Phi12_pinv: np.ndarray, e: np.ndarray, e_post: np.ndarray, gamma_y: float,
                 memory: str) -> tuple[np.ndarray, np.ndarray]:
     """(e_y (n-m,), E_y (n-m,)) for the unmeasured partition: e_y = Phi22 Phi12^+ e and
@@ -382,7 +403,7 @@ class SVSF(ModelFilter):
         Xn = X + dx  # (2.29)
         if not np.isfinite(Xn).all():
             raise FilterError("SVSF updated state x is not finite")
-        Pn = _estimate_mse_many(P, H0, R0, X, Xn, nua, Wa, b0)  # [R] MSE about x given the innovations
+        Pn = estimate_mse_many(P, H0, R0, X, Xn, nua, Wa, b0)  # [R] MSE about x given the innovations
         check_covariance(Pn, "SVSF updated covariance P")
         post_v = nu_c - np.einsum("in,an->ai", H_bar, np.einsum("anm,am->an", K_v, nu_c))  # (2.34)/(3.65)
         post_p = nu_c[:, :m] - np.einsum("in,an->ai", H0, np.einsum("anm,am->an", K_p, nu_c[:, :m]))
@@ -415,7 +436,7 @@ def _artificial_many(X, z_prev, tau, nua, Wa, H0, Hv, artificial_pda: str):
     return z_a, vel, t_v, nu_c
 
 
-def _estimate_mse_many(P, H, R, x_pred, x, nu, W, w0) -> np.ndarray:
+def estimate_mse_many(P, H, R, x_pred, x, nu, W, w0) -> np.ndarray:
     """`estimate_mse` of A tracks at once: P (A, n, n), x_pred and x (A, n), nu (A, M, m), W (A, M), w0 (A,)."""
     S = H @ P @ H.T + R
     S = 0.5 * (S + np.swapaxes(S, 1, 2))
@@ -509,6 +530,73 @@ class GeneralisedSVSF(ModelFilter):
         check_covariance(P, "generalised SVSF updated covariance P")
         info = {"psi_z": psi_z, "psi_y": psi_y, "chatter": np.maximum(0.0, np.abs(e) - psi_z)}  # (5.37)
         return replace(s_pred, x=x, P=P, e_post=e - H @ (K @ e), F=None, info=info)  # (3.65)
+
+    def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
+                    w0: np.ndarray) -> list[FilterState]:
+        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,), with a linear measurement and the
+        transition Jacobians of the last predict (else the per-track loop, the reference it is tested against).
+        The partition maps of one Jacobian shared by every track (NCV) are computed once."""
+        out = [after_miss(s, self.memory_after_miss) for s in preds]  # the active tracks are replaced below
+        T = len(preds)
+        active = np.flatnonzero((w0 < 1.0) & (W > 0.0).any(axis=1)) if T else np.zeros(0, dtype=np.int64)
+        if active.size == 0:
+            return out
+        ss = [preds[t] for t in active]
+        if not self.measurement.linear or any(s.F is None for s in ss):
+            return ModelFilter.update_many(self, preds, nu, W, w0)
+        nua, Wa, b0 = batch_weights(nu, W, w0, active)  # (A, M, m), (A, M), (A,)
+        H, R = self.measurement.matrix(self.motion), self.measurement.R
+        part = Partition.of(H)
+        Mm, Phi12_pinv, _ = maps_many(part, [s.F for s in ss])
+        X = np.array([s.x for s in ss])
+        P = np.array([s.P for s in ss])
+        e_post = np.array([s.e_post for s in ss])
+        A_, m = len(ss), H.shape[0]
+        S = H @ P @ H.T + R
+        S = 0.5 * (S + np.swapaxes(S, 1, 2))  # (4.37): S = H1 P11 H1^T + R
+        try:
+            np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            raise FilterError("innovation covariance S is not positive definite") from None
+        e = np.einsum("aj,ajm->am", Wa, nua)  # (3.54) e_{z,k|k-1} := combined innovation
+        psi_z = np.array(self.psi_z, dtype=np.float64)
+        E_z = np.abs(e) + self.gamma * np.abs(e_post)  # (4.30)
+        g_u = svsf_gain_factor(E_z, e, psi_z)
+        K_u = np.linalg.solve(np.broadcast_to(part.H1, (A_, m, m)), g_u[:, :, None] * np.eye(m))  # (4.29)
+        e_y = apply_rows(Mm, e)  # (3.37)
+        mem = e if self.ey_memory == "a_priori" else e_post
+        E_y = np.abs(e_y) + self.gamma_y * np.abs(apply_rows(Phi12_pinv, mem))  # (4.34) E_y
+        if self.psi_y is not None:
+            psi_y = np.full(e_y.shape, self.psi_y)
+        else:  # [D] 3-sigma of e_y from R
+            MRM = Mm @ R @ np.swapaxes(Mm, -1, -2)
+            psi_y = np.broadcast_to(3.0 * np.sqrt(np.maximum(np.diagonal(MRM, axis1=-2, axis2=-1), 1e-300)),
+                                    e_y.shape)
+        Mb = np.broadcast_to(Mm, (A_,) + Mm.shape[-2:])
+        K = np.zeros((A_, X.shape[1], m))
+        K[:, part.u] = K_u
+        K[:, part.l] = svsf_gain_factor(E_y, e_y, psi_y)[:, :, None] * Mb  # (4.33)
+        Ke = np.einsum("anm,am->an", K, e)
+        Xn = X + Ke  # (4.35)
+        if self.covariance == "mse":
+            Pn = estimate_mse_many(P, H, R, X, Xn, nua, Wa, b0)  # [R]
+        else:
+            KHP = K @ H @ P
+            P_star = P - KHP - np.swapaxes(KHP, 1, 2) + K @ S @ np.swapaxes(K, 1, 2)  # (4.37)
+            P_star = 0.5 * (P_star + np.swapaxes(P_star, 1, 2))
+            spread = np.einsum("aj,aji,ajk->aik", Wa, nua, nua) - np.einsum("ai,ak->aik", e, e)
+            Pn = (b0[:, None, None] * P + (1.0 - b0)[:, None, None] * P_star
+                  + K @ spread @ np.swapaxes(K, 1, 2))  # (4.16)
+            Pn = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
+        if not np.isfinite(Xn).all():
+            raise FilterError("generalised SVSF updated state x is not finite")
+        check_covariance(Pn, "generalised SVSF updated covariance P")
+        post = e - Ke @ H.T  # (3.65)
+        for i, t in enumerate(active):
+            info = {"psi_z": psi_z.copy(), "psi_y": np.array(psi_y[i]),
+                    "chatter": np.maximum(0.0, np.abs(e[i]) - psi_z)}  # (5.37)
+            out[t] = derive(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info)
+        return out
 
 
 # ------------------------------------------------------------------------------- registry parameters
