@@ -28,6 +28,8 @@ REPRODUCTIONS: dict[str, tuple[str, str]] = {
                          "against the track score's deletion"),
     "thesis-highway": ("testbed.reproduce.thesis.highway", "thesis Tables 4.3 and 5.4 on highway_benchmark: every "
                        "named tracker, 5 seeds, full and thesis pipelines, intervals and paired differences"),
+    "thesis-2.1": ("testbed.reproduce.thesis.sec21", "thesis §2.1.6: PDA-SVSF against PDA-KF under model error, one "
+                   "target; both PDA-SVSF forms, two loss criteria, sensitivity to the open choices"),
     "seed-001": ("testbed.reproduce.seed001.study", "paper 001: PDA against the all-neighbours weights linear in "
                  "distance; one target, two crossing and two parallel targets, loss against separation"),
     "seed-003": ("testbed.reproduce.seed003.study", "paper 003: symmetric measurement equations (sum of powers, sum of "
