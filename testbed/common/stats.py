@@ -12,9 +12,12 @@ import numpy as np
 from scipy import stats
 
 
-def wilson(k, n, confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
-    """Wilson score interval of a binomial proportion k / n; k, n scalars or arrays of one shape (0 <= k <= n);
-    NaN where n == 0. ValueError on k outside [0, n]."""
+def wilson(k, n, confidence: float = 0.95):
+    """Wilson score interval (lo, hi) of a binomial proportion k / n; k, n scalars (floats out) or arrays of one
+    shape (0 <= k <= n); NaN where n == 0. ValueError on k outside [0, n]."""
+    if np.ndim(k) == 0 and np.ndim(n) == 0:
+        lo, hi = wilson(np.array([k]), np.array([n]), confidence)
+        return float(lo[0]), float(hi[0])
     k, n = np.asarray(k, dtype=np.float64), np.asarray(n, dtype=np.float64)
     if np.any(k < 0) or np.any(k > n):
         raise ValueError(f"wilson needs 0 <= k <= n, got k={k.tolist()}, n={n.tolist()}")

@@ -32,6 +32,8 @@ from ...common.safe_io import save_figure, write_text
 from trackers.association.an import all_neighbours
 from trackers.association.params import AssociationParams
 from trackers.association.pda import pda
+from ..markdown import table as md_table
+from ...common.stats import mean_ci, wilson
 
 NAMES = {"pda": "PDA", "an": "AN (25)", "an-spread": "AN + spread"}
 LONG = {"pda": "PDA: Gaussian weights, covariance (20)-(21)",
@@ -63,24 +65,11 @@ def settings(quick: bool) -> Settings:
 
 
 # ------------------------------------------------------------------------------------- statistics
-def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """Wilson 95 % interval (lo, hi) of a proportion k / n."""
-    if n <= 0 or not 0 <= k <= n:
-        raise ValueError(f"wilson needs 0 <= k <= n and n > 0, got k={k}, n={n}")
-    p = k / n
-    c = (p + z * z / (2 * n)) / (1 + z * z / n)
-    h = z / (1 + z * z / n) * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
-    return max(0.0, c - h), min(1.0, c + h)
-
-
 def t_interval(v: np.ndarray) -> tuple[float, float, float]:
-    """(mean, lo, hi): Student-t 95 % interval of the mean of v (n,); a constant v gives (m, m, m)."""
-    v = np.asarray(v, dtype=np.float64)
-    m = float(v.mean())
-    if v.size < 2 or np.ptp(v) == 0.0:
-        return m, m, m
-    h = float(stats.t.ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
-    return m, m - h, m + h
+    """(mean, lo, hi): Student-t 95 % interval of the mean of v (n,) (testbed.common.stats.mean_ci); a constant v
+    or a single value gives (m, m, m)."""
+    n, m, _, lo, hi = mean_ci(v)
+    return (m, m, m) if n < 2 else (m, lo, hi)
 
 
 def rms_interval(mse: np.ndarray) -> tuple[float, float, float]:
@@ -617,11 +606,6 @@ def figure_clutter(path: Path, rows: list[tuple[float, dict]]) -> None:
 
 
 # ------------------------------------------------------------------------------------- summary
-def _table(header: list[str], rows: list[list]) -> list[str]:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return out + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows] + [""]
-
-
 def _setup_lines(s: Settings, seed: int, b51: Block, main: dict, gate_r: float) -> list[str]:
     ref1 = float(tg.reference_sigma(b51.scn.dt, b51.scn.steps, b51.scn.sigma)[-1])
     ref2 = float(tg.reference_sigma(1.0, 100, 50.0)[-1])
@@ -667,7 +651,7 @@ def _setup_lines(s: Settings, seed: int, b51: Block, main: dict, gate_r: float) 
          f"of its P(k|k), data-independent, the same for every method) at each of the last >= {MIN_STEPS} scans [D]; "
          "a run \"loses a track\" if >= 1 of its tracks is lost"],
     ]
-    return (["## Set-up: the paper's and ours", ""] + _table(["item", "paper 001", "ours"], rows)
+    return (["## Set-up: the paper's and ours", ""] + md_table(["item", "paper 001", "ours"], rows)
             + ["Tags: [T] printed in the paper; [R] reconstructed from the garbled text (the reading is ours); [D] our "
                "default where the paper is silent; [I] inferred from the printed numbers.", "",
                "Why this loss criterion: a correctly associated KF's position error exceeds 4 standard deviations "
@@ -704,7 +688,7 @@ def _scenario_lines(key: str, main: dict, p: dict, fig_run: int) -> list[str]:
     title = "5.2 two targets crossing at a low angle (Figs. 3-5)" if key == "5.2" else "5.3 two parallel targets (Figs. 6-8)"
     lines = [f"### {title}", "", f"{b.runs.n_runs} runs; rates with Wilson 95 % intervals, RMS with Student-t "
              f"95 % intervals (n = {b.runs.n_runs} runs). The x-y figure shows run {fig_run}.", ""]
-    lines += _table(head, rows)
+    lines += md_table(head, rows)
     if key == "5.3":
         e, l_, d = p["trend"]
         lines += [f"AN (25) error trend: RMS over scans 1-10 {e:.1f} m, over the last 10 scans {l_:.1f} m; paired "
@@ -734,9 +718,9 @@ def _sweep_lines(rows: list[dict], cross: list[dict], n_runs: int, gate_sigma: f
              f"{gate_sigma:.1f} sigma. At separations below the loss threshold (4 x {tau:.1f} = {4 * tau:.0f} m = "
              f"{4 * tau / 50:.1f} sigma) a track that follows the other target or the pair's centre is still within "
              "the threshold of its own target: such targets are not resolved and no loss is counted.", ""]
-            + _table(head, body)
+            + md_table(head, body)
             + [f"Crossing geometry (ours): 5.2's velocities, closest approach swept (at t = 50 s), {n_runs} runs:", ""]
-            + _table(["closest approach / sigma"] + [f"ours: {NAMES[n]} runs losing >= 1" for n in names]
+            + md_table(["closest approach / sigma"] + [f"ours: {NAMES[n]} runs losing >= 1" for n in names]
                      + ["McNemar p", "better"], cb))
 
 
@@ -760,7 +744,7 @@ def _sens_lines(sens: list[tuple[Choice, dict]], seps: tuple[float, ...]) -> lis
              "Each row changes one choice; 5.2 and 5.3 and the abreast sweep (separations "
              + ", ".join(f"{s:g}" for s in seps) + " sigma) are re-run on the same seeds. Runs per cell as in the "
              "main tables. \"Better\": paired McNemar p < 0.05 on the runs losing >= 1 track.", ""]
-            + _table(head, rows))
+            + md_table(head, rows))
 
 
 def _lines_51(b51: Block, sens51: list[tuple[float, float, Block]], p: dict) -> list[str]:
@@ -769,7 +753,7 @@ def _lines_51(b51: Block, sens51: list[tuple[float, float, Block]], p: dict) -> 
     d = p["diff"]
     out = ["### 5.1 single target (Fig. 2)", "",
            f"{b51.runs.n_runs} runs of {b51.scn.steps} scans. RMS with Student-t 95 % intervals over runs.", ""]
-    out += _table(["method", "paper 001: position RMS", "ours: 2-D RMS", "ours: per-axis RMS", "ours: runs lost"],
+    out += md_table(["method", "paper 001: position RMS", "ours: 2-D RMS", "ours: per-axis RMS", "ours: runs lost"],
                   rows)
     out += [f"Paired per-run RMS difference PDA - AN (25): {d[0]:.3g} m [{d[1]:.3g}, {d[2]:.3g}]; scans with a "
             f"second observation in the gate: {100 * (b51.res['an'].tracks.n_gated >= 2).mean():.3f} %.", ""]
@@ -778,7 +762,7 @@ def _lines_51(b51: Block, sens51: list[tuple[float, float, Block]], p: dict) -> 
         srows.append([f"{sa:g}", f"{st:g}" if st else "0 (straight line)"]
                      + [_ci(b.res[n].rms()) for n in ("pda", "an")] + [f"{b.res['an'].rms()[0] / math.sqrt(2):.2f}"])
     out += ["5.1 against the lost sigma_a and the truth's motion (ours):", ""]
-    out += _table(["filter sigma_a [m/s^2]", "truth acceleration std [m/s^2]", "ours: PDA 2-D RMS",
+    out += md_table(["filter sigma_a [m/s^2]", "truth acceleration std [m/s^2]", "ours: PDA 2-D RMS",
                    "ours: AN (25) 2-D RMS", "ours: AN per-axis RMS"], srows)
     return out
 
@@ -793,7 +777,7 @@ def _clutter_lines(rows: list[tuple[float, dict]]) -> list[str]:
             "ours: 5.3 PDA", "ours: 5.3 AN (25)"]
     return (["## Clutter (the conclusion's \"heavy clutter density\", ours)", "",
              "Runs losing >= 1 track against the clutter rate b (the paper: 0.01 per scan, \"almost clutter-free\" "
-             "over these regions).", ""] + _table(head, body))
+             "over these regions).", ""] + md_table(head, body))
 
 
 AMBIGUITIES = [
@@ -913,7 +897,7 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
     md += ["## The paper's claims and ours", ""] + _lines_51(b51, sens51, p1)
     md += _scenario_lines("5.2", main, p2, run52) + _scenario_lines("5.3", main, p3, run53)
     md += ["### Weight properties (C001-4)", ""]
-    md += _table(["property", "worst violation", "holds (<= 1e-12)"],
+    md += md_table(["property", "worst violation", "holds (<= 1e-12)"],
                  [[n, f"{v:.2g}", "yes" if ok else "no"] for n, v, ok in props])
     md += _sweep_lines(rows, cross, s.runs, gate_r / 50.0)
     md += _sens_lines(sens, s.seps) + _clutter_lines(clutter_rows)

@@ -25,6 +25,7 @@ from sensors.symmetric import FORMS, SymmetricSensor, monte_carlo_moments
 from . import sme_targets as st
 from ...common.safe_io import save_figure, write_text
 from trackers.sme import symmetric_noise_covariance, symmetric_noise_mean
+from ..markdown import table as md_table
 
 FILTERS = ("kf", "products", "powers")
 NAMES = {"kf": "KF (associated, linear)", "products": "EKF sum of products", "powers": "EKF sum of powers"}
@@ -221,11 +222,6 @@ def figure_rmse(path: Path, scn: st.LineTargets, mc: MonteCarlo, targets: tuple[
 
 
 # -------------------------------------------------------------------------------------- summary
-def _table(header: list[str], rows: list[list]) -> list[str]:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return out + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows] + [""]
-
-
 def _f(v: float, digits: int = 3) -> str:
     return f"{v:.{digits}g}"
 
@@ -249,7 +245,7 @@ def _setup_lines(scn: st.LineTargets, s: Settings, seed: int, quick: bool) -> li
              "analytic R(x) at the predicted positions [D]"],
             ["labelling", "permutation of minimum sum of squared error", "per step, positions and velocities [D]"],
             ["seed", "–", str(seed)]]
-    return (["## Set-up: the paper's and ours", ""] + _table(["item", "paper 003", "ours"], rows)
+    return (["## Set-up: the paper's and ours", ""] + md_table(["item", "paper 003", "ours"], rows)
             + ["Tags: [D] our default where the paper is silent or unreadable; \"reconstructed\" where the printed "
                "value is garbled and the reading is ours (see the notes at the end).", ""])
 
@@ -323,7 +319,7 @@ def _rmse_lines(mc: MonteCarlo, scn: st.LineTargets) -> list[str]:
             rows.append([i + 1, NAMES[f]] + [_f(mc.rmse[f][j, i]) for j in k]
                         + [_f(window_mean(mc, f, i, 1.0, 20.0)), _f(window_mean(mc, f, i, 0.0, 20.0))])
     title = "## Our position RMSE [m] (the paper prints no numbers; its Fig. 2 shows target 1)"
-    return [title, ""] + _table(header, rows)
+    return [title, ""] + md_table(header, rows)
 
 
 def _cov_lines(cov: list[dict]) -> list[str]:
@@ -343,9 +339,9 @@ def _cov_lines(cov: list[dict]) -> list[str]:
              "same for the mean; then how far the sample variance of the raw position noise itself is from sigma^2, "
              "in its SE sqrt(2/n) (a large value there puts a large covariance error on the draws, not on the "
              "formula); the last column compares the closed forms with the general-N formulas the filter uses "
-             "(trackers/sme.py).", ""] + _table(head, rows)
+             "(trackers/sme.py).", ""] + md_table(head, rows)
             + [f"Entries at the paper's truth x = {_vec(ex['x'], '()')} m, sum of powers:", ""]
-            + _table(["entry", "analytic", "Monte Carlo", "difference"], detail))
+            + md_table(["entry", "analytic", "Monte Carlo", "difference"], detail))
 
 
 def _p0_lines(rows: list[dict], n_runs: int) -> list[str]:
@@ -357,7 +353,7 @@ def _p0_lines(rows: list[dict], n_runs: int) -> list[str]:
              "is tested across readings. With equal position entries the EKF is permutation-equivariant: in exact "
              "arithmetic its slots would stay equal forever (the state x̂0 = 0 is symmetric); in floating point, "
              "rounding breaks the symmetry within a few scans and each run ends wherever that pushes it (so that row "
-             "changes with the rounding, even with the batch layout).", ""] + _table(head, body))
+             "changes with the rounding, even with the batch layout).", ""] + md_table(head, body))
 
 
 def _n2_lines(mc: MonteCarlo, scn: st.LineTargets) -> list[str]:
@@ -367,7 +363,7 @@ def _n2_lines(mc: MonteCarlo, scn: st.LineTargets) -> list[str]:
     return (["## Two targets (ours; the paper derives N = 2 but simulates only N = 3)", "",
              f"x0 = {_vec(scn.x0)}, P0 = diag{_vec(scn.p0_diag, '()')} [D]; crossing at "
              f"{scn.crossing_times()[0][2]:.1f} s.", ""]
-            + _table(["filter", "target 1 mean RMSE 1-20 s [m]", "target 2", "peak RMSE ratio to KF near the crossing",
+            + md_table(["filter", "target 1 mean RMSE 1-20 s [m]", "target 2", "peak RMSE ratio to KF near the crossing",
                       "diverged"], rows))
 
 
@@ -421,7 +417,7 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
     md += ["## The paper's claims and ours", "",
            f"Three targets, {s.runs} runs, P0 = default [D]. \"Paper\" is what paper 003 states; \"ours\" is measured "
            "here.", ""]
-    md += _table(["claim", "paper 003 (stated)", "ours (measured)", "holds?"], _claim_rows(mc3, cov, scn3))
+    md += md_table(["claim", "paper 003 (stated)", "ours (measured)", "holds?"], _claim_rows(mc3, cov, scn3))
     md += _rmse_lines(mc3, scn3) + _cov_lines(cov) + _p0_lines(p0, s.p0_runs) + _n2_lines(mc2, scn2)
     md += ["## Figures", "",
            f"- `fig1_single_run.png`: truth (dashed) and the unlabelled EKF slots of run {run0}, the first run whose "

@@ -37,6 +37,8 @@ from ...common.safe_io import save_figure, write_text
 from trackers.association import build_associator, pda
 from trackers.filters import make_filter
 from trackers.gating import gate, mahalanobis2_and_log_gaussian
+from ..markdown import table as md_table
+from ...common.stats import wilson
 
 # ------------------------------------------------------------------------------------------ parameters
 TS = 30.0  # [T] thesis §2.1.6 scan period [s]
@@ -223,16 +225,6 @@ def evaluate(scn: sy.Scenario, flts: dict[str, object], n_runs: int, seed: int,
 
 
 # ------------------------------------------------------------------------------------------ statistics
-def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """95 % Wilson score interval (lo, hi) of a proportion k / n."""
-    if n < 1 or not 0 <= k <= n:
-        raise ValueError(f"wilson needs 0 <= k <= n and n >= 1, got k={k}, n={n}")
-    p = k / n
-    c = (p + z * z / (2 * n)) / (1 + z * z / n)
-    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return max(0.0, c - h), min(1.0, c + h)
-
-
 def _run_mse(errors: np.ndarray, state: int) -> np.ndarray:
     return np.mean(errors[:, 1:, state] ** 2, axis=1)  # (R,) per-run mean square error over scans 1..K
 
@@ -420,11 +412,6 @@ def figure_ratio(path: Path, stats: dict[str, CaseStats]) -> None:
 
 
 # ------------------------------------------------------------------------------------------ summary
-def _table(header: list[str], rows: list[list]) -> list[str]:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return out + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows] + [""]
-
-
 def _g(v: float) -> str:
     return f"{v:.3g}" if abs(v) < 1e4 else f"{v:.3e}"
 
@@ -477,7 +464,7 @@ def _setup_lines(s: Settings, seed: int) -> list[str]:
             ["lost-track criteria", "not given", "L1 and L2 below", "[D]"],
             ["seed", "-", f"{seed} (common random numbers for every filter, error size and variant)", "[D]"]]
     return (["## Set-up: the thesis's parameters and ours", ""]
-            + _table(["item", "thesis §2.1.6 (printed)", "ours", "tag"], rows)
+            + md_table(["item", "thesis §2.1.6 (printed)", "ours", "tag"], rows)
             + ["Tags: [T] printed in the thesis; [R] reconstructed from the thesis's text (e.g. a flattened "
                "superscript read as a square, or a form the thesis uses elsewhere); [D] our default where the thesis "
                "is silent; [I] inferred from the thesis's numbers.", "",
@@ -549,7 +536,7 @@ def _rmse_table_lines(base: CaseStats, eps: float, title: str) -> list[str]:
            *(f"ours ratio {f} / KF" for f in SVSF_FORMS)]
     return [f"### {title}", "",
             f"RMSE [m, m/s] over {base.n} runs and all scans, 95 % bootstrap intervals; the ratio columns are "
-            "RMSE(SVSF)/RMSE(KF) with a paired bootstrap interval.", ""] + _table(hdr, rows)
+            "RMSE(SVSF)/RMSE(KF) with a paired bootstrap interval.", ""] + md_table(hdr, rows)
 
 
 def _lost_lines(base: CaseStats) -> list[str]:
@@ -558,7 +545,7 @@ def _lost_lines(base: CaseStats) -> list[str]:
     return (["### Lost-track rates (main study)", "",
              f"Lost runs k/n, rate and 95 % Wilson interval, n = {base.n}. The thesis shows one run at 4 % in which "
              "the KF-PDA loses the target and the SVSF-PDA does not; it prints no rates.", ""]
-            + _table(["error", "criterion", *(f"ours {NAMES[f]}" for f in FILTERS)], rows))
+            + md_table(["error", "criterion", *(f"ours {NAMES[f]}" for f in FILTERS)], rows))
 
 
 def _moves_lines(stats: dict[str, CaseStats], claims: dict) -> list[str]:
@@ -624,10 +611,10 @@ def _sensitivity_lines(stats: dict[str, CaseStats], claims: dict) -> list[str]:
              "95 %). 'pm, comb, lit' = per-measurement, combined and literal PDA-SVSF. The injection variants "
              "(Ts entries, onset) leave the normal case unchanged, so their 0 % columns are the base set-up on the "
              "first n runs.", ""] + _moves_lines(stats, claims) + ["",
-             "### C1 and C2: x RMSE ratio SVSF / KF", ""] + _table(hdr, rows)
-            + ["### C3: lost-track rates at 4 %", ""] + _table(hdr3, rows3)
+             "### C1 and C2: x RMSE ratio SVSF / KF", ""] + md_table(hdr, rows)
+            + ["### C3: lost-track rates at 4 %", ""] + md_table(hdr3, rows3)
             + ["### Lost-track rates at 2 % (context for C2)", ""]
-            + _table(["variant", "criterion", *(f"2 % lost {NAMES[f]}" for f in FILTERS)], rows2))
+            + md_table(["variant", "criterion", *(f"2 % lost {NAMES[f]}" for f in FILTERS)], rows2))
 
 
 def _notes(base: CaseStats) -> list[str]:
@@ -691,7 +678,7 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
            f"Regenerate with `testbed reproduce thesis-2.1{' --quick' if quick else ''} --seed {seed}`.", ""]
     md += _setup_lines(s, seed) + _loss_lines(base)
     md += ["## The thesis's claims and ours", ""]
-    md += _table(["claim", "thesis §2.1.6 (stated)", "ours (measured, base set-up)", "verdict"],
+    md += md_table(["claim", "thesis §2.1.6 (stated)", "ours (measured, base set-up)", "verdict"],
                  [["C1 normal case: SVSF-PDA better", "x 64.5 vs 92.4 m (ratio 0.70); all four states better",
                    ", ".join(f"{f} x ratio {_ci(base.ratio[0.0][f]['x'])}" for f in SVSF_FORMS),
                    claims["C1"]["verdict"]],
