@@ -30,6 +30,8 @@ REPRODUCTIONS: dict[str, tuple[str, str]] = {
                        "named tracker, 5 seeds, full and thesis pipelines, intervals and paired differences"),
     "thesis-2.1": ("testbed.reproduce.thesis.sec21", "thesis §2.1.6: PDA-SVSF against PDA-KF under model error, one "
                    "target; both PDA-SVSF forms, two loss criteria, sensitivity to the open choices"),
+    "thesis-4.6.1": ("testbed.reproduce.thesis.sec461", "thesis §4.6.1 (Tables 4.1-4.2): JPDA-GVBL-SVSF against JPDA-KF, "
+                     "three manoeuvring cars in clutter"),
     "thesis-5.1": ("testbed.reproduce.thesis.sec51", "thesis §5.6.1 (Table 5.1): APDA-SVSF, PDA-SVSF and PDA-KF on a "
                    "highly manoeuvring target in dense clutter"),
     "seed-001": ("testbed.reproduce.seed001.study", "paper 001: PDA against the all-neighbours weights linear in "
