@@ -105,7 +105,11 @@ def measure(url: str, last: int, at: float | None, browser: Browser, timeout_s: 
     marks: dict[str, float] = {}
     want = None if at is None else round(at * 1e9)
     while time.monotonic() - t0 < timeout_s and "cursor" not in marks:
-        s = state(browser)
+        try:
+            s = state(browser)
+        except TimeoutError:  # the page's thread is busy loading (a long recording): not an answer, ask again
+            marks.setdefault("page unresponsive from", time.monotonic() - t0)
+            continue
         if s is None:
             if browser.evaluate("window._handle !== undefined"):
                 marks.setdefault("viewer running", time.monotonic() - t0)
