@@ -111,7 +111,7 @@ def test_a_rerun_replaces_the_folder_and_a_failure_marks_it_incomplete(capsys, t
     code, _, err = _cli(capsys, *_run(out, "--no-record"))
     assert code == 0, err
     assert sorted(p.name for p in out.iterdir()) == ["detections.parquet", "diagnostics.parquet", "scores.json",
-                                                    "tracks.parquet", "truth.parquet"]
+                                                    "timeline.png", "tracks.parquet", "truth.parquet"]
     # 3. a run that fails at frame 2: its tables (frames 0, 1) replace the folder, marked INCOMPLETE
     code, _, err = _cli(capsys, *_run(out, *OVERFLOW, "--set", "tracker.associator.max_events=1", "--set",
                                       "tracker.associator.on_overflow='raise'", duration=1.0))
@@ -233,9 +233,13 @@ def test_ctrl_c_keeps_the_tables_and_a_readable_recording(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "testbed.cli.main", *_run(out, duration=20.0)], cwd=REPO,
                             env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     rrd = tmp_path / f".r.partial-{proc.pid}" / "run.rrd"
+    from testbed.recording.recorder import static_size
+
+    (tmp_path / "static").mkdir()
+    static = static_size(tmp_path / "static")  # what the recording holds before its first frame
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and proc.poll() is None:
-        if rrd.is_file() and rrd.stat().st_size > 100_000:  # the static part is ~50 kB: frames are in
+        if rrd.is_file() and rrd.stat().st_size > static + 100_000:  # frames are in
             break
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)

@@ -49,15 +49,21 @@ def _start(*args: str, new_session: bool = False) -> subprocess.Popen:
 
 
 def _wait_for_frames(proc: subprocess.Popen, out: Path, record: bool, timeout: float = 120.0) -> None:
-    """Until the run is in its frame loop: its recording holds frames (the static part is ~50 kB), or, without
-    one, its partial folder exists and open3d (imported by the first scan) is loaded, and 2 s more."""
+    """Until the run is in its frame loop: its recording holds frames (100 kB past the static part,
+    testbed.recording.recorder.static_size), or, without one, its partial folder exists and open3d (imported by
+    the first scan) is loaded, and 2 s more."""
     partial = out.parent / f".{out.name}.partial-{proc.pid}"
     t0 = time.monotonic()
+    if record:
+        from testbed.recording.recorder import static_size
+
+        (out.parent / "static").mkdir(exist_ok=True)
+        static = static_size(out.parent / "static")
     while time.monotonic() - t0 < timeout:
         assert proc.poll() is None, proc.communicate()
         if record:
             rrd = partial / "run.rrd"
-            if rrd.is_file() and rrd.stat().st_size > 100_000:
+            if rrd.is_file() and rrd.stat().st_size > static + 100_000:
                 return
         elif partial.is_dir() and "open3d" in Path(f"/proc/{proc.pid}/maps").read_text():
             _wait_for_jit(proc, t0 + timeout)
@@ -102,7 +108,7 @@ def test_a_signalled_run_keeps_its_frames_like_ctrl_c(tmp_path, name, code, reco
     assert lines[0].endswith(f"; the tables of the frames before it are in {out}/, marked INCOMPLETE"), lines
     frames = pd.read_parquet(out / "truth.parquet").frame.unique()
     assert len(frames) < 301 and sorted(frames) == list(range(len(frames)))
-    assert len(frames) >= 1 or not record  # a recording of > 100 kB holds frames
+    assert len(frames) >= 1 or not record  # a recording 100 kB past its static part holds frames
     assert int(lines[0].split("stopped at frame ")[1].split()[0]) == len(frames)
     assert {"detections.parquet", "tracks.parquet", "diagnostics.parquet"} <= {p.name for p in out.iterdir()}
     assert (out / "INCOMPLETE").read_text().startswith(f"terminated ({name}); the run stopped at frame ")

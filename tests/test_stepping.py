@@ -74,7 +74,9 @@ def test_curved_road_with_scripted_vehicles_equals_highway_env(monkeypatch):
 @pytest.mark.parametrize("env_id", ["merge-v0", "highway-fast-v0", "roundabout-v0", "intersection-v0",
                                     "racetrack-v0"])
 def test_highway_env_environments_step_the_same(monkeypatch, env_id):
-    """Each env's road after reset, stepped 300 ticks by Road and by the batch: identical, crashes included."""
+    """Each env's road after reset, stepped 300 ticks by Road and by the batch: equal to 1e-9 (issue 19's bound:
+    with numpy 2.4.6 racetrack-v0 differs by one ulp at tick 253, a different summation order), crashes and
+    lanes identical."""
     import gymnasium as gym
 
     from testbed.scenario.env import gymnasium_with_envs
@@ -104,7 +106,7 @@ def _step_both(env, env_id: str) -> None:
         batch_step(new, dt)
         a = np.array([[*v.position, v.heading, v.speed, v.crashed] for v in ref.vehicles])
         b = np.array([[*v.position, v.heading, v.speed, v.crashed] for v in new.vehicles])
-        np.testing.assert_array_equal(a, b, err_msg=f"{env_id} tick {k}")
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9, err_msg=f"{env_id} tick {k}")  # issue 19: to 1e-9
         assert [v.lane_index for v in ref.vehicles] == [v.lane_index for v in new.vehicles]
 
 

@@ -112,7 +112,8 @@ def _pd_curve(ax, x, pd, n, colour, marker, label, counts: bool) -> None:
     y = np.where(ok, pd, np.nan)
     lo, hi = wilson(np.round(np.where(ok, pd, 0) * n), n)
     ax.plot(x, y, "-", color=colour, marker=marker, ms=4, label=label)
-    ax.errorbar(x[ok], y[ok], yerr=[y[ok] - lo[ok], hi[ok] - y[ok]], fmt="none", ecolor=colour, elinewidth=0.9,
+    yerr = np.maximum([y[ok] - lo[ok], hi[ok] - y[ok]], 0.0)  # rounding can put a bound 1 ulp past P_D
+    ax.errorbar(x[ok], y[ok], yerr=yerr, fmt="none", ecolor=colour, elinewidth=0.9,
                 capsize=2)
     if counts:
         for xi, yi, c in zip(x[ok], y[ok], n[ok]):

@@ -2,6 +2,7 @@
 and shown in the blueprint's legend panel.
 
     legend_image() -> (H, W, 3) uint8     the key on the viewer's dark background
+    legend_png() -> bytes                 the same, PNG-encoded (what the recording logs: ~15 kB, not ~400)
     ENTRIES                               (label, swatch kind, colour) in drawing order
 
 Swatch kinds: "dot" (points), "solid" (a filled box), "fill" (a translucent filled box), "box" (a wireframe),
@@ -59,6 +60,18 @@ def legend_image() -> np.ndarray:
         _swatch(d, kind, cols, 8, y0 + 4, SWATCH_PX, ROW_PX - 8)
         d.text((8 + SWATCH_PX + 10, y0 + 4), label, fill=(225, 225, 225), font=font)
     return np.asarray(img, dtype=np.uint8)
+
+
+@functools.lru_cache(maxsize=1)
+def legend_png() -> bytes:
+    """:func:`legend_image` as PNG bytes."""
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(legend_image()).save(buf, format="PNG", optimize=True)
+    return buf.getvalue()
 
 
 def _blend(c: tuple) -> tuple[int, int, int]:

@@ -35,7 +35,7 @@ Entity paths (all in the world frame, z up, metres):
 ``diagnostics/<group>/<id>/<name>`` per-track diagnostic series of confirmed tracks, grouped by quantity (score,
                                    NIS, gate volume, layers, mode probabilities, ...; testbed/recording/diagnostics.py;
                                    Scalars, sent in columns every :data:`SERIES_FLUSH_FRAMES` frames)
-``legend``                         the colour key (static Image, testbed/recording/legend.py)
+``legend``                         the colour key (static EncodedImage, PNG; testbed/recording/legend.py)
 ``metrics/<name>``                 per-frame counts: tracks, detections, clutter, points; and the measured
                                    perception statistics: ground precision / recall, P_D of the vehicles in
                                    range, merged / split detections, rejected objects (Scalars)
@@ -59,7 +59,7 @@ from ..common.safe_io import refuse_link
 from . import palette as pal
 from .diagnostics import series_label, series_path
 from .layout import blueprint
-from .legend import legend_image
+from .legend import legend_png
 from .levels import content
 from .scene import (GROUND_LABEL, Trails, boxes, log_detections, log_lidar, log_track_extras,
                     log_track_points)
@@ -108,7 +108,7 @@ class Recorder:
             [rr.AnnotationInfo(id=i, label=name, color=c) for i, name, c in TRUTH_CLASSES]), static=True)
         for name in METRICS:
             self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " ")), static=True)
-        self.rec.log("legend", rr.Image(legend_image()), static=True)
+        self.rec.log("legend", rr.EncodedImage(contents=legend_png(), media_type="image/png"), static=True)
         self.trails = Trails()
         self.series: dict[tuple[int, str], tuple[list[int], list[float], list[float]]] = {}
         self.metrics: dict[str, tuple[list[int], list[float], list[float]]] = {}
@@ -239,6 +239,14 @@ class Recorder:
             failure.append(err)
         finally:
             done.set()
+
+
+def static_size(folder: str | Path) -> int:
+    """Bytes of a recording with no frame (its blueprint, legend and series styles), written in ``folder``: what a
+    run's ``run.rrd`` holds before its first frame (about 0.2 MB)."""
+    path = Path(folder) / "static.rrd"
+    Recorder(path, "static").close()
+    return path.stat().st_size
 
 
 def perception_stats(truth, scan, perception, detections, max_range_m: float) -> dict[str, float]:
