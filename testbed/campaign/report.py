@@ -449,6 +449,42 @@ def _failed_runs(df) -> list[str]:
     return ["## Failed runs", "", _md_table(["error", "message", "runs", "first run"], rows), ""]
 
 
+def _score_plots(summary, grid_keys, grid_values, scenario, trackers, plots: Path, suffix: str) -> list:
+    """The scores-vs-grid-key plots (one per key), or scores by tracker without a grid: (title, path) drawn."""
+    out = []
+    if grid_keys:
+        for key in grid_keys:
+            p = plots / f"scores_vs_{_slug(key)}{suffix}.png"
+            if _plot_scores_vs_key(summary, key, grid_keys, grid_values, scenario, trackers, p):
+                out.append((f"scores vs {key}", p))
+    else:
+        p = plots / f"scores_by_tracker{suffix}.png"
+        if _plot_scores_by_tracker(summary, scenario, trackers, p):
+            out.append(("scores by tracker", p))
+    return out
+
+
+def _head_lines(campaign, rep: Report, df) -> list[str]:
+    """Markdown: the report's title, what ran (runs, axes, seeds, overrides, versions) and how it is summarised."""
+    md = [f"# Campaign `{campaign.name}`", ""]
+    if campaign.description:
+        md += [campaign.description, ""]
+    md += [f"{rep.n_runs} of {campaign.n_runs} runs finished, {rep.n_failed} failed. "
+           f"{len(campaign.scenarios)} scenario(s) x {len(campaign.trackers)} tracker(s)"
+           + "".join(f" x {len(v)} `{k}`" for k, v in campaign.grid) + f" x {campaign.seeds} seeds "
+           f"(base_seed {campaign.base_seed}; common random numbers: every tracker and grid point sees the same "
+           "seeds).", ""]
+    if campaign.overrides:
+        md += ["Fixed overrides: " + ", ".join(f"`{k} = {v!r}`" for k, v in campaign.overrides.items()) + ".", ""]
+    vcols = [c for c in df.columns if c.startswith("v_")]
+    if vcols:
+        seen = {c[2:]: sorted(set(df[c].dropna()) - {""}) for c in vcols}
+        md += ["Versions: " + ", ".join(f"{k} {'/'.join(v)}" for k, v in seen.items() if v) + ".", ""]
+    return md + ["Statistics over the successful runs with a finite score: n, mean, sample standard deviation (sd) "
+                 "and the Student t 95 % confidence interval of the mean. Files: `results.parquet` (one row per "
+                 "run), `summary.csv` (these tables).", ""]
+
+
 def write_report(out_dir: str | Path, campaign) -> Report:
     """Consolidate the results of ``out_dir`` and write ``summary.csv``, ``plots/*.png`` and ``report.md``."""
     import matplotlib
@@ -472,24 +508,8 @@ def write_report(out_dir: str | Path, campaign) -> Report:
     store.atomic_write_bytes(out / "summary.csv", summary.to_csv(index=False).encode())
     plots = safe_io.make_folder(out / store.PLOTS_DIR)
 
-    md = [f"# Campaign `{campaign.name}`", ""]
-    if campaign.description:
-        md += [campaign.description, ""]
     planned = campaign.n_runs
-    md += [f"{rep.n_runs} of {planned} runs finished, {rep.n_failed} failed. "
-           f"{len(campaign.scenarios)} scenario(s) x {len(campaign.trackers)} tracker(s)"
-           + "".join(f" x {len(v)} `{k}`" for k, v in campaign.grid) + f" x {campaign.seeds} seeds "
-           f"(base_seed {campaign.base_seed}; common random numbers: every tracker and grid point sees the same "
-           "seeds).", ""]
-    if campaign.overrides:
-        md += ["Fixed overrides: " + ", ".join(f"`{k} = {v!r}`" for k, v in campaign.overrides.items()) + ".", ""]
-    vcols = [c for c in df.columns if c.startswith("v_")]
-    if vcols:
-        seen = {c[2:]: sorted(set(df[c].dropna()) - {""}) for c in vcols}
-        md += ["Versions: " + ", ".join(f"{k} {'/'.join(v)}" for k, v in seen.items() if v) + ".", ""]
-    md += ["Statistics over the successful runs with a finite score: n, mean, sample standard deviation (sd) "
-           "and the Student t 95 % confidence interval of the mean. Files: `results.parquet` (one row per run), "
-           "`summary.csv` (these tables).", ""]
+    md = _head_lines(campaign, rep, df)
     scores = main_scores(df.columns)
     md += _summary_table(summary, scenarios, trackers, grid_keys, scores)
     rep.tables.append("summary")
@@ -510,26 +530,18 @@ def write_report(out_dir: str | Path, campaign) -> Report:
         md += [f"## Scenario `{scenario}`", ""]
         md += thesis_form(df, scenario, grid_keys) + _detail_table(sub, scenario, grid_keys, rep)
         md += ["### Plots", ""]
+        drawn = []  # (title, path) of each plot drawn
         if pairs is not None and not pairs.empty:
             p = plots / f"paired_vs_{_slug(baseline)}{suffix}.png"
             if _plot_paired(pairs, baseline, scenario, grid_keys, scores, p):
-                rep.plots.append(p)
-                md += [f"![paired differences against {baseline}]({p.relative_to(out).as_posix()})", ""]
+                drawn.append((f"paired differences against {baseline}", p))
         p = plots / f"rmse_vs_time{suffix}.png"
         if _plot_rmse_vs_time(df, grid_keys, scenario, trackers, p):
+            drawn.append(("position RMSE vs time", p))
+        drawn += _score_plots(summary, grid_keys, grid_values, scenario, trackers, plots, suffix)
+        for title, p in drawn:
             rep.plots.append(p)
-            md += [f"![position RMSE vs time]({p.relative_to(out).as_posix()})", ""]
-        if grid_keys:
-            for key in grid_keys:
-                p = plots / f"scores_vs_{_slug(key)}{suffix}.png"
-                if _plot_scores_vs_key(summary, key, grid_keys, grid_values, scenario, trackers, p):
-                    rep.plots.append(p)
-                    md += [f"![scores vs {key}]({p.relative_to(out).as_posix()})", ""]
-        else:
-            p = plots / f"scores_by_tracker{suffix}.png"
-            if _plot_scores_by_tracker(summary, scenario, trackers, p):
-                rep.plots.append(p)
-                md += [f"![scores by tracker]({p.relative_to(out).as_posix()})", ""]
+            md += [f"![{title}]({p.relative_to(out).as_posix()})", ""]
 
     if rep.n_failed:
         md += _failed_runs(df)

@@ -22,17 +22,11 @@ _OUR_KEYS = (("track_precision_pct", "prec. %", ".1f"), ("coverage_pct", "cover 
              ("pos_rmse_m", "pos RMSE m", ".2f"), ("hota", "HOTA", ".3f"))
 
 
-def _plots(ch: Characterisation, out: Path) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
+def _pd_figure(ch: Characterisation, out: Path, mid_r: np.ndarray) -> str:
+    """pd.png: P_D against range (all, visible, occluded) and against the visible fraction."""
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import MaxNLocator
 
-    names = []
-    mid_r = 0.5 * (RANGE_BINS[:-1] + RANGE_BINS[1:])
     vis = ch.vehicles["visible"] >= 0.5
-
     fig, ax = plt.subplots(1, 2, figsize=(11, 4.2))
     for k, (label, where, colour, marker) in enumerate((("all in range", None, "k", "o"),
                                                         ("visible >= 50 %", vis, "g", "s"),
@@ -54,8 +48,18 @@ def _plots(ch: Characterisation, out: Path) -> list[str]:
     fig.tight_layout()
     save_figure(fig, out / "pd.png", dpi=110)
     plt.close(fig)
-    names.append("pd.png")
+    return "pd.png"
 
+
+def _plots(ch: Characterisation, out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+
+    mid_r = 0.5 * (RANGE_BINS[:-1] + RANGE_BINS[1:])
+    names = [_pd_figure(ch, out, mid_r)]
     if len(ch.detections.get("vehicle_id", ())):
         fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
         mid_a = 0.5 * (VIEW_BINS[:-1] + VIEW_BINS[1:])

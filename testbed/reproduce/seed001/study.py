@@ -804,16 +804,11 @@ def _verdict_lines(v: dict) -> list[str]:
     return [f"- **{k}: {text}**" for k, text in v.items()] + [""]
 
 
-def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = True) -> Path:
-    """Run the reproduction into `out_dir` (summary.md and PNGs); returns the summary's path."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+def _studies(s: Settings, seed: int, progress: bool):
+    """Every Monte Carlo of the reproduction: (weight properties, 5.1 sensitivity, two-target sensitivity,
+    clutter rows), with a progress bar."""
     from tqdm import tqdm
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    s = settings(quick)
     clutter = [c for c in s.clutter if c != 0.01]
     with tqdm(total=1 + len(SENS_51) + len(SENSITIVITY) + len(clutter), desc="seed-001", unit="stage",
               disable=not progress) as bar:
@@ -833,17 +828,12 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
         for b in clutter:
             clutter_rows.append((b, clutter_study(b, s.runs, seed)))
             bar.update(1)
-    b51, main = sens51[0][2], sens[0][1]
-    rows, cross = sweep_rows(main["sweep"], s.seps), sweep_rows(main["crossing"], s.seps)
-    gate_r = 4.0 * float(np.mean(main["5.2"].res["an"].tracks.sqrt_s[:, -1]))
-    ref51 = np.sqrt(2.0) * tg.reference_sigma(b51.scn.dt, b51.scn.steps, b51.scn.sigma)  # S = s I: trace = 2 s
-    v1, p1 = claim_51(b51, sens51)
-    v2, p2 = claim_two(main, sens, "5.2")
-    v3, p3 = claim_two(main, sens, "5.3")
-    v5, i5 = claim_sweep(rows)
-    vc, keeps = claim_clutter(clutter_rows)
-    props_ok = all(ok for _, _, ok in props)
+    return props, sens51, sens, clutter_rows
 
+
+def _draw(out: Path, s: Settings, b51, main, rows, cross, gate_r: float, clutter_rows) -> tuple[int, int, tuple]:
+    """Write every PNG; returns the runs drawn for 5.2 and 5.3 and the separations of the sweep examples."""
+    ref51 = np.sqrt(2.0) * tg.reference_sigma(b51.scn.dt, b51.scn.steps, b51.scn.sigma)  # S = s I: trace = 2 s
     figure_51(out / "fig2_single_target_error.png", b51, ref51)
     run52 = figure_xy(out / "fig3_4_crossing_xy.png", main["5.2"], "5.2 crossing at a low angle: truth dotted, "
                       "estimates solid")
@@ -855,11 +845,18 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
     show = tuple(x for x in (3.0, 5.0) if x in s.seps)
     figure_sweep_examples(out / "sweep_examples.png", main["sweep"], s.seps, show)
     figure_clutter(out / "loss_vs_clutter.png", clutter_rows)
+    return run52, run53, show
 
+
+def _verdict_texts(s: Settings, props, rows, clutter_rows, claims) -> dict[str, str]:
+    """Claim -> its one-line verdict and evidence; claims: the (verdict, parts) of claim_51, claim_two (5.2, 5.3),
+    claim_sweep and claim_clutter."""
+    (v1, p1), (v2, p2), (v3, p3), (v5, i5), (vc, keeps) = claims
     pa, pn = p2["pda_any"], p2["an_any"]
     hb, hblk = clutter_rows[-1]
     r51 = p1["rms"]
-    verdicts = {
+    props_ok = all(ok for _, _, ok in props)
+    return {
         "C001-1 (5.1, Fig. 2: PDA and AN the same, RMS 6 m)":
             f"{v1}: RMS PDA {_ci(r51['pda'])}, AN (25) {_ci(r51['an'])} (2-D, sigma_a = 0.5); paired difference "
             f"{p1['diff'][0]:.2g} m [{p1['diff'][1]:.2g}, {p1['diff'][2]:.2g}]; n = {s.runs}",
@@ -885,8 +882,60 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
             f"{hblk['5.3'].res['pda'].any_lost()}, AN {hblk['5.3'].res['an'].any_lost()}; at b = 0.01 PDA loses "
             f"in 5.2 {pa}, 5.3 {p3['pda_any']}",
     }
+
+
+def _why_lines(main, rows, cross, gate_r: float, runs: int) -> list[str]:
+    """Markdown: why the paper's PDA failures do not appear (gate sharing, the flatter AN weights)."""
+    centre = {n: _loss_centre(rows, n) for n in tg.METHODS}
+    cross_lost = {n: sum(r["rates"][n].k for r in cross) for n in tg.METHODS}
+    shared = max(float((main[k].res[n].tracks.w_other > 0).mean()) for k in ("5.2", "5.3") for n in tg.METHODS)
+    return ["## Why the paper's PDA failures do not appear", "",
+            f"In 5.2 the targets are never closer than 447 m and in 5.3 they stay 1414 m apart, while the gate radius "
+            f"is {gate_r:.0f} m: the largest share of track-scans with any weight on the other target's detection is "
+            f"{100 * shared:.2f} %, so PDA and AN see one observation per scan and are the same KF. Where two targets "
+            "do share a gate (the sweep), the AN weights are the flatter ones: for two observations (22) is "
+            "inverse-distance weighting, which still gives the other target's detection a large weight where the "
+            "Gaussian weight is already negligible. Loss-weighted mean separation of the abreast sweep: "
+            + ", ".join(f"{NAMES[n]} {centre[n]:.2f} sigma" for n in tg.METHODS)
+            + ". Runs losing a track over the whole crossing sweep: "
+            + ", ".join(f"{NAMES[n]} {cross_lost[n]}" for n in tg.METHODS) + f" (of {len(cross) * runs}).", ""]
+
+
+def _figure_lines(run52: int, run53: int, show: tuple) -> list[str]:
+    return ["## Figures", "",
+            "- `fig2_single_target_error.png`: 5.1, RMS position error over runs against time for every method (the "
+            "curves coincide), the clutter-free KF's predicted RMS and the paper's 6 m (its Fig. 2).",
+            f"- `fig3_4_crossing_xy.png`: 5.2, run {run52}: truth dotted, estimates solid, one column per method (the "
+            "paper's Figs. 3-4); bottom row: a zoom on the closest approach with the detections.",
+            "- `fig5_crossing_error.png`: 5.2, RMS error against time per target and method (the paper's Fig. 5).",
+            f"- `fig6_7_parallel_xy.png`: 5.3, run {run53}, as Figs. 6-7.",
+            "- `fig8_parallel_error.png`: 5.3, RMS error against time (the paper's Fig. 8).",
+            "- `loss_vs_separation.png`: the deciding plot (C001-5): runs losing >= 1 track against separation / "
+            "sigma with Wilson 95 % intervals; left: abreast targets, error criterion; middle: the gate criterion; "
+            "right: the crossing geometry with its closest approach swept; the dashed line is the gate radius.",
+            "- `sweep_examples.png`: cross-track position of truth (dotted) and tracks (solid) against time, run 0, "
+            "PDA and AN (25) at " + " and ".join(f"{x:g}" for x in show) + " sigma.",
+            "- `loss_vs_clutter.png`: runs losing >= 1 track against clutter b, 5.2 and 5.3.", ""]
+
+
+def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = True) -> Path:
+    """Run the reproduction into `out_dir` (summary.md and PNGs); returns the summary's path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    s = settings(quick)
+    props, sens51, sens, clutter_rows = _studies(s, seed, progress)
+    b51, main = sens51[0][2], sens[0][1]
+    rows, cross = sweep_rows(main["sweep"], s.seps), sweep_rows(main["crossing"], s.seps)
+    gate_r = 4.0 * float(np.mean(main["5.2"].res["an"].tracks.sqrt_s[:, -1]))
+    claims = (claim_51(b51, sens51), claim_two(main, sens, "5.2"), claim_two(main, sens, "5.3"), claim_sweep(rows),
+              claim_clutter(clutter_rows))
+    (_, p1), (_, p2), (_, p3) = claims[:3]
+    run52, run53, show = _draw(out, s, b51, main, rows, cross, gate_r, clutter_rows)
     md = ["# Reproduction of paper 001: PDA against the all-neighbours weights linear in distance", ""]
-    md += _verdict_lines(verdicts)
+    md += _verdict_lines(_verdict_texts(s, props, rows, clutter_rows, claims))
     md += [("**Quick run** (reduced: fewer runs, shorter 5.1, fewer separations; the full report is in "
             "docs/results/reproduce/seed-001/)." if quick else "Full run."),
            f"Regenerate with `testbed reproduce seed-001{' --quick' if quick else ''} --seed {seed}`. Every number "
@@ -898,37 +947,11 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
     md += _scenario_lines("5.2", main, p2, run52) + _scenario_lines("5.3", main, p3, run53)
     md += ["### Weight properties (C001-4)", ""]
     md += md_table(["property", "worst violation", "holds (<= 1e-12)"],
-                 [[n, f"{v:.2g}", "yes" if ok else "no"] for n, v, ok in props])
+                   [[n, f"{v:.2g}", "yes" if ok else "no"] for n, v, ok in props])
     md += _sweep_lines(rows, cross, s.runs, gate_r / 50.0)
     md += _sens_lines(sens, s.seps) + _clutter_lines(clutter_rows)
     md += AMBIGUITIES
-    centre = {n: _loss_centre(rows, n) for n in tg.METHODS}
-    cross_lost = {n: sum(r["rates"][n].k for r in cross) for n in tg.METHODS}
-    shared = max(float((main[k].res[n].tracks.w_other > 0).mean()) for k in ("5.2", "5.3") for n in tg.METHODS)
-    md += ["## Why the paper's PDA failures do not appear", "",
-           f"In 5.2 the targets are never closer than 447 m and in 5.3 they stay 1414 m apart, while the gate radius "
-           f"is {gate_r:.0f} m: the largest share of track-scans with any weight on the other target's detection is "
-           f"{100 * shared:.2f} %, so PDA and AN see one observation per scan and are the same KF. Where two targets "
-           "do share a gate (the sweep), the AN weights are the flatter ones: for two observations (22) is "
-           "inverse-distance weighting, which still gives the other target's detection a large weight where the "
-           "Gaussian weight is already negligible. Loss-weighted mean separation of the abreast sweep: "
-           + ", ".join(f"{NAMES[n]} {centre[n]:.2f} sigma" for n in tg.METHODS)
-           + ". Runs losing a track over the whole crossing sweep: "
-           + ", ".join(f"{NAMES[n]} {cross_lost[n]}" for n in tg.METHODS) + f" (of {len(cross) * s.runs}).", ""]
-    md += ["## Figures", "",
-           "- `fig2_single_target_error.png`: 5.1, RMS position error over runs against time for every method (the "
-           "curves coincide), the clutter-free KF's predicted RMS and the paper's 6 m (its Fig. 2).",
-           f"- `fig3_4_crossing_xy.png`: 5.2, run {run52}: truth dotted, estimates solid, one column per method (the "
-           "paper's Figs. 3-4); bottom row: a zoom on the closest approach with the detections.",
-           "- `fig5_crossing_error.png`: 5.2, RMS error against time per target and method (the paper's Fig. 5).",
-           f"- `fig6_7_parallel_xy.png`: 5.3, run {run53}, as Figs. 6-7.",
-           "- `fig8_parallel_error.png`: 5.3, RMS error against time (the paper's Fig. 8).",
-           "- `loss_vs_separation.png`: the deciding plot (C001-5): runs losing >= 1 track against separation / "
-           "sigma with Wilson 95 % intervals; left: abreast targets, error criterion; middle: the gate criterion; "
-           "right: the crossing geometry with its closest approach swept; the dashed line is the gate radius.",
-           "- `sweep_examples.png`: cross-track position of truth (dotted) and tracks (solid) against time, run 0, "
-           "PDA and AN (25) at " + " and ".join(f"{x:g}" for x in show) + " sigma.",
-           "- `loss_vs_clutter.png`: runs losing >= 1 track against clutter b, 5.2 and 5.3.", ""]
+    md += _why_lines(main, rows, cross, gate_r, s.runs) + _figure_lines(run52, run53, show)
     path = out / "summary.md"
     write_text(path, "\n".join(md))
     return path
