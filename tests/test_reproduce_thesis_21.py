@@ -17,6 +17,7 @@ import pytest
 from testbed.reproduce import REPRODUCTIONS, entry
 from testbed.reproduce.thesis import sec21
 from testbed.reproduce.thesis import synthetic as sy
+from report_checks import read_report
 
 FULL = bool(os.environ.get("ROADTRACK_FULL"))
 FIGURES = ("rmse_x_time.png", "lost_rates_4pct.png", "lost_rates_2pct.png", "rmse_ratio_sensitivity.png")
@@ -126,13 +127,7 @@ def _count(cell: str) -> tuple[int, int]:
 
 
 def _check_report(path: Path, runs: int) -> str:
-    md = path.read_text()
-    for png in FIGURES:
-        data = (path.parent / png).read_bytes()
-        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, png
-        assert f"`{png}`" in md
-    for heading in SECTIONS:
-        assert heading in md, heading
+    md = read_report(path, FIGURES, SECTIONS)
     for item in ("| Ts | 30 s | 30 s | [T] |", "| P_D | 0.9 | 0.9 | [T] |", "| sigma_w^2 | \"72\" |",
                  "| true initial state x0 | not given |", "[D]", "[R]", "[T] size, duration; [R] form"):
         assert item in md, item

@@ -15,6 +15,7 @@ import pytest
 
 from testbed.reproduce import REPRODUCTIONS, entry
 from testbed.reproduce.thesis import sec461
+from report_checks import read_report
 
 FULL = bool(os.environ.get("ROADTRACK_FULL"))
 FIGURES = ("trajectories.png", "time_printed.png", "time_lambda1e-4.png", "sensitivity.png")
@@ -111,13 +112,7 @@ def _cell(md: str, section: str, car: int, state: str) -> list[str]:
 
 
 def _check_report(path: Path, runs: int) -> str:
-    md = path.read_text()
-    for png in FIGURES:
-        data = (path.parent / png).read_bytes()
-        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, png
-        assert f"`{png}`" in md
-    for heading in SECTIONS:
-        assert heading in md, heading
+    md = read_report(path, FIGURES, SECTIONS)
     for tag in ("[T]", "[R]", "[I]", "[D]"):
         assert tag in md
     for choice in ("switch rule `switch`", "`robust_lower`", "`apda_layer`", "clutter window", "truth noise",

@@ -16,6 +16,7 @@ import pytest
 from testbed.reproduce import REPRODUCTIONS, entry
 from testbed.reproduce.thesis import sec51
 from testbed.reproduce.thesis import synthetic as sy
+from report_checks import read_report
 
 FULL = bool(os.environ.get("ROADTRACK_FULL"))
 FIGURES = ("trajectory.png", "rmse_time.png", "ordering_density.png")
@@ -64,13 +65,7 @@ def _verdict_lines(md: str) -> dict[str, str]:
 
 
 def _check_report(path: Path, study_runs: int) -> str:
-    md = path.read_text()
-    for png in FIGURES:
-        data = (path.parent / png).read_bytes()
-        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, png
-        assert f"`{png}`" in md
-    for h in HEADINGS:
-        assert h in md, h
+    md = read_report(path, FIGURES, HEADINGS)
     for tagged in ("| start state x0 | (1 m, 25 m, 33 m/s, 1 m/s) | [T] Table 5.1 |", "`apda_layer`",
                    "`memory_after_miss`", "`pg`", "clutter window", "clutter meaning", "loss criterion"):
         assert tagged in md, tagged
