@@ -72,3 +72,20 @@ def test_testbed_run_writes_the_timeline(tmp_path):
                           capture_output=True, text=True, cwd=REPO, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert not (tmp_path / "bare" / "timeline.png").exists() and "timeline.png" not in proc.stdout
+
+
+def test_a_timeline_that_cannot_be_drawn_is_a_warning_and_the_run_stands(tmp_path, monkeypatch, capsys):
+    """If drawing fails, `testbed run` still commits the run (exit 0, no INCOMPLETE) and says so in one line."""
+    import testbed.pipeline.plots as plots
+    from testbed.cli.main import main
+
+    def broken(folder):
+        raise ValueError("no figure today")
+
+    monkeypatch.setattr(plots, "write_run_plots", broken)
+    out = tmp_path / "run"
+    code = main(["run", "cut_in_out", "--set", "duration_s=0.3", "--no-record", "--out", str(out), "--quiet"])
+    err = capsys.readouterr()
+    assert code == 0, err.err
+    assert "warning: timeline.png not drawn: ValueError: no figure today" in err.err
+    assert "timeline.png" not in err.out and (out / "scores.json").is_file() and not (out / "INCOMPLETE").exists()

@@ -165,9 +165,7 @@ def _summary_table(summary, scenarios, trackers, grid_keys, scores) -> list[str]
     for scenario in scenarios:
         sub = summary[summary["scenario"] == scenario]
         for _, cell in sub.drop_duplicates(subset=["tracker", *grid_keys]).iterrows():
-            sel = sub[sub["tracker"] == cell["tracker"]]
-            for k in grid_keys:
-                sel = sel[sel[k] == cell[k]]
+            sel = _rows(sub, cell["tracker"], grid_keys, [cell[k] for k in grid_keys])
             by = sel.set_index("score")
             n = int(by["n"].max()) if len(by) else 0
             rows.append([scenario, cell["tracker"], *[cell[k] for k in grid_keys], n,
@@ -239,9 +237,7 @@ def _plot_paired(pairs, baseline: str, scenario: str, grid_keys, scores, path: P
     for ax, score in zip(axes.flat, scores):
         s = sub[sub["score"] == score]
         for i, (tracker, point) in enumerate(labels):
-            sel = s[s["tracker"] == tracker]
-            for k, v in zip(grid_keys, point):
-                sel = sel[sel[k] == v]
+            sel = _rows(s, tracker, grid_keys, point)
             if sel.empty or not np.isfinite(sel["mean"].iloc[0]):
                 continue
             r = sel.iloc[0]
@@ -257,6 +253,14 @@ def _plot_paired(pairs, baseline: str, scenario: str, grid_keys, scores, path: P
     _save(fig, axes, len(scores), f"{scenario}: paired difference against {baseline} per seed (mean, 95 % CI; red: "
           "excludes 0)", path)
     return True
+
+
+def _rows(df, tracker: str | None, keys, values):
+    """The rows of ``df`` of ``tracker`` (None: any) whose columns ``keys`` equal ``values``."""
+    sel = df if tracker is None else df[df["tracker"] == tracker]
+    for k, v in zip(keys, values):
+        sel = sel[sel[k] == v]
+    return sel
 
 
 def _fmt(x) -> str:
@@ -307,8 +311,7 @@ def _plot_rmse_vs_time(df, grid_keys, scenario, trackers, path: Path) -> bool:
         title = scenario
         if point is not None:
             point = point if isinstance(point, tuple) else (point,)
-            for k, v in zip(grid_keys, point):
-                sel = sel[sel[k] == v]
+            sel = _rows(sel, None, grid_keys, point)
             title = ", ".join(f"{k} = {_fmt(v)}" for k, v in zip(grid_keys, point))
         for tracker in trackers:
             runs = sel[sel["tracker"] == tracker]
@@ -368,9 +371,7 @@ def _plot_scores_vs_key(summary, key, grid_keys, grid_values, scenario, trackers
     for ax, score in zip(axes.flat, scores):
         s = sub[sub["score"] == score]
         for i, (tracker, point) in enumerate(lines):
-            sel = s[s["tracker"] == tracker]
-            for k, v in zip(others, point):
-                sel = sel[sel[k] == v]
+            sel = _rows(s, tracker, others, point)
             ys, lo, hi, xs = [], [], [], []
             for j, v in enumerate(values):
                 row = sel[sel[key] == v]

@@ -53,14 +53,24 @@ def _cmd_run(args: argparse.Namespace) -> int:
     try:
         res = _run_with_progress(scn, stage.tmp, args, policy, tracker)
         if not args.no_plot:
-            from ..pipeline.plots import write_run_plots
-
-            write_run_plots(stage.tmp)
+            _plot_run(stage.tmp, args)  # a drawing error is a warning; Ctrl-C here keeps the tables as above
     except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - kept, marked INCOMPLETE, one line
         return _failed(err, stage, args.debug)
     _commit(stage)
     _print_run(res, args, stage.shown)
     return 0
+
+
+def _plot_run(folder: Path, args: argparse.Namespace) -> None:
+    """timeline.png of a finished run; a failure to draw it is one warning line (the run's results stand) and
+    args.no_plot is set so the summary does not list it."""
+    from ..pipeline.plots import write_run_plots
+
+    try:
+        write_run_plots(folder)
+    except Exception as err:  # noqa: BLE001 - a figure never costs the run its results
+        print(f"warning: timeline.png not drawn: {type(err).__name__}: {one_line(err)}", file=sys.stderr)
+        args.no_plot = True
 
 
 def _check_combination(name: str) -> None:

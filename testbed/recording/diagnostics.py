@@ -14,6 +14,7 @@ prefix. A name no group claims goes to ``other``.
 """
 from __future__ import annotations
 
+import functools
 import re
 from typing import Callable
 
@@ -41,6 +42,7 @@ GROUPS: tuple[tuple[str, str, Callable[[str], bool]], ...] = (
 OTHER = ("other", "other diagnostics")
 
 
+@functools.lru_cache(maxsize=4096)
 def group_of(name: str) -> str:
     """The key of the group (:data:`GROUPS`) of diagnostic ``name``; "other" if none claims it."""
     base = _base(name)

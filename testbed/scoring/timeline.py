@@ -61,16 +61,15 @@ def car_timeline(truth, tracks, scoring: ScoringSpec | None = None) -> Timeline:
     pair_track[rg] = t_id[rt]
     pair_err = np.full(len(g["frame"]), np.nan)
     pair_err[rg] = np.hypot(*(t_xy[rt] - g["xy"][rg]).T)
-    vis = g["visible"]
-    seen = np.unique(g["vehicle_id"][vis])
-    first = {int(v): int(g["frame"][vis & (g["vehicle_id"] == v)].min()) for v in seen}
+    vis, vid, frame = g["visible"], g["vehicle_id"], g["frame"]
+    order = np.lexsort((frame, vid))  # each vehicle's rows together, by frame
+    ids, start = np.unique(vid[order], return_index=True)
+    groups = dict(zip(ids.tolist(), np.split(order, start[1:])))
+    first = {v: int(frame[r][vis[r]].min()) for v, r in groups.items() if vis[r].any()}  # the cars seen
     cars = np.array(sorted(first, key=lambda v: (first[v], v)), dtype=np.int64)
-    frames, visible, assigned, err = [], [], [], []
-    for v in cars:
-        rows = np.flatnonzero(g["vehicle_id"] == v)
-        rows = rows[np.argsort(g["frame"][rows], kind="stable")]
-        frames.append(g["frame"][rows]); visible.append(vis[rows])
-        assigned.append(pair_track[rows]); err.append(pair_err[rows])
+    rows = [groups[int(v)] for v in cars]
+    frames, visible = [frame[r] for r in rows], [vis[r] for r in rows]
+    assigned, err = [pair_track[r] for r in rows], [pair_err[r] for r in rows]
     false = {int(i): np.unique(t_frame[t_id == i]) for i in np.unique(t_id) if int(i) not in correct}
     return Timeline(cars=cars, frames=frames, visible=visible, assigned=assigned, err=err, correct=correct,
                     false_tracks=false)
