@@ -1,14 +1,17 @@
 """The web viewer on a run, in headless Chromium: how long until it shows the last frame, and screenshots.
 
-    .venv/bin/python benchmarks/bench_web_viewer.py RUN [--at SECONDS] [--shot out.png] [--views] [--port 19190]
+    .venv/bin/python benchmarks/bench_web_viewer.py RUN [--at SECONDS] [--settle] [--shot out.png [--wait 3] [--views]]
+                                                     [--port 19190] [--timeout 600]
 
 Starts ``testbed view RUN --web`` (with ``--at``: opened at that time), opens the address it prints in a
 headless Chromium (benchmarks/support/cdp.py; Debian's ``chromium``, software WebGL) and reads the viewer's state
 from the page (``WebHandle.viewer_state()``, a protobuf ``GetStateResponse`` decoded here) every 0.1 s.
 Prints the seconds from opening the page to: the viewer running, the recording's last frame received (the
 ``frame`` timeline's end reaching the run's last frame), and the cursor standing on it (or on ``--at``).
-``--shot`` saves a screenshot 3 s later (``--views``: also one per 3-D view, cropped: FILE_chase.png,
-FILE_topdown.png).
+``--settle`` then takes a screenshot every 5 s until two in a row show the same views (the top bar and the time
+panel left out): the time the scene was fully drawn (the frame timeline can reach the end before every
+entity's data is in). ``--shot`` saves a screenshot ``--wait`` seconds later (default 3; ``--views``: also the columns of the layout,
+cropped: FILE_chase.png, FILE_topdown.png (with the legend), FILE_plots.png).
 """
 from __future__ import annotations
 
@@ -111,8 +114,11 @@ def measure(url: str, last: int, at: float | None, browser: Browser, timeout_s: 
             marks.setdefault("page unresponsive from", time.monotonic() - t0)
             continue
         if s is None:
-            if browser.evaluate("window._handle !== undefined"):
-                marks.setdefault("viewer running", time.monotonic() - t0)
+            try:
+                if browser.evaluate("window._handle !== undefined"):
+                    marks.setdefault("viewer running", time.monotonic() - t0)
+            except TimeoutError:
+                marks.setdefault("page unresponsive from", time.monotonic() - t0)
             time.sleep(0.1)
             continue
         marks.setdefault("viewer running", time.monotonic() - t0)
@@ -132,7 +138,9 @@ def main() -> None:
     ap.add_argument("run")
     ap.add_argument("--at", type=float)
     ap.add_argument("--shot")
+    ap.add_argument("--wait", type=float, default=3.0, help="seconds from the cursor in place to the screenshot")
     ap.add_argument("--views", action="store_true")
+    ap.add_argument("--settle", action="store_true", help="also measure the time until the views stop changing")
     ap.add_argument("--port", type=int, default=19190)
     ap.add_argument("--timeout", type=float, default=600.0)
     a = ap.parse_args()
@@ -140,10 +148,13 @@ def main() -> None:
     proc, url = serve(a.run, a.port, a.at)
     try:
         with Browser(size=(1600, 1000)) as b:
+            t0 = time.monotonic()
             marks = measure(url, last_frame(a.run), a.at, b, a.timeout)
+            if a.settle and "cursor" in marks:
+                marks["views settled"] = settle(b, t0, a.timeout)
             print(f"{rrd}: {os.path.getsize(rrd) / 1e6:.1f} MB; " + ", ".join(f"{k} {v:.1f} s" for k, v in marks.items()))
             if a.shot:
-                time.sleep(3.0)
+                time.sleep(a.wait)
                 b.screenshot(a.shot)
                 if a.views:
                     crop(a.shot)
@@ -152,8 +163,31 @@ def main() -> None:
         proc.wait(timeout=20)
 
 
+def settle(browser: Browser, t0: float, timeout_s: float, every_s: float = 5.0) -> float:
+    """Seconds from ``t0`` to the first of two screenshots ``every_s`` apart whose views (between the top bar
+    and the time panel) are identical; NaN if none within ``timeout_s``."""
+    import base64
+    import io
+
+    from PIL import Image
+
+    def views() -> bytes:
+        png = base64.b64decode(browser.call("Page.captureScreenshot", format="png")["data"])
+        img = Image.open(io.BytesIO(png)).convert("RGB")
+        return img.crop((0, 40, img.width, img.height - 50)).tobytes()
+
+    last, when = views(), time.monotonic() - t0
+    while time.monotonic() - t0 < timeout_s:
+        time.sleep(every_s)
+        now = views()
+        if now == last:
+            return when
+        last, when = now, time.monotonic() - t0
+    return float("nan")
+
+
 def crop(path: str) -> None:
-    """FILE_chase.png and FILE_topdown.png: the two 3-D views of the default layout cut out of FILE."""
+    """FILE_chase.png, FILE_topdown.png and FILE_plots.png: the default layout's columns cut out of FILE."""
     from PIL import Image
 
     img = Image.open(path)
@@ -163,6 +197,7 @@ def crop(path: str) -> None:
     stem = path.removesuffix(".png")
     img.crop((0, 0, left, h)).save(f"{stem}_chase.png")
     img.crop((left, 0, mid, h)).save(f"{stem}_topdown.png")
+    img.crop((mid, 0, w, h)).save(f"{stem}_plots.png")
 
 
 if __name__ == "__main__":

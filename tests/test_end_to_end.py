@@ -115,8 +115,8 @@ def test_tables_have_the_documented_columns(recorded):
 
 def test_diagnostics_table_and_per_track_series_agree_with_the_tracks_table(recorded):
     """diagnostics.parquet (long format) holds each track's score, NIS, gated count, gate volume, P_D and miss
-    weight; its score equals the tracks table's, and the recording's diagnostics/score/<id>/score series (confirmed
-    tracks) equals both."""
+    weight; its score equals the tracks table's, and the recording's diagnostics/score/score/<slot> series (the
+    slots' tracks in diagnostics/slots/track_id/<slot>) equals both for the confirmed tracks."""
     out = recorded.out_dir
     diag = pd.read_parquet(out / "diagnostics.parquet")
     assert list(diag.columns) == ["frame", "time", "track_id", "name", "value"]
@@ -129,17 +129,21 @@ def test_diagnostics_table_and_per_track_series_agree_with_the_tracks_table(reco
     assert len(score) > 100
     np.testing.assert_allclose(score.value, score.score, rtol=0, atol=1e-12)
     conf = tracks[tracks.status == "confirmed"].set_index(["frame", "track_id"]).score
-    seen = 0
+    holder: dict[tuple[int, int], float] = {}  # (frame, slot) -> track id
+    score: dict[tuple[int, int], float] = {}
     for chunk in RrdReader(str(out / "run.rrd")).stream():
-        path = chunk.entity_path
-        if path.startswith("/diagnostics/score/") and path.endswith("/score"):
-            tid = int(path.split("/")[3])
+        head, _, k = chunk.entity_path.rpartition("/")
+        if head in ("/diagnostics/score/score", "/diagnostics/slots/track_id"):
             rb = chunk.to_record_batch()
-            if "Scalars:scalars" not in rb.schema.names:  # the series' static style (its legend name)
-                continue
-            for f, v in zip(rb.column("frame").to_pylist(), rb.column("Scalars:scalars").to_pylist()):
-                assert abs(v[0] - conf.loc[(f, tid)]) <= 1e-9
-                seen += 1
+            if "Scalars:scalars" in rb.schema.names:  # not the series' static style (its legend name)
+                into = score if head.startswith("/diagnostics/score") else holder
+                into.update({(f, int(k)): v[0] for f, v in zip(rb.column("frame").to_pylist(),
+                                                               rb.column("Scalars:scalars").to_pylist())})
+    seen = 0
+    for (f, k), v in score.items():  # slot k's value is the score of the track holding it, NaN: a gap
+        if np.isfinite(v):
+            assert abs(v - conf.loc[(f, int(holder[(f, k)]))]) <= 1e-9
+            seen += 1
     assert seen == len(conf)  # every confirmed track-frame, nothing else
 
 
@@ -215,7 +219,7 @@ def test_every_named_tracker_runs_a_scenario_and_reports_its_diagnostics(name, t
         assert rows.get("/world/tracks/layers", 0) > 0
     if name.startswith("imm-"):
         assert {"mu_0", "mu_1"} <= names
-        assert any(p.startswith("/diagnostics/modes/") and p.endswith("/mu_1") for p in rows)
+        assert "/diagnostics/modes/mu_1/0" in rows
     if "svsf" in name:
         assert any(p.startswith("/diagnostics/layer_z/") for p in rows)
 

@@ -4,11 +4,12 @@ quantity (recording and blueprint read back)."""
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 from rerun.chunk import RrdReader
 
 from testbed.pipeline.run import run_scenario
-from testbed.recording import diagnostics as dg, palette as pal
+from testbed.recording import diagnostics as dg, palette as pal, slots
 from testbed.recording.legend import BACKGROUND, ENTRIES, ROW_PX, legend_image
 from testbed.recording.recorder import Recorder
 from testbed.recording.scene import track_label
@@ -32,12 +33,12 @@ def test_track_labels_are_compact_and_name_the_warm_up():
     ("ks_D_T", "ks"), ("ks_regime", "ks"), ("my_quantity", "other")])
 def test_each_diagnostic_goes_to_the_plot_of_its_quantity(name, group):
     assert dg.group_of(name) == group
-    assert dg.series_path(7, name) == f"diagnostics/{group}/7/{name}"
+    assert dg.series_path(name) == f"diagnostics/{group}/{name}"
 
 
 def test_every_group_title_names_its_units_or_scale():
     for key, title in dg.titles():
-        if key not in ("other", "modes", "svsf_regime", "association", "ks", "score", "nis"):
+        if key not in ("other", "modes", "svsf_regime", "association", "ks", "score", "nis", "slots"):
             assert "[" in title, title  # a quantity with a unit says it
 
 
@@ -73,26 +74,55 @@ def _rows(rrd) -> dict[str, list]:
 
 
 def test_recording_has_the_legend_diagnostics_per_quantity_and_compact_labels(tmp_path):
-    """4 s of cut_in_out with imm-jpda-gvbl-svsf: the legend image is static; every diagnostic series is under
-    diagnostics/<its group>/<id>/, named "T<id> ..." in its plot's legend; the confirmed tracks' labels carry no
-    "tracking" and say "warming up" before the KS window is full; the ego box is solid; the blueprint has one
-    time-series tab per group."""
+    """4 s of cut_in_out with imm-jpda-gvbl-svsf: the legend image is static; each diagnostic name has one series
+    per slot, diagnostics/<its group>/<name>/<k>, named "<name>, slot <k>" and in the slot's colour, whatever
+    the number of tracks; the confirmed tracks' labels carry no "tracking" and say "warming up" before
+    the KS window is full, and their points have their slot's colour; the ego box is solid; the blueprint has
+    one time-series tab per group."""
     scn = load_scenario("cut_in_out", {"duration_s": 4.0, "record.lidar_every": 0})
     run_scenario(scn, out_dir=tmp_path, record=True, tracker="imm-jpda-gvbl-svsf")
     rows = _rows(tmp_path / "run.rrd")
     (legend,) = rows["/legend"]
     assert "frame" not in legend.schema.names  # static
     diag = [p for p in rows if p.startswith("/diagnostics/")]
-    assert {p.split("/")[2] for p in diag} >= {"score", "nis", "gate", "modes", "layer_z", "layer_y", "chatter"}
+    names = set(pd.read_parquet(tmp_path / "diagnostics.parquet").name.unique())
+    assert {p.split("/")[2] for p in diag} >= {"score", "nis", "gate", "modes", "layer_z", "layer_y", "chatter",
+                                              "slots"}
+    slot_at: dict[int, dict[int, float]] = {}  # frame -> slot -> track id
     for p in diag:
-        _, _, group, tid, name = p.split("/")
-        assert dg.group_of(name) == group
-        names = [rb.column("SeriesLines:names").to_pylist() for rb in rows[p] if "SeriesLines:names" in rb.schema.names]
-        assert names and names[0][0][0].startswith(f"T{tid} "), (p, names)
+        if p.startswith("/" + dg.SLOT_IDS + "/"):
+            k = int(p.rsplit("/", 1)[1])
+            for rb in rows[p]:
+                if "Scalars:scalars" in rb.schema.names:
+                    for f, v in zip(rb.column("frame").to_pylist(), rb.column("Scalars:scalars").to_pylist()):
+                        slot_at.setdefault(f, {})[k] = v[0]
+    n = 1 + max(k for held in slot_at.values() for k in held)
+    assert n >= 2 and {int(v) for held in slot_at.values() for v in held.values() if np.isfinite(v)} <= set(
+        pd.read_parquet(tmp_path / "tracks.parquet").track_id)
+    assert len(diag) <= (len(names) + 1) * n  # per name and slot, not per track
+    for p in diag:
+        _, _, group, name, k = p.split("/")
+        if group != "slots":
+            assert dg.group_of(name) == group and name in names
+        (style,) = [rb for rb in rows[p] if "SeriesLines:names" in rb.schema.names]
+        assert style.column("SeriesLines:names").to_pylist()[-1][0].endswith(f", slot {k}"), p
+        assert style.column("SeriesLines:colors").to_pylist()[-1] == [
+            int.from_bytes(bytes([*slots.colours([int(k)])[0], 255]), "big")]
     labels = [v for rb in rows["/world/tracks/confirmed"] if "Points3D:labels" in rb.schema.names
               for row in rb.column("Points3D:labels").to_pylist() if row for v in row]
     assert labels and not any("tracking" in v or "unknown" in v for v in labels)
     assert any(v.endswith("warming up") for v in labels) and any(v.startswith("T") and " " not in v for v in labels)
+    checked = 0
+    for rb in rows["/world/tracks/confirmed"]:
+        if "Points3D:colors" not in rb.schema.names:
+            continue
+        for f, ids, cols in zip(rb.column("frame").to_pylist(), rb.column("Points3D:class_ids").to_pylist(),
+                                rb.column("Points3D:colors").to_pylist()):
+            for tid, col in zip(ids or [], cols or []):
+                (k,) = [k for k, v in slot_at[f].items() if v == tid]  # the slot the track holds then
+                assert col == int.from_bytes(bytes([*pal.SLOTS[k % len(pal.SLOTS)], 255]), "big")
+                checked += 1
+    assert checked > 20
     ego = rows["/world/truth/ego"][0]
     assert ego.column("Boxes3D:fill_mode").to_pylist()[0] == [SOLID]  # FillMode.Solid
     layers = [rb for rb in rows["/world/tracks/layers"] if "Boxes3D:fill_mode" in rb.schema.names]

@@ -178,7 +178,18 @@ def _print_run(res, args: argparse.Namespace, out: str) -> None:
         written.append("timeline.png")
     print(f"wrote {', '.join(written)} to {out}/")
     if not args.no_record:
+        from ..recording.levels import lidar_step  # numpy: not at import (testbed/common/threads.py)
+
+        rec = res.scenario.record
+        step = lidar_step(rec.lidar_every, rec.max_lidar_frames, res.scenario.n_frames)
+        if step > rec.lidar_every:
+            print(f"run.rrd holds the point cloud of every {_ordinal(step)} frame: a {res.scenario.n_frames}-frame "
+                  f"run, record.max_lidar_frames = {rec.max_lidar_frames} (0: every frame)")
         print(f"view it: testbed view {out}")
+
+
+def _ordinal(n: int) -> str:
+    return f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"
 
 
 def _cmd_score(args: argparse.Namespace) -> int:

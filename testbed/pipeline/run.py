@@ -83,6 +83,7 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     watch = Stopwatch()
     state = _Progress()
     overflows = JPDAOverflows()
+    closing = None  # the recorder once closed
     try:
         if cached:
             frames = SensingCache(sensing_cache).frames(scn, setup, watch)
@@ -93,9 +94,13 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         if recorder is not None:
             t0 = time.perf_counter()
             closing, recorder = recorder, None  # closed once, even if closing fails
-            _close_recording(closing)
+            _close_recording(closing)  # and its compaction started, in its own process
             watch.spent["recording"] += time.perf_counter() - t0
         scores, metrics = score_tables(scn, tables["truth"], tables["tracks"], state.frames)
+        if closing is not None:  # the compaction ran beside the scoring: the wait left is the recording's
+            t0 = time.perf_counter()
+            closing.wait_compacted()
+            watch.spent["recording"] += time.perf_counter() - t0
         timings = {k: 1000.0 * v / max(state.frames, 1) for k, v in watch.spent.items()}
         res = RunResult(scn, scores, timings, state.frames, out, tables, metrics, name)
         if out is not None:
@@ -109,6 +114,8 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
             raise stop from None
         raise
     finally:
+        if closing is not None:
+            closing.cancel_compaction()  # after a failure: stopped, the recording kept as written
         overflows.report()
     return res
 
@@ -299,13 +306,15 @@ def track_status(ts: TrackSet, moving: MovingTest, time: float) -> np.ndarray:
 
 def _recorder(scn: Scenario, path: Path, tracker_name: str, sim, static: np.ndarray):
     """A :class:`~testbed.recording.recorder.Recorder` with the road and roadside objects logged."""
+    from ..recording.levels import lidar_step
     from ..recording.recorder import FOOTER_MAX_FRAMES, Recorder  # rerun is imported only when recording
 
     rec = Recorder(path, recording_id=f"{scn.name}-seed{scn.seed}-{tracker_name}",
-                   lidar_every=scn.record.lidar_every, ground_decimation=scn.record.ground_decimation,
+                   lidar_every=lidar_step(scn.record.lidar_every, scn.record.max_lidar_frames, scn.n_frames),
+                   ground_decimation=scn.record.ground_decimation,
                    write_footer=scn.n_frames <= FOOTER_MAX_FRAMES,
                    occlusion=sensors.OcclusionConfig.from_lidar(scn.sensor.lidar), max_range_m=scn.sensor.lidar.max_range_m,
-                   level=scn.record.level, rate_hz=scn.rate_hz)
+                   level=scn.record.level, rate_hz=scn.rate_hz, compact=True)
     rec.static(lane_polylines(sim.network), static)
     return rec
 

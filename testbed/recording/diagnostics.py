@@ -1,15 +1,17 @@
-"""Per-track diagnostics in the viewer: one plot per quantity, one line per confirmed track.
+"""Per-track diagnostics in the viewer: one plot per quantity, one line per confirmed track's slot.
 
 A tracker's diagnostics (``TrackSet.diagnostics``: score, NIS, gate volume, boundary layers, mode
 probabilities, association weights, the KS regime's statistics, ...) are grouped by quantity; each group is
-one time-series plot of the blueprint (a tab of the "track diagnostics" panel) at
-``diagnostics/<group>/<track id>/<name>``, so quantities of different units and sizes never share an axis.
-An IMM's per-mode names (``cv.psi_z_0``, ``ct.psi_y_1``) go to the group of the quantity after the mode
-prefix. A name no group claims goes to ``other``.
+one time-series plot of the blueprint (a tab of the "track diagnostics" panel), so quantities of different
+units and sizes never share an axis. Each diagnostic name has one series per slot,
+``diagnostics/<group>/<name>/<k>`` (testbed/recording/slots.py: a confirmed track holds a slot, and its colour,
+for its life); ``diagnostics/slots/track_id/<k>`` holds the track id in slot k. An IMM's per-mode names
+(``cv.psi_z_0``, ``ct.psi_y_1``) go to the group of the quantity after the mode prefix. A name no group
+claims goes to ``other``.
 
     group_of(name) -> str             the group key of a diagnostic name
-    series_path(track_id, name) -> str
-    series_label(track_id, name) -> str   the line's name in the plot legend, e.g. "T3 ct psi_z 0"
+    series_path(name) -> str          diagnostics/<group>/<name> (slot k's series: series_path(name)/<k>)
+    series_labels(name, n) -> list    the n slots' line names, e.g. "ct psi z 0, slot 3"
     GROUPS                            (key, plot title with units, test) in tab order
 """
 from __future__ import annotations
@@ -52,16 +54,22 @@ def group_of(name: str) -> str:
     return OTHER[0]
 
 
-def series_path(track_id: int, name: str) -> str:
-    """The entity path of track ``track_id``'s series ``name``: ``diagnostics/<group>/<id>/<name>``."""
-    return f"diagnostics/{group_of(name)}/{int(track_id)}/{name}"
+SLOT_IDS = "diagnostics/slots/track_id"  # slot k's track id at SLOT_IDS/<k>
+SLOTS = ("slots", "track id per slot (hover a line: its track; a slot's colour is its track's in the scene)")
 
 
-def series_label(track_id: int, name: str) -> str:
-    """The series' name in the plot's legend: ``T<id> <name>`` with the mode's dot and underscores as spaces."""
-    return f"T{int(track_id)} " + name.replace(".", " ").replace("_", " ")
+def series_path(name: str) -> str:
+    """The entity path of diagnostic ``name``'s series: ``diagnostics/<group>/<name>`` (slot k's at ``/<k>``)."""
+    return f"diagnostics/{group_of(name)}/{name}"
+
+
+def series_labels(name: str, n: int) -> list[str]:
+    """The names of slots 0..n-1's lines of ``name``: ``<name>, slot <k>`` with the mode's dot and underscores
+    as spaces (what hovering a line shows)."""
+    pretty = name.replace(".", " ").replace("_", " ")
+    return [f"{pretty}, slot {k}" for k in range(n)]
 
 
 def titles() -> list[tuple[str, str]]:
-    """(key, title) of every group and of "other", in tab order."""
-    return [(k, t) for k, t, _ in GROUPS] + [OTHER]
+    """(key, title) of every group, of "other" and of the slots' track ids, in tab order."""
+    return [(k, t) for k, t, _ in GROUPS] + [OTHER, SLOTS]

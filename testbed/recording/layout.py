@@ -29,7 +29,7 @@ def blueprint(rate_hz: float = 10.0) -> rrb.Blueprint:
     """The chase view, the top-down view, the legend, the count plots and the diagnostics tabs; panels
     collapsed."""
     hidden = {"/world/lidar/truth": rrb.EntityBehavior(visible=False)}
-    trails = {"/world/tracks/trajectories": trail_ranges(rate_hz)}
+    trails = {"/world/tracks/trajectories": cursor_ranges(rate_hz, TRAIL_S)}
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(name="chase (sensor car's frame)", origin=EGO, contents="/world/**",
@@ -41,7 +41,7 @@ def blueprint(rate_hz: float = 10.0) -> rrb.Blueprint:
                                   line_grid=rrb.LineGrid3D(visible=False), overrides={**hidden, **trails}),
                 rrb.Spatial2DView(name="legend", origin="/legend"),
                 row_shares=[1.4, 1]),
-            _plots(),
+            _plots(rate_hz),
             column_shares=[3, 1.4, 1.2],
         ),
         rrb.BlueprintPanel(state="collapsed"),
@@ -50,17 +50,18 @@ def blueprint(rate_hz: float = 10.0) -> rrb.Blueprint:
     )
 
 
-def trail_ranges(rate_hz: float) -> rrb.VisibleTimeRanges:
-    """The last :data:`TRAIL_S` seconds on both timelines (each frame logs one segment per confirmed track)."""
+def cursor_ranges(rate_hz: float, before_s: float, after_s: float = 0.0) -> rrb.VisibleTimeRanges:
+    """From ``before_s`` seconds before the cursor to ``after_s`` after it, on both timelines (the trails: each
+    frame logs one segment per confirmed track, so the last 30 s draw the paths)."""
     return rrb.VisibleTimeRanges([
-        rrb.VisibleTimeRange("sim_time", start=rrb.TimeRangeBoundary.cursor_relative(seconds=-TRAIL_S),
-                             end=rrb.TimeRangeBoundary.cursor_relative()),
-        rrb.VisibleTimeRange("frame", start=rrb.TimeRangeBoundary.cursor_relative(seq=-round(TRAIL_S * rate_hz)),
-                             end=rrb.TimeRangeBoundary.cursor_relative()),
+        rrb.VisibleTimeRange("sim_time", start=rrb.TimeRangeBoundary.cursor_relative(seconds=-before_s),
+                             end=rrb.TimeRangeBoundary.cursor_relative(seconds=after_s)),
+        rrb.VisibleTimeRange("frame", start=rrb.TimeRangeBoundary.cursor_relative(seq=-round(before_s * rate_hz)),
+                             end=rrb.TimeRangeBoundary.cursor_relative(seq=round(after_s * rate_hz))),
     ])
 
 
-def _plots() -> rrb.Vertical:
+def _plots(rate_hz: float) -> rrb.Vertical:
     return rrb.Vertical(
         rrb.TimeSeriesView(name="tracks", origin="/metrics",
                            contents=["/metrics/tracks_confirmed", "/metrics/tracks_tentative"]),
@@ -71,7 +72,8 @@ def _plots() -> rrb.Vertical:
         rrb.TimeSeriesView(name="merged / split / rejected", origin="/metrics",
                            contents=["/metrics/merged_detections", "/metrics/split_detections",
                                      "/metrics/rejected_objects"]),
-        rrb.Tabs(*(rrb.TimeSeriesView(name=title, origin=f"/diagnostics/{key}") for key, title in titles()),
-                 name="track diagnostics, one tab per quantity (a line per confirmed track)"),
+        rrb.Tabs(*(rrb.TimeSeriesView(name=title, origin=f"/diagnostics/{key}", plot_legend=rrb.PlotLegend(
+            visible=False)) for key, title in titles()),
+                 name="track diagnostics, one tab per quantity (a line per track, in its colour in the scene)"),
         row_shares=[1, 1, 1, 1, 2.4],
     )

@@ -6,7 +6,8 @@ and shown in the blueprint's legend panel.
     ENTRIES                               (label, swatch kind, colour) in drawing order
 
 Swatch kinds: "dot" (points), "solid" (a filled box), "fill" (a translucent filled box), "box" (a wireframe),
-"ring" (an ellipse outline), "line", "arrow", "ids" (several colours: rerun's colour per vehicle or track id).
+"ring" (an ellipse outline), "line", "arrow"; several colours in one swatch stand for colours per vehicle id (rerun's) or per track
+(its diagnostics slot's, testbed/recording/slots.py).
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import numpy as np
 from . import palette as pal
 
 _IDS = ((230, 159, 0), (86, 180, 233), (0, 158, 115), (204, 121, 167))  # a few colours standing for "per id"
+_SLOTS = tuple(tuple(int(v) for v in c) for c in pal.SLOTS[:3])  # tracks: their slot's colour
 
 ENTRIES: tuple[tuple[str, str, tuple], ...] = (
     ("sensor car", "solid", pal.EGO),
@@ -27,10 +29,10 @@ ENTRIES: tuple[tuple[str, str, tuple], ...] = (
     ("clutter detection", "dot", pal.CLUTTER),
     ("box: merged / split / completed", "box", (pal.MERGED, pal.SPLIT, pal.COMPLETED)),
     ("rejected object", "dot", pal.REJECTED),
-    ("track: confirmed / tentative", "dot", _IDS),
-    ("track velocity (1 s)", "arrow", _IDS[:1]),
-    ("2-sigma ellipse and gate", "ring", _IDS[:2]),
-    ("track trail (last 30 s)", "line", _IDS[1:3]),
+    ("track (colour: as in the plots) / tentative", "dot", (*_SLOTS, pal.UNSLOTTED)),
+    ("track velocity (1 s)", "arrow", _SLOTS[:1]),
+    ("2-sigma ellipse and gate", "ring", _SLOTS[:2]),
+    ("track trail (last 30 s)", "line", _SLOTS[1:3]),
     ("SVSF boundary layer", "fill", pal.LAYER),
     ("occlusion shadow (full level)", "line", pal.SHADOW),
     ("ground error (full level)", "dot", (pal.OBJECT_AS_ROAD, pal.ROAD_AS_OBJECT)),

@@ -32,9 +32,12 @@ Entity paths (all in the world frame, z up, metres):
 ``world/tracks/layers``            SVSF boundary layers around the updated estimates (Boxes3D)
 ``world/tracks/trajectories``      trails: one segment per confirmed track and frame (previous estimate to this
                                    one, LineStrips3D); the blueprint shows the last 30 s of them
-``diagnostics/<group>/<id>/<name>`` per-track diagnostic series of confirmed tracks, grouped by quantity (score,
-                                   NIS, gate volume, layers, mode probabilities, ...; testbed/recording/diagnostics.py;
-                                   Scalars, sent in columns every :data:`SERIES_FLUSH_FRAMES` frames)
+``diagnostics/<group>/<name>/<k>`` per-track diagnostic series of confirmed tracks, grouped by quantity (score,
+                                   NIS, gate volume, layers, mode probabilities, ...; testbed/recording/diagnostics.py):
+                                   one series per slot k (testbed/recording/slots.py), a NaN (a gap) when the slot's
+                                   track stops being confirmed; Scalars, sent in columns every
+                                   :data:`SERIES_FLUSH_FRAMES` frames
+``diagnostics/slots/track_id/<k>`` the track id holding slot k
 ``legend``                         the colour key (static EncodedImage, PNG; testbed/recording/legend.py)
 ``metrics/<name>``                 per-frame counts: tracks, detections, clutter, points; and the measured
                                    perception statistics: ground precision / recall, P_D of the vehicles in
@@ -48,19 +51,26 @@ from __future__ import annotations
 import os
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
-import rerun as rr
+
+# Long runs are written without rerun's footer (FOOTER_MAX_FRAMES) and compacted when they close, which adds
+# it: rerun's warning about the missing footer is off unless RUST_LOG is set (set before rerun starts logging).
+os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
+import rerun as rr  # noqa: E402
 
 import sensors
 
 from ..common.safe_io import refuse_link
 from . import palette as pal
-from .diagnostics import series_label, series_path
+from .diagnostics import SLOT_IDS, series_labels, series_path
 from .layout import blueprint
 from .legend import legend_png
 from .levels import content
+from . import rrd
+from .slots import Slots, colours
 from .scene import (GROUND_LABEL, Trails, boxes, log_detections, log_lidar, log_track_extras,
                     log_track_points)
 
@@ -75,6 +85,10 @@ rerun 0.41 can block forever in ``flush()`` and ``disconnect()`` once its file w
 upstream race, seen in CI): the recording is then given up on, so a run ends with its one line within this
 bound. A slow disk that is still being written is waited for."""
 CLOSE_POLL_S = 0.5  # how often close() looks at the file's size
+BATCHING = rr.ChunkBatcherConfig(flush_tick=5.0, flush_num_bytes=16 << 20)
+"""rerun's chunk batcher: up to 5 s or 16 MiB per chunk (its default 0.2 s / 2 MiB cut a slow run's frames into
+chunks of one to three rows: 52,000 chunks for the 427 s highway benchmark); the file is compacted when the
+recording closes (testbed/recording/rrd.py)."""
 SERIES_FLUSH_FRAMES = 30
 """The metrics and per-track diagnostic series are buffered and sent in columns every N frames (3 s at 10 Hz:
 a viewer following a live run sees them within seconds)."""
@@ -82,25 +96,29 @@ FOOTER_MAX_FRAMES = 1200
 """Recordings of up to this many frames end with an rrd footer (a manifest of every chunk, for random access).
 rerun keeps that manifest in memory until the file is closed: ~17 kB per frame here (about 3.5 chunks a
 frame), 200 MB for a 20-minute run. Longer runs are written without it, as rerun advises for long streams;
-``rerun rrd optimize`` adds one afterwards."""
+the compaction when the recording closes (testbed/recording/rrd.py) adds one."""
 
 
 class Recorder:
     """Writes one run to ``path`` (``.rrd``). Call :meth:`static` once, :meth:`frame` per frame, :meth:`close`.
     ``level``: what it keeps (testbed/recording/levels.py); ``rate_hz``: the frame rate (for the trails'
-    time range in the blueprint)."""
+    time range in the blueprint); ``compact``: :meth:`close` starts the file's compaction, then call
+    :meth:`wait_compacted` (or :meth:`cancel_compaction`)."""
 
     def __init__(self, path: str | Path, recording_id: str, lidar_every: int = 1, ground_decimation: int = 16,
                  write_footer: bool = True, occlusion: sensors.OcclusionConfig | None = None,
-                 max_range_m: float = 70.0, level: str = "default", rate_hz: float = 10.0):
+                 max_range_m: float = 70.0, level: str = "default", rate_hz: float = 10.0, compact: bool = False):
         self.content = content(level)  # an unknown level fails before any file is made
         self.path = Path(path)
         self.occlusion = occlusion  # draw the occluders' shadows with it (None: no shadows)
         self.max_range_m = max_range_m
         self.lidar_every = lidar_every
         self.ground_decimation = ground_decimation
+        self.compact = compact  # merge the file's chunks when it closes (testbed/recording/rrd.py)
+        self.compaction: rrd.Compaction | None = None
         refuse_link(self.path)  # rerun opens it following links: a planted one is refused, never written through
-        self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
+        self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id, batcher_config=BATCHING)
+        self.rec.set_log_time_enabled(False)  # wall-clock log times: meaningless in a replay, an index per chunk
         self.rec.save(str(self.path), write_footer=write_footer)  # see FOOTER_MAX_FRAMES
         self.rec.send_blueprint(blueprint(rate_hz), make_active=True, make_default=True)
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -110,10 +128,12 @@ class Recorder:
             self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " ")), static=True)
         self.rec.log("legend", rr.EncodedImage(contents=legend_png(), media_type="image/png"), static=True)
         self.trails = Trails()
-        self.series: dict[tuple[int, str], tuple[list[int], list[float], list[float]]] = {}
+        self.slots = Slots()
+        self.series: dict[tuple[str, int], tuple[list[int], list[float], list[float]]] = {}
         self.metrics: dict[str, tuple[list[int], list[float], list[float]]] = {}
         self.series_frames = 0
-        self.named: set[str] = set()
+        self.named: set[str] = set()  # series whose legend name and colour are logged
+        self.drawing: set[tuple[str, int]] = set()  # (series path, slot) with a value in the last frame
         self.layers_logged = False
 
     def static(self, lanes: list[np.ndarray], roadside: np.ndarray) -> None:
@@ -137,13 +157,15 @@ class Recorder:
             log_lidar(rec, scan, perception, want.points, self.ground_decimation, want.lidar_truth, self.occlusion)
         if want.detections:
             log_detections(rec, detections, perception)
-        log_track_points(rec, ts)
-        if want.track_extras:
-            self.layers_logged = log_track_extras(rec, ts, self.layers_logged)
-        self.trails.log(rec, ts)
         status = ts.status
+        slot = self.slots.update(ts.ids, status == "confirmed")
+        colour = colours(slot)
+        log_track_points(rec, ts, colour)
+        if want.track_extras:
+            self.layers_logged = log_track_extras(rec, ts, self.layers_logged, colour)
+        self.trails.log(rec, ts, colour)
         if want.diagnostics:
-            self._diagnostics(truth, ts.ids[status == "confirmed"], ts)
+            self._diagnostics(truth, ts, slot)
         counts = dict(tracks_confirmed=int(np.count_nonzero(status == "confirmed")),
                       tracks_tentative=int(np.count_nonzero(status == "tentative")),
                       tracks_static=int(np.count_nonzero(status == "static")), detections=len(detections.z),
@@ -174,42 +196,56 @@ class Recorder:
             f, tm, vs = self.metrics.setdefault(name, ([], [], []))
             f.append(int(truth.frame)); tm.append(float(truth.time)); vs.append(float(value))
 
-    def _diagnostics(self, truth, conf: np.ndarray, ts) -> None:
-        """Buffer the confirmed tracks' (ids ``conf``) diagnostics as series ``diagnostics/<group>/<id>/<name>``;
-        sent in columns."""
-        if not ts.diagnostics:
-            return
-        row = {int(i): k for k, i in enumerate(ts.diagnostic_ids)}
-        for tid in conf:
-            k = row.get(int(tid))
-            if k is None:
-                continue
+    def _diagnostics(self, truth, ts, slot: np.ndarray) -> None:
+        """Buffer each slot's confirmed track's diagnostics (``slot`` (N,) the slot of each of ``ts.ids``) as
+        series ``diagnostics/<group>/<name>/<slot>``, and the slots' track ids; a slot whose track stopped
+        being confirmed (or was deleted) gets one NaN, a gap in its line."""
+        now: dict[tuple[str, int], float] = {}
+        for k, tid in enumerate(self.slots.track_ids()):
+            if np.isfinite(tid):
+                now[(SLOT_IDS, k)] = float(tid)
+        conf = np.flatnonzero((ts.status == "confirmed") & (slot >= 0))
+        if ts.diagnostics and len(conf):
+            row_of = {int(i): r for r, i in enumerate(ts.diagnostic_ids)}
+            pairs = [(row_of[int(ts.ids[k])], int(slot[k])) for k in conf if int(ts.ids[k]) in row_of]
             for name, values in ts.diagnostics.items():
-                v = float(values[k])
-                if np.isfinite(v):
-                    f, tm, vs = self.series.setdefault((int(tid), name), ([], [], []))
-                    f.append(int(truth.frame)); tm.append(float(truth.time)); vs.append(v)
+                path = series_path(name)
+                for r, k in pairs:
+                    v = float(values[r])
+                    if np.isfinite(v):
+                        now[(path, k)] = v
+        for key in self.drawing - now.keys():  # drawn in the last frame, not in this one: a gap
+            now[key] = np.nan
+        self.drawing = {key for key, v in now.items() if np.isfinite(v)}
+        for key, v in now.items():
+            f, tm, vs = self.series.setdefault(key, ([], [], []))
+            f.append(int(truth.frame)); tm.append(float(truth.time)); vs.append(v)
 
     def _flush_series(self) -> None:
-        """Send the buffered per-track series and the metrics, one column each."""
-        paths = {}
-        for (tid, name), cols in self.series.items():
-            path = series_path(tid, name)
-            if path not in self.named:  # the line's legend name, once
-                self.rec.log(path, rr.SeriesLines(names=series_label(tid, name)), static=True)
-                self.named.add(path)
-            paths[path] = cols
-        paths.update({f"metrics/{name}": cols for name, cols in self.metrics.items()})
-        for path, (f, tm, vs) in paths.items():
-            if f:
-                self.rec.send_columns(path, indexes=[rr.TimeColumn("frame", sequence=f),
-                                                     rr.TimeColumn("sim_time", duration=tm)],
-                                      columns=rr.Scalars.columns(scalars=vs))
+        """Send the buffered diagnostics and metrics, one column per series; a slot's line gets its legend name
+        and its slot's colour once."""
+        for (path, k), (f, tm, vs) in self.series.items():
+            entity = f"{path}/{k}"
+            if entity not in self.named:
+                name = "track id" if path == SLOT_IDS else path.rsplit("/", 1)[1]
+                self.rec.log(entity, rr.SeriesLines(names=series_labels(name, k + 1)[k], colors=colours([k])),
+                             static=True)
+                self.named.add(entity)
+            self._send(entity, f, tm, vs)
+        for name, (f, tm, vs) in self.metrics.items():
+            self._send(f"metrics/{name}", f, tm, vs)
         self.series, self.metrics = {}, {}
         self.series_frames = 0
 
+    def _send(self, path: str, f: list[int], tm: list[float], vs: list[float]) -> None:
+        if f:
+            self.rec.send_columns(path, indexes=[rr.TimeColumn("frame", sequence=f),
+                                                 rr.TimeColumn("sim_time", duration=tm)],
+                                  columns=rr.Scalars.columns(scalars=vs))
+
     def close(self) -> None:
-        """Send the buffered series, flush the recording to its file and release it; rerun's errors are raised
+        """Send the buffered series, flush the recording to its file, release it and start its compaction
+        (testbed/recording/rrd.py, in its own process: :meth:`wait_compacted`); rerun's errors are raised
         (a RuntimeError when its file writer failed). rerun works in a helper (daemon) thread: if the file does
         not grow for :data:`CLOSE_STALL_S` seconds before it is done, the recording is given up on with a
         TimeoutError and rerun's exit-time flush is switched off (it would wait on this recording forever), so
@@ -226,6 +262,23 @@ class Recorder:
             raise TimeoutError(f"no progress for {CLOSE_STALL_S:g} s, given up")
         if failure:
             raise failure[0]
+        if self.compact:
+            self.compaction = rrd.Compaction(self.path)
+
+    def wait_compacted(self) -> None:
+        """Wait for the compaction that :meth:`close` started; if it failed, the file stays as written and a
+        RuntimeWarning says why. Nothing to do when there is none (or it was waited for)."""
+        compaction, self.compaction = self.compaction, None
+        why = compaction.wait() if compaction is not None else None
+        if why:
+            warnings.warn(f"{self.path}: kept as written, not compacted ({why}); it opens slowly in the web "
+                          "viewer", RuntimeWarning, stacklevel=2)
+
+    def cancel_compaction(self) -> None:
+        """Stop a compaction still running (the file stays as written)."""
+        compaction, self.compaction = self.compaction, None
+        if compaction is not None:
+            compaction.cancel()
 
     def _finish(self, failure: list[BaseException], done: threading.Event) -> None:
         """Flush and release the recording (in close's helper thread); an exception is put in ``failure``."""

@@ -112,36 +112,38 @@ def log_detections(rec: rr.RecordingStream, detections, perception) -> None:
             labels=[str(r) for r in rj.reason], show_labels=False))
 
 
-def log_track_points(rec: rr.RecordingStream, ts) -> None:
+def log_track_points(rec: rr.RecordingStream, ts, colour: np.ndarray) -> None:
     """Track estimates (confirmed labelled compactly, :func:`track_label`; tentative, static) and the confirmed
-    tracks' velocity over 1 s."""
+    tracks' velocity over 1 s; ``colour`` (N, 3) uint8 per track (its slot's, testbed/recording/slots.py)."""
     status, pos, ids, regime = ts.status, ts.xy, ts.ids, ts.regime
     for name, sel, radius in (("confirmed", status == "confirmed", 0.5), ("tentative", status == "tentative", 0.25),
                               ("static", status == "static", 0.35)):
         rec.log(f"world/tracks/{name}", rr.Points3D(
-            np.column_stack([pos[sel], np.full(int(sel.sum()), 1.0)]), radii=radius,
+            np.column_stack([pos[sel], np.full(int(sel.sum()), 1.0)]), radii=radius, colors=colour[sel],
             labels=[track_label(i, r) for i, r in zip(ids[sel], regime[sel])], class_ids=ids[sel],
             show_labels=name == "confirmed"))
     conf = status == "confirmed"
     rec.log("world/tracks/velocity", rr.Arrows3D(origins=np.column_stack([pos[conf], np.ones(int(conf.sum()))]),
                                                  vectors=np.column_stack([ts.v[conf], np.zeros(int(conf.sum()))]),
-                                                 class_ids=ids[conf]))
+                                                 colors=colour[conf], class_ids=ids[conf]))
 
 
-def log_track_extras(rec: rr.RecordingStream, ts, layers_before: bool) -> bool:
-    """2-sigma covariance ellipses, the validation gates and the SVSF boundary layers (a box of the layer's
-    half widths around each updated estimate, thesis §2.1, §3.4; logged once any track has had one, so they
-    clear). Returns whether layers have been logged."""
+def log_track_extras(rec: rr.RecordingStream, ts, layers_before: bool, colour: np.ndarray) -> bool:
+    """2-sigma covariance ellipses, the validation gates (in each track's ``colour`` (N, 3)) and the SVSF
+    boundary layers (a box of the layer's half widths around each updated estimate, thesis §2.1, §3.4; logged
+    once any track has had one, so they clear). Returns whether layers have been logged."""
     info, pos, ids = ts.info, ts.xy, ts.ids
     ppos = ts.cov[:, :2, :2]
     given = np.isfinite(ppos).all(axis=(1, 2))
     rec.log("world/tracks/covariance", rr.LineStrips3D(ellipses(pos[given], ppos[given], 2.0, 1.0),
-                                                       class_ids=ids[given], radii=0.04))
+                                                       colors=colour[given], class_ids=ids[given], radii=0.04))
+    where = {int(i): k for k, i in enumerate(ids)}
     gated = info is not None and len(info.ids)
+    gate_colour = (np.array([colour[where[int(i)]] if int(i) in where else pal.UNSLOTTED for i in info.ids],
+                            dtype=np.uint8).reshape(-1, 3) if gated else np.zeros((0, 3), np.uint8))
     rec.log("world/tracks/gates", rr.LineStrips3D(
         ellipses(info.z_hat, info.S, float(np.sqrt(ts.gate_alpha)), 0.2) if gated else np.zeros((0, 2, 3)),
-        class_ids=info.ids if gated else [], radii=0.03))
-    where = {int(i): k for k, i in enumerate(ids)}
+        colors=gate_colour, class_ids=info.ids if gated else [], radii=0.03))
     rows = [] if info is None else [(k, where[int(i)]) for k, i in enumerate(info.ids)
                                     if int(i) in where and np.isfinite(info.layers[k]).all()]
     if not rows and not layers_before:
@@ -158,16 +160,19 @@ def log_track_extras(rec: rr.RecordingStream, ts, layers_before: bool) -> bool:
 
 class Trails:
     """The confirmed tracks' trails: each frame logs one segment per track confirmed in this frame and the
-    one before (previous estimate -> this one) to ``world/tracks/trajectories``; the blueprint shows that
-    entity over the last 30 s (testbed/recording/layout.py), which draws each track's path."""
+    one before (previous estimate -> this one, in the track's colour) to ``world/tracks/trajectories``; the
+    blueprint shows that entity over the last 30 s (testbed/recording/layout.py), which draws each track's
+    path."""
 
     def __init__(self):
         self.last: dict[int, np.ndarray] = {}
 
-    def log(self, rec: rr.RecordingStream, ts) -> None:
+    def log(self, rec: rr.RecordingStream, ts, colour: np.ndarray) -> None:
         conf = np.flatnonzero(ts.status == "confirmed")
         now = {int(ts.ids[k]): ts.xy[k] for k in conf}
+        row = {int(ts.ids[k]): k for k in conf}
         both = [i for i in now if i in self.last]
         segs = np.array([[[*self.last[i], 1.0], [*now[i], 1.0]] for i in both]).reshape(-1, 2, 3)
-        rec.log("world/tracks/trajectories", rr.LineStrips3D(segs, class_ids=both, radii=0.08))
+        rec.log("world/tracks/trajectories", rr.LineStrips3D(
+            segs, colors=colour[[row[i] for i in both]].reshape(-1, 3), class_ids=both, radii=0.08))
         self.last = now

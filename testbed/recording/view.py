@@ -22,6 +22,7 @@ from pathlib import Path
 
 from ..config import ConfigError
 from ..common.errors import one_line
+from .rrd import rerun_exe
 
 
 def cmd_view(args: argparse.Namespace) -> int:
@@ -41,7 +42,7 @@ def cmd_view(args: argparse.Namespace) -> int:
     headless = sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
     if headless and not args.web:
         print("no display found: serving the web viewer on 127.0.0.1 instead (Ctrl-C to stop)", file=sys.stderr)
-    exe = _rerun_exe()
+    exe = rerun_exe()
     env = dict(os.environ)
     env.setdefault("RUST_LOG", "warn")  # rerun's INFO lines (telemetry, "Loading ...", "Listening ...") off
     _rerun_analytics_off(exe, env)
@@ -130,24 +131,6 @@ def _check_recording(rrd: Path) -> float:
     if chunks == 0:
         raise ConfigError("", f"{rrd}: the recording holds no data; run the scenario again")
     return end_ns / 1e9
-
-
-def _rerun_exe() -> str:
-    """The rerun viewer binary itself: the ``rerun`` script of the venv is a Python wrapper that would sit
-    between us and the server, and does not pass signals on."""
-    if os.environ.get("RERUN_CLI_PATH"):
-        return os.environ["RERUN_CLI_PATH"]
-    try:
-        import rerun_cli
-
-        exe = Path(rerun_cli.__file__).parent / ("rerun.exe" if sys.platform.startswith("win") else "rerun")
-        if exe.is_file():
-            return str(exe)
-    except ImportError:
-        pass
-    import shutil
-
-    return shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
 
 
 def port_arg(text: str) -> int:

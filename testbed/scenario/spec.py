@@ -324,6 +324,9 @@ class RecordSpec:
                        "light (no point cloud), tracks (truth and tracks only); testbed run --record overrides it",
                        choices=RECORD_LEVELS)
     lidar_every: int = field(1, doc="log the point cloud every N frames (0 = never)", **non_negative())
+    max_lidar_frames: int = field(1200, doc="log the point cloud on at most this many frames: a longer run logs "
+                                  "it every ceil(frames / N)-th frame (if more than lidar_every), so that the web "
+                                  "viewer can hold the recording (0 = no limit)", **non_negative())
     ground_decimation: int = field(16, doc="the default level logs every Nth ground point (full: all)",
                                    **positive())
 
