@@ -1,10 +1,11 @@
 """Diagnostics slots: a bounded set of lines for an unbounded number of tracks.
 
-The rerun viewer's work grows with the number of entities in a recording (rerun issues #7115, #8233): one
-entity per track and quantity made a 7-minute highway run 6,876 entities, which the web viewer never finished
-loading. Instead each diagnostic quantity has one series per *slot* (``diagnostics/<group>/<name>/<k>``), and
-each confirmed track holds one slot from its first confirmation until it is deleted. The number of slots is the largest number of such tracks alive at once (15-25 on the motorway), not
-the number of tracks of the run.
+The rerun viewer's work grows with the number of entities and chunks in a recording (rerun issues #7115,
+#8233): one entity per track and quantity made a 7-minute highway run 6,876 entities, and a plot a line per
+track of the whole run. Instead each diagnostic quantity has one series per *slot*
+(``diagnostics/<group>/<name>/<k>``), and each confirmed track holds one slot from its first confirmation
+until it is deleted. The number of slots is the largest number of such tracks alive at once (15-25 on the
+motorway), not the number of tracks of the run.
 
 - A slot freed in one frame is reused in a later frame only (its series gets a NaN, a gap in the plot),
   the slot freed longest ago first, so two tracks never share a line without a break.
