@@ -11,7 +11,7 @@ claims goes to ``other``.
 
     group_of(name) -> str             the group key of a diagnostic name
     series_path(name) -> str          diagnostics/<group>/<name> (slot k's series: series_path(name)/<k>)
-    series_labels(name, n) -> list    the n slots' line names, e.g. "ct psi z 0, slot 3"
+    series_label(name, k) -> str      slot k's line name, e.g. "ct psi z 0, slot 3"
     GROUPS                            (key, plot title with units, test) in tab order
 """
 from __future__ import annotations
@@ -63,11 +63,10 @@ def series_path(name: str) -> str:
     return f"diagnostics/{group_of(name)}/{name}"
 
 
-def series_labels(name: str, n: int) -> list[str]:
-    """The names of slots 0..n-1's lines of ``name``: ``<name>, slot <k>`` with the mode's dot and underscores
-    as spaces (what hovering a line shows)."""
-    pretty = name.replace(".", " ").replace("_", " ")
-    return [f"{pretty}, slot {k}" for k in range(n)]
+def series_label(name: str, k: int) -> str:
+    """The name of slot ``k``'s line of ``name``: ``<name>, slot <k>`` with the mode's dot and underscores as
+    spaces (what hovering a line shows)."""
+    return f"{name.replace('.', ' ').replace('_', ' ')}, slot {k}"
 
 
 def titles() -> list[tuple[str, str]]:

@@ -29,7 +29,7 @@ def blueprint(rate_hz: float = 10.0) -> rrb.Blueprint:
     """The chase view, the top-down view, the legend, the count plots and the diagnostics tabs; panels
     collapsed."""
     hidden = {"/world/lidar/truth": rrb.EntityBehavior(visible=False)}
-    trails = {"/world/tracks/trajectories": cursor_ranges(rate_hz, TRAIL_S)}
+    trails = {"/world/tracks/trajectories": trail_ranges(rate_hz)}
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(name="chase (sensor car's frame)", origin=EGO, contents="/world/**",
@@ -41,7 +41,7 @@ def blueprint(rate_hz: float = 10.0) -> rrb.Blueprint:
                                   line_grid=rrb.LineGrid3D(visible=False), overrides={**hidden, **trails}),
                 rrb.Spatial2DView(name="legend", origin="/legend"),
                 row_shares=[1.4, 1]),
-            _plots(rate_hz),
+            _plots(),
             column_shares=[3, 1.4, 1.2],
         ),
         rrb.BlueprintPanel(state="collapsed"),
@@ -50,18 +50,17 @@ def blueprint(rate_hz: float = 10.0) -> rrb.Blueprint:
     )
 
 
-def cursor_ranges(rate_hz: float, before_s: float, after_s: float = 0.0) -> rrb.VisibleTimeRanges:
-    """From ``before_s`` seconds before the cursor to ``after_s`` after it, on both timelines (the trails: each
-    frame logs one segment per confirmed track, so the last 30 s draw the paths)."""
+def trail_ranges(rate_hz: float) -> rrb.VisibleTimeRanges:
+    """The last :data:`TRAIL_S` seconds on both timelines (each frame logs one segment per confirmed track)."""
     return rrb.VisibleTimeRanges([
-        rrb.VisibleTimeRange("sim_time", start=rrb.TimeRangeBoundary.cursor_relative(seconds=-before_s),
-                             end=rrb.TimeRangeBoundary.cursor_relative(seconds=after_s)),
-        rrb.VisibleTimeRange("frame", start=rrb.TimeRangeBoundary.cursor_relative(seq=-round(before_s * rate_hz)),
-                             end=rrb.TimeRangeBoundary.cursor_relative(seq=round(after_s * rate_hz))),
+        rrb.VisibleTimeRange("sim_time", start=rrb.TimeRangeBoundary.cursor_relative(seconds=-TRAIL_S),
+                             end=rrb.TimeRangeBoundary.cursor_relative()),
+        rrb.VisibleTimeRange("frame", start=rrb.TimeRangeBoundary.cursor_relative(seq=-round(TRAIL_S * rate_hz)),
+                             end=rrb.TimeRangeBoundary.cursor_relative()),
     ])
 
 
-def _plots(rate_hz: float) -> rrb.Vertical:
+def _plots() -> rrb.Vertical:
     return rrb.Vertical(
         rrb.TimeSeriesView(name="tracks", origin="/metrics",
                            contents=["/metrics/tracks_confirmed", "/metrics/tracks_tentative"]),

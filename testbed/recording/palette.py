@@ -25,7 +25,6 @@ LAYER = (150, 60, 255, 80)  # SVSF boundary layers: translucent violet fill
 SHADOW = (90, 90, 140, 110)  # occlusion shadows: faint, thin
 OBJECT_AS_ROAD = (230, 30, 30)  # ground-segmentation error: an object point called road
 ROAD_AS_OBJECT = (230, 0, 230)  # ground-segmentation error: a road point called object
-PER_ID = "per id"  # truth vehicles: rerun's colour of the class id
 SLOTS = np.array([[0, 114, 178], [230, 159, 0], [0, 158, 115], [204, 121, 167], [86, 180, 233], [240, 228, 66],
                   [148, 103, 189], [140, 86, 75], [23, 190, 207], [188, 189, 34], [227, 119, 194], [255, 187, 120],
                   [152, 223, 138], [174, 199, 232], [197, 176, 213], [196, 156, 148], [219, 219, 141],

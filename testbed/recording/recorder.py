@@ -65,7 +65,7 @@ import sensors
 
 from ..common.safe_io import refuse_link
 from . import palette as pal
-from .diagnostics import SLOT_IDS, series_labels, series_path
+from .diagnostics import SLOT_IDS, series_label, series_path
 from .layout import blueprint
 from .legend import legend_png
 from .levels import content
@@ -228,7 +228,7 @@ class Recorder:
             entity = f"{path}/{k}"
             if entity not in self.named:
                 name = "track id" if path == SLOT_IDS else path.rsplit("/", 1)[1]
-                self.rec.log(entity, rr.SeriesLines(names=series_labels(name, k + 1)[k], colors=colours([k])),
+                self.rec.log(entity, rr.SeriesLines(names=series_label(name, k), colors=colours([k])),
                              static=True)
                 self.named.add(entity)
             self._send(entity, f, tm, vs)

@@ -4,8 +4,9 @@ A run sends its frames as it goes (rerun's batcher, every :data:`~testbed.record
 and its per-track series every few seconds of simulated time, so a viewer following a live run sees them
 soon; the file then holds many small chunks (23,339 for the 427 s highway benchmark at the default level).
 The web viewer's work grows with the number of chunks: that file made the page unresponsive from 202 s and
-it had not shown the last frame after 7 minutes; compacted (762 chunks, ``rerun rrd optimize``, 3 s) it
-showed the last frame 24.6 s after the page was opened (benchmarks/bench_web_viewer.py, README).
+it had not shown the last frame after 7 minutes; compacted (762-824 chunks, ``rerun rrd optimize``, 3 s) it
+showed the last frame 14-29 s after the page was opened in 4 of 7 tries (benchmarks/bench_web_viewer.py,
+README; the other 3 and the viewer's memory limit: ``record.max_lidar_frames``, testbed/recording/levels.py).
 """
 from __future__ import annotations
 
