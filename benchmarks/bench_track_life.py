@@ -1,7 +1,16 @@
-"""Track life cycle of finished runs: the thesis's scores, the largest gate any confirmed track reached, and why
-cars were missed or relabelled (issue 17's diagnosis, from a run folder's tables alone).
+"""Track life cycle: the thesis's scores, the largest gate any confirmed track reached, and why cars were missed
+or relabelled, from run folders' tables alone; or runs made here before and after the road-map aid (issue 29).
 
     python benchmarks/bench_track_life.py runs/highway_benchmark [more run folders ...]
+    python benchmarks/bench_track_life.py --compare [--scenarios cut_in_out u_turn ...] [--trackers jpda-kf ...]
+        [--seeds 0 1 2] [--duration S] [--out runs/bench_track_life]
+
+--compare runs each scenario (full length unless --duration) and seed with each tracker twice, from one sensing
+cache per perception: "before" with the road-map aid off (no curvature input, no lane keeping, the
+max_unseen_s / isotropic max_position_std_m life bounds, and the perception's crown-over-trunk test without its
+lift_min_top_m bound: today's main before issue 29) and "after" (the defaults), and prints one row per
+(scenario, tracker, variant): TP / FP / break-up % in the thesis's form (per car seen, summed over the seeds),
+the largest confirmed gate, and the break-ups by cause (testbed.scoring.events).
 
 Per run folder (written by `testbed run`, tables kept): TP / FP / break-ups in the thesis's form (per car
 seen, scores.json), the largest gate area [m^2] of a confirmed track and how many confirmed tracks passed
@@ -9,9 +18,8 @@ seen, scores.json), the largest gate area [m^2] of a confirmed track and how man
 
 * a car seen but never tracked is **barely detected** (its detections, by provenance, in fewer than 5
   frames: beams hit it, perception did not make a vehicle of it), or **well detected, never confirmed**;
-* a break-up (a car whose matched confirmed label changes) is an **occlusion or detector miss** when the car
-  had no detection for more than half of the frames between the two labels, a **swap** when the new label
-  was already another car's, else a **deletion** (the tracker dropped a track while the car was detected).
+* a break-up (a car whose matched confirmed label changes) by its cause, testbed.scoring.events: swap,
+  manoeuvre, merge, occlusion, deletion while visible.
 """
 from __future__ import annotations
 
@@ -22,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
+from testbed.scoring.events import CAUSES, breakup_events
 from testbed.scoring.rates import assign_frames
 
 GATE_BOUND_M2 = 1000.0
@@ -67,25 +76,10 @@ def diagnose(run: Path) -> dict:
     seen = set(truth[(~truth.is_ego) & (truth.n_points >= sc["visible_min_points"])].vehicle_id.unique().tolist())
     det_frames = dets[dets.provenance >= 0].groupby("provenance").frame.apply(lambda f: set(f.tolist())).to_dict()
     labels = matched_labels(truth, tb["tracks"], sc["match_distance_m"])
-    owner: dict[int, int] = {}
-    for car, pairs in labels.items():
-        for _, tid in pairs:
-            owner.setdefault(tid, car)
     missed = sorted(seen - set(labels))
     barely = sum(len(det_frames.get(c, ())) < WELL_DETECTED_FRAMES for c in missed)
-    causes = {"occlusion or detector miss": 0, "swap": 0, "deletion": 0}
-    for car, pairs in labels.items():
-        for (f0, a), (f1, b) in zip(pairs, pairs[1:]):
-            if a == b:
-                continue
-            between = range(f0 + 1, f1)
-            undetected = sum(f not in det_frames.get(car, ()) for f in between)
-            if len(between) and undetected > len(between) / 2:
-                causes["occlusion or detector miss"] += 1
-            elif owner.get(b, car) != car:
-                causes["swap"] += 1
-            else:
-                causes["deletion"] += 1
+    events = breakup_events(truth, tb["tracks"], dt=1.0 / float(meta["config"].get("rate_hz", 10.0)))
+    causes = {c: int((events.cause == c).sum()) for c in CAUSES}
     gate, over = largest_gate(tb["tracks"], tb["diagnostics"])
     s = meta["scores"]
     return dict(run=str(run), tracker=meta["tracker"], seed=meta["seed"], tp_pct=s["tp_pct"], fp_pct=s["fp_pct"],
@@ -95,17 +89,84 @@ def diagnose(run: Path) -> dict:
                 ms_tracking=meta["timings_ms_per_frame"]["tracking"])
 
 
-def main(argv: list[str]) -> int:
-    import argparse
+BEFORE = {"tracker.management.road_curvature": False, "tracker.management.road_lane_keeping": False,
+          "tracker.management.road_life": False, "sensor.perception.lift_min_top_m": 0.0}
+"""The overrides that give the behaviour before issue 29 (the road-map aid off, the old perception test)."""
 
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("runs", nargs="+", help="run folders written by `testbed run` (tables kept)")
-    rows = [diagnose(Path(a)) for a in p.parse_args(argv).runs]
+
+def compare(scenarios, trackers, seeds, duration, out: Path) -> list[dict]:
+    """Run every (scenario, seed, tracker) before and after (module docstring); one diagnosed row per run."""
+    from testbed import load_scenario, run
+
+    rows = []
+    for name in scenarios:
+        for seed in seeds:
+            for variant, extra in (("before", BEFORE), ("after", {})):
+                over = {"seed": seed, **extra, **({"duration_s": duration} if duration else {})}
+                scn = load_scenario(name, over)
+                for trk in trackers:
+                    folder = out / name / f"seed{seed}" / variant / trk
+                    run(scn, tracker=trk, out=folder, record=False, sensing_cache=out / "cache")
+                    rows.append(dict(scenario=name, variant=variant, **diagnose(folder)))
+                    print(f"  {name} seed {seed} {variant} {trk}: break-ups {rows[-1]['breakup_pct']:.2f} %",
+                          file=sys.stderr, flush=True)
+    return rows
+
+
+def summary(rows: list[dict]) -> list[dict]:
+    """Per (scenario, tracker, variant), summed over seeds: the thesis's TP / FP / break-up % per car seen, the
+    largest gate and the break-ups by cause."""
+    out: dict[tuple, dict] = {}
+    for r in rows:
+        k = (r["scenario"], r["tracker"], r["variant"])
+        a = out.setdefault(k, dict(scenario=k[0], tracker=k[1], variant=k[2], seeds=0, cars_seen=0, tp=0.0, fp=0.0,
+                                   breakups=0.0, largest_gate_m2=0.0, **{f"breakup_{c}": 0 for c in CAUSES}))
+        n = r["cars_seen"]
+        a["seeds"] += 1
+        a["cars_seen"] += n
+        a["tp"] += r["tp_pct"] * n / 100
+        a["fp"] += r["fp_pct"] * n / 100
+        a["breakups"] += r["breakup_pct"] * n / 100
+        a["largest_gate_m2"] = max(a["largest_gate_m2"], r["largest_gate_m2"])
+        for c in CAUSES:
+            a[f"breakup_{c}"] += r[f"breakup_{c}"]
+    for a in out.values():
+        n = max(a["cars_seen"], 1)
+        a["tp_pct"], a["fp_pct"], a["breakup_pct"] = (100 * a.pop(x) / n for x in ("tp", "fp", "breakups"))
+    return list(out.values())
+
+
+def print_table(rows: list[dict]) -> None:
     keys = list(rows[0])
     print("| " + " | ".join(keys) + " |")
     print("|" + "---|" * len(keys))
     for r in rows:
         print("| " + " | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in r.values()) + " |")
+
+
+def main(argv: list[str]) -> int:
+    import argparse
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("runs", nargs="*", help="run folders written by `testbed run` (tables kept)")
+    p.add_argument("--compare", action="store_true", help="run before/after the road-map aid (module docstring)")
+    p.add_argument("--scenarios", nargs="+", default=["cut_in_out", "u_turn", "interchange", "dense_motorway",
+                                                       "highway_benchmark"])
+    p.add_argument("--trackers", nargs="+", default=["jpda-kf"], help="tracker names, or 'named' for the papers'")
+    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    p.add_argument("--duration", type=float, default=None, help="seconds per run (default: each scenario's)")
+    p.add_argument("--out", type=Path, default=Path("runs/bench_track_life"))
+    a = p.parse_args(argv)
+    if a.compare:
+        from trackers.registry import PAPER_TRACKERS
+
+        trackers = list(PAPER_TRACKERS) if a.trackers == ["named"] else a.trackers
+        rows = compare(a.scenarios, trackers, a.seeds, a.duration, a.out)
+        print_table(summary(rows))
+        return 0
+    if not a.runs:
+        p.error("give run folders, or --compare")
+    print_table([diagnose(Path(r)) for r in a.runs])
     return 0
 
 

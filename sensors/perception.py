@@ -251,6 +251,7 @@ class PerceptionConfig:
     lift_trunk_m: float = 1.0  # lifted: the points under the mid-height span less than this (a trunk) ...
     lift_crown_m: float = 2.0  # lifted: ... and those above it at least this (a crown)
     lift_floor_m: float = 2.0  # lifted: or its lowest point is higher than this (a crown alone)
+    lift_min_top_m: float = 2.2  # lifted over a trunk: only an object whose top reaches this (a crown starts 2.2 m up)
     edge_on_width_m: float = 1.0  # edge_on: a far low object spanning less than this across the line of sight
     grazing_deg: float = 30.0  # edge_on: ... or a line thinner than that within this angle of the line of sight
     max_truck_length_m: float = 20.0  # longer footprint side at most when the top reaches a truck size prior
@@ -281,7 +282,7 @@ class PerceptionConfig:
                      "lift_trunk_m", "lift_crown_m", "lift_floor_m", "max_truck_length_m", "split_gap_m",
                      "split_min_width_m", "min_split_gap_m", "merge_gap_m", "link_max_length_m"):
             checks.positive(f"PerceptionConfig.{name}", getattr(self, name))
-        for name in ("min_extent_m", "min_height_m", "roi_margin_m", "height_margin_m"):
+        for name in ("min_extent_m", "min_height_m", "roi_margin_m", "height_margin_m", "lift_min_top_m"):
             checks.positive(f"PerceptionConfig.{name}", getattr(self, name), allow_zero=True)
         checks.positive_int("PerceptionConfig.max_splits", self.max_splits)
         checks.choice("PerceptionConfig.fit", self.fit, FITS)
@@ -804,10 +805,13 @@ def _lifted(z: np.ndarray, st: _Stats, cfg: PerceptionConfig) -> np.ndarray:
     Over its trunk: the points below the object's mid-height (between its lowest and highest point) span
     less than lift_trunk_m in x and y while those above span at least lift_crown_m. A vehicle's body
     reaches down along its whole near face (a car seen from behind: the lower rear spans its width under
-    the roof rings). Alone: its lowest point is above lift_floor_m. No car reaches that high, and a car
-    in front of a vehicle hides it only below the car's roof (the sensor is higher)."""
+    the roof rings). Only an object whose top reaches lift_min_top_m can be a crown over its trunk: a car whose
+    lower body a guard rail or a nearer car hides (a car on the far side of a bend behind the barrier) shows a
+    narrow low part under a wide roof too, but its top stays below a crown's lowest lift (2.2 m, the roadside
+    trees of testbed/world/roadside.py). Alone: its lowest point is above lift_floor_m. No car reaches that high,
+    and a car in front of a vehicle hides it only below the car's roof (the sensor is higher)."""
     bottom, low_span, high_span = perception_jit.lift_spans(z, st.xy, st.top, st.starts, st.n)
-    crown_on_trunk = (low_span < cfg.lift_trunk_m) & (high_span >= cfg.lift_crown_m)
+    crown_on_trunk = (low_span < cfg.lift_trunk_m) & (high_span >= cfg.lift_crown_m) & (st.top >= cfg.lift_min_top_m)
     return crown_on_trunk | (bottom > cfg.lift_floor_m)
 
 

@@ -8,6 +8,7 @@ the nearest sample is within 0.5 m along the lane of the query point's foot).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,6 +60,29 @@ class RoadMap:
         checks.positive("margin_m", margin_m, allow_zero=True)
         dist, k = self.nearest(xy)
         return dist <= self.half_width[k] + margin_m
+
+    @functools.cached_property
+    def curvature(self) -> np.ndarray:
+        """(P,) signed curvature of the lane at each centre sample [1/m] (> 0: the lane turns left), from the
+        heading change to the next sample of the same lane: the sample nearest to 1 m ahead along the heading,
+        within 0.5 m of that point and turned by less than 0.5 rad (0 at a lane's end)."""
+        t = np.column_stack([np.cos(self.heading), np.sin(self.heading)])
+        dist, k = self._tree.query(self.centre + t)
+        step = np.hypot(*(self.centre[k] - self.centre).T)
+        turn = np.angle(np.exp(1j * (self.heading[k] - self.heading)))
+        ok = (dist <= 0.5) & (step >= 0.2) & (np.abs(turn) < 0.5)
+        return np.where(ok, turn / np.where(ok, step, 1.0), 0.0)
+
+    def lane_frame(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The lane nearest to each of xy (M, 2) [m]: its heading (M,) [rad], the signed offset (M,) [m] of xy
+        from its centre line (> 0: left of the lane's direction), its half width (M,) [m] and curvature (M,)
+        [1/m], all at the nearest centre sample."""
+        q = checks.float_array("xy", xy, (None, 2))
+        _, k = self.nearest(q)
+        h = self.heading[k]
+        d = q - self.centre[k]
+        offset = -np.sin(h) * d[:, 0] + np.cos(h) * d[:, 1]
+        return h, offset, self.half_width[k], self.curvature[k]
 
     def heading_at(self, xy: np.ndarray) -> np.ndarray:
         """(M,) lane heading [rad] of the nearest centre sample to each of xy (M, 2) [m]."""

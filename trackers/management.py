@@ -18,6 +18,16 @@ UpdateTimeDeleter): a track whose position standard deviation (square root of th
 position covariance after the scan) exceeds `max_position_std_m`, or that has gone `max_unseen_s` without a
 gated measurement, is deleted: a track the sensor cannot see (P_D ~ 0, so no score loss) coasts until what is
 known about it is no longer worth a track.
+Life with a road map [D] (when the caller gives the road, trackers.road): a confirmed track the sensor cannot
+see (occlusion-aware P_D ~ 0, so no score loss) stays alive while it is still credible for re-acquisition:
+its cross-lane std at most `max_position_std_m` (lane keeping holds it within a lane), its gate at most
+`max_gate_m2` (checked on the predicted gate, before association: a track leaves before its gate passes the
+bound; a hidden car's along-lane std grows as sigma_v t^(3/2): with sigma_v = 4 m/s^2 at 10 Hz and a 4 m
+lane, the 1000 m^2 gate at alpha = 16 is reached after about 7.5 s hidden) and, while it has no gated
+measurement, no other confirmed track's predicted position inside its 1-sigma region (`credible_d2`: it could
+not tell its car from that one). `max_unseen_s` is then not applied: the gate bound is the time bound, set by
+the road (lane width) and the track's own uncertainty. A track the sensor should see but does not detect
+loses score and is deleted by the score rule as without a road.
 Initiation [D]: a measurement starts a track unless it lies in the gate of a track that is well localised
 (gate standard deviation, sqrt of the largest eigenvalue of S, at most `claim_std_m`) or young and just detected
 (at most `claim_age_scans` old, detected in the last scan), or lies within `claim_radius_m` of the track's
@@ -105,6 +115,26 @@ class ManagementParams:
     claim_age_scans: int = param(3, "a track at most this many scans old that was detected in the last scan claims "
                                  "its gated measurements whatever its gate std (a young track's S is wide) [D]",
                                  check=POSITIVE, bounds=(1, WINDOW_MAX))
+    road_curvature: bool = param(True, "with a road from the caller: the lane's centripetal acceleration "
+                                 "v_t^2 kappa enters each prediction as a known input (trackers.road) [D]")
+    road_lane_keeping: bool = param(True, "with a road from the caller: a confirmed track with no gated measurement "
+                                    "is updated with the pseudo-measurement 'in its nearest lane' (cross-lane offset "
+                                    "0, variance w^2/3 for half width w; trackers.road) [D]")
+    lane_keeping_max_cross_mps: float = param(0.5, "lane keeping only for a track whose velocity across its lane "
+                                              "is at most this [m/s]: a car changing lanes (1.5-5 m/s across) "
+                                              "coasts on to its new lane instead of being held in the old one [D]",
+                                              check=POSITIVE)
+    road_life: bool = param(True, "with a road from the caller: a track lives while credible for re-acquisition "
+                            "(cross-lane std, gate area, neighbours; module docstring) instead of the max_unseen_s "
+                            "clock and the isotropic max_position_std_m [D]")
+    max_gate_m2: float | None = param(1000.0, "with a road from the caller: delete a track whose gate (at the "
+                                      "associator's gate_alpha) exceeds this area [m^2]; it replaces max_unseen_s "
+                                      "and bounds a hidden track's life (module docstring) [D]; None: no bound",
+                                      check=POSITIVE)
+    credible_d2: float | None = param(1.0, "with a road from the caller: delete a track without a gated measurement "
+                                      "whose 1-sigma region (squared Mahalanobis distance under its own S at most "
+                                      "this) holds another confirmed track's predicted position: it can no longer "
+                                      "tell its car from that one [D]; None: no such test", check=POSITIVE)
     tentative_misses: int = param(2, "missed scans in a row a tentative track may take below the SPRT deletion "
                                   "threshold: it is judged against T_d + (tentative_misses - 1) ln(1 - P_D P_G) "
                                   "(1: the plain SPRT) [D]", check=POSITIVE, bounds=(1, WINDOW_MAX))

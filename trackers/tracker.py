@@ -19,6 +19,7 @@ from trackers.gating import gate, mahalanobis2_and_log_gaussian
 from trackers.initiation import pair_candidates, single_point, two_point
 from trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
                                  position_std, score_decide, score_increment)
+from trackers.road import RoadInput, centripetal_input, cross_and_along_std, input_shift, lane_pseudo_measurement
 from trackers.state import FilterState
 from trackers.trackloss.regime import (RegimeState, advance, alpha_of, assess_windows, gamma_best_fast, initial_state,
                                       windows_from_histories)
@@ -178,22 +179,29 @@ class Tracker:
         return self.association.gate_probability(self.filter.measurement.ndim)
 
     def step(self, tracks: tuple[Track, ...], Z: np.ndarray, dt: float, next_id: int,
-             pd: PdInput = None) -> StepResult:
+             pd: PdInput = None, road: RoadInput | None = None) -> StepResult:
         """One scan. tracks: current tracks; Z (M, m) measurements; dt [s] since the last scan; next_id: label
         for the next new track; pd: detection probability per track, as an array (T,) over the non-candidate
         tracks in input order, or a function of their predicted measurements (T, m) -> (T,) (occlusion-aware
-        P_D), or None for the associator's pd. Raises ValueError on non-finite Z or dt before any update."""
+        P_D), or None for the associator's pd; road: the lane map as a function of positions (trackers.road) or
+        None (no road-map aid; the life bounds max_position_std_m and max_unseen_s). Raises ValueError on
+        non-finite Z or dt before any update."""
         Z = _check_measurements(Z, self.filter.measurement.ndim)
         dt = float(dt)
         if not math.isfinite(dt) or dt < 0:
             raise ValueError(f"dt must be finite and >= 0, got {dt}")
         candidates = tuple(tr for tr in tracks if tr.candidate)
         live = tuple(tr for tr in tracks if not tr.candidate)
-        pred = self._predict(live, dt)
-        inp = self._gate(pred, Z, self._pd(pd, pred))
+        pred = self._predict(live, dt, road)
+        pdt = self._pd(pd, pred)
+        live, pred, pdt, too_wide = self._drop_wide(live, pred, pdt, road)
+        inp = self._gate(pred, Z, pdt)
         W, w0, extra = self._associate(inp)
         states = batch_update(self.filter, pred.states, inp.nu, W, w0)
-        survivors, deleted, diag = self._manage(live, states, inp, W, w0, pred, dt)
+        if road is not None and self.management.road_lane_keeping:
+            states = self._keep_lanes(live, states, W, road)
+        survivors, deleted, diag = self._manage(live, states, inp, W, w0, pred, dt, road)
+        deleted = too_wide + deleted
         for k, v in extra.items():
             diag[k] = np.asarray(v, dtype=np.float64)
         births, next_id = self._initiate(candidates, live, Z, inp, dt, next_id, pred)
@@ -202,9 +210,13 @@ class Tracker:
         return StepResult(tracks=tuple(survivors + births), next_id=int(next_id), deleted=tuple(deleted), info=info)
 
     # ------------------------------------------------------------------ roles
-    def _predict(self, live: tuple[Track, ...], dt: float) -> _Prediction:
+    def _predict(self, live: tuple[Track, ...], dt: float, road: RoadInput | None = None) -> _Prediction:
         flt, m = self.filter, self.filter.measurement.ndim
         states = batch_predict(flt, [tr.state for tr in live], dt)
+        if road is not None and self.management.road_curvature and live and dt > 0 and hasattr(flt, "shift_many"):
+            kin, _ = self.kinematics(live)
+            if kin.shape[1] == 4:  # the road input of trackers.road, at the previous estimates
+                states = flt.shift_many(states, input_shift(centripetal_input(road, kin[:, :2], kin[:, 2:]), dt))
         z_hat, S = batch_predicted_measurements(flt, states)
         T = len(live)
         layers = np.full((T, m), np.nan)
@@ -213,6 +225,20 @@ class Tracker:
             if lay is not None:
                 layers[t] = lay
         return _Prediction(states, z_hat.reshape(T, m), S.reshape(T, m, m), layers)
+
+    def _drop_wide(self, live, pred: _Prediction, pdt: np.ndarray, road: RoadInput | None):
+        """With a road and `max_gate_m2`: the tracks whose predicted gate exceeds it leave before association (a
+        track is deleted before its gate passes the bound, not after); returns the rest and the dropped."""
+        mp = self.management
+        if road is None or not mp.road_life or mp.max_gate_m2 is None or not live:
+            return live, pred, pdt, []
+        wide = gate_volume(pred.S, self.association.gate_alpha) > mp.max_gate_m2
+        if not wide.any():
+            return live, pred, pdt, []
+        keep = np.flatnonzero(~wide)
+        kept = _Prediction([pred.states[t] for t in keep], pred.z_hat[keep], pred.S[keep], pred.layers[keep])
+        gone = [_evolve(live[t], state=pred.states[t], age=live[t].age + 1) for t in np.flatnonzero(wide)]
+        return tuple(live[t] for t in keep), kept, pdt[keep], gone
 
     def _pd(self, pd: PdInput, pred: _Prediction) -> np.ndarray:
         T = len(pred.states)
@@ -255,7 +281,28 @@ class Tracker:
         with np.errstate(divide="ignore"):
             return score + score_increment(inp.log_lik + np.log(rho), inp.gated & (rho > 0.0), pd, inp.pg, lam)
 
-    def _manage(self, live, states, inp: AssociationInput, W, w0, pred: _Prediction, dt: float):
+    def _keep_lanes(self, live, states: list, W: np.ndarray, road: RoadInput) -> list:
+        """Lane keeping (trackers.road): the confirmed tracks the scan did not update (association weights W (T, M)
+        summing to less than 1/2) get the pseudo-measurement 'in the nearest lane' (filters with a
+        `pseudo_update_many` hook only)."""
+        flt = self.filter
+        idx = [t for t, tr in enumerate(live) if tr.confirmed and W[t].sum() < 0.5]
+        if not idx or not hasattr(flt, "pseudo_update_many"):
+            return states
+        mot = flt.motion
+        kin = np.array([flt.output(states[t])[0][list(mot.position[:2]) + list(mot.velocity[:2])] for t in idx])
+        h, y, r = lane_pseudo_measurement(road, kin[:, :2])
+        steady = np.abs(np.einsum("tk,tk->t", h, kin[:, 2:])) <= self.management.lane_keeping_max_cross_mps
+        steady &= y * y <= 3.0 * r  # on the road: within its lane's half width (r = w^2 / 3); not off-road objects
+        idx = [t for t, ok in zip(idx, steady) if ok]  # not while changing lanes
+        out = list(states)
+        if idx:
+            for t, s in zip(idx, flt.pseudo_update_many([states[t] for t in idx], h[steady], y[steady], r[steady])):
+                out[t] = s
+        return out
+
+    def _manage(self, live, states, inp: AssociationInput, W, w0, pred: _Prediction, dt: float,
+                road: RoadInput | None = None):
         mp, T = self.management, len(live)
         hit = inp.gated.any(axis=1)
         score = self._score(live, inp, W)
@@ -273,7 +320,10 @@ class Tracker:
                                              miss_loss(self.association.pd, inp.pg))
         std = self._position_std(states)
         diag["position_std"] = std
-        delete = delete | self._beyond_bounds(std, unseen)
+        if road is None or not mp.road_life:
+            delete = delete | self._beyond_bounds(std, unseen)
+        else:
+            delete = delete | self._not_credible(states, inp, pred, W.sum(axis=1) >= 0.5, confirmed, road)
         ids = np.array([tr.id for tr in live], dtype=np.int64).reshape(T)
         dup = duplicate_counts(pred.z_hat, pred.S, inp.gated, confirmed & was_confirmed, ids,
                                np.array([tr.duplicate_scans for tr in live], dtype=np.int64).reshape(T), mp.merge_d2,
@@ -316,6 +366,30 @@ class Tracker:
             out |= std > mp.max_position_std_m
         if mp.max_unseen_s is not None:
             out |= unseen > mp.max_unseen_s + 1e-9
+        return out
+
+    def _not_credible(self, states, inp: AssociationInput, pred: _Prediction, updated: np.ndarray,
+                      confirmed: np.ndarray, road: RoadInput) -> np.ndarray:
+        """(T,) tracks no longer credible for re-acquisition with a road map [D] (trackers.management, "Life with
+        a road map"): cross-lane std above max_position_std_m or, not updated by the scan
+        (``updated`` (T,): association weights summing to 1/2 or more), another confirmed track's predicted
+        position within credible_d2 under the track's own S."""
+        mp, T = self.management, len(states)
+        out = np.zeros(T, dtype=bool)
+        if T == 0:
+            return out
+        pos = list(self.filter.motion.position[:2])
+        outs = [self.filter.output(s) for s in states]
+        xy = np.array([x[pos] for x, _ in outs])
+        if mp.max_position_std_m is not None:
+            cross, _ = cross_and_along_std(road, xy, np.array([P[np.ix_(pos, pos)] for _, P in outs]))
+            out |= cross > mp.max_position_std_m
+        others = np.flatnonzero(confirmed)
+        if mp.credible_d2 is not None and others.size > 1 and self.filter.measurement.linear:  # z = position
+            d = pred.z_hat[:, None, :2] - pred.z_hat[None, others, :2]  # (T, C, 2)
+            d2 = np.einsum("tck,tck->tc", d, np.linalg.solve(pred.S[:, None, :2, :2], d[..., None])[..., 0])
+            d2[others[None, :] == np.arange(T)[:, None]] = np.inf  # not itself
+            out |= ~updated & (d2 <= mp.credible_d2).any(axis=1)
         return out
 
     def _regimes(self, live, histories, diag: dict[str, np.ndarray]) -> list[RegimeState]:

@@ -146,7 +146,7 @@ def tracker_frame(sensed: SensedFrame, dt: float) -> Frame:
     """What a tracker is fed of a sensed frame (testbed.tracking.Frame): the detections without their truth."""
     d = sensed.detections
     return Frame(index=sensed.index, time=sensed.time, dt=dt, z=d.z, R=d.R, extent=d.extent, heading=d.heading,
-                 pd=sensed.pd)
+                 pd=sensed.pd, road=sensed.road.lane_frame if sensed.road is not None else None)
 
 
 def track(frames: Iterable[SensedFrame], tracker, scn: Scenario,

@@ -138,7 +138,7 @@ class SensingCache:
             columns = None if scn.sensor.occlusion_pd else ["frame", "origin", "pose"]
             tables = {n: pq.read_table(entry / f"{n}.parquet") for n in ("truth", "detections")}
             tables["ranges"] = pq.read_table(entry / "ranges.parquet", columns=columns)
-            road = _road(pq.read_table(entry / "road.parquet")) if scn.sensor.occlusion_pd else None
+            road = _road(pq.read_table(entry / "road.parquet"))
             frames = _decode(scn, meta, tables, road)  # checks the tables' sizes before the first frame
         except Exception as err:  # noqa: BLE001 - any damage: sense again
             warnings.warn(CacheWarning(f"sensing cache {entry}: damaged ({type(err).__name__}: "
@@ -314,4 +314,4 @@ def _frames_of(scn, n, shape, az, el, dtype, tr, det, origins, poses, blobs, roa
             ranges = no_ranges
         scan = sensors.Scan(points=empty3, source=empty_i, origin=origins[f], ranges=ranges, ray=empty_i,
                             azimuths=az, elevations=el, pose=poses[f])
-        yield SensedFrame(truth, scan, None, dets, vis, pd_for(scan) if pd_for is not None else None, scan)
+        yield SensedFrame(truth, scan, None, dets, vis, pd_for(scan) if pd_for is not None else None, scan, road)

@@ -32,7 +32,8 @@ class SensedFrame:
     LiDAR points on each vehicle of truth, in_range (K,) bool centre within the LiDAR's range). pd: the
     occlusion-aware P_D ``pd(xy (T, 2), nominal, trucks=None) -> (T,)``, or None when the scenario has it off.
     pd_scan: the scan ``pd`` reads (:func:`pd_scan`: no points, the range image without ground returns in 2 mm
-    steps), the same whether sensed live or read from a sensing cache.
+    steps), the same whether sensed live or read from a sensing cache. road: the perception's lane map
+    (sensors.RoadMap), the same live or cached, or None.
     """
 
     truth: object
@@ -42,6 +43,7 @@ class SensedFrame:
     visibility: tuple[np.ndarray, np.ndarray]
     pd: Callable[..., np.ndarray] | None
     pd_scan: sensors.Scan | None = None
+    road: sensors.RoadMap | None = None
 
     @property
     def index(self) -> int:
@@ -71,7 +73,7 @@ def sense_simulation(scn: Scenario, sim, static: np.ndarray, road: sensors.RoadM
         scan, perc, dets = sense_frame(truth, static, scn, rngs, watch, road)
         bare = pd_scan(scan, perc.is_ground)
         yield SensedFrame(truth, scan, perc, dets, visibility(truth, scan, reach),
-                          pd_for(bare) if pd_for is not None else None, bare)
+                          pd_for(bare) if pd_for is not None else None, bare, road)
 
 
 def pd_scan(scan: sensors.Scan, is_ground: np.ndarray) -> sensors.Scan:

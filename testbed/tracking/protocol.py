@@ -36,6 +36,9 @@ class Frame:
         ``pd(xy (T, 2) [m], nominal, trucks=None) -> (T,)``: ``nominal`` where the range image shows a vehicle at
         xy in view, near 0 in a shadow or where no beam reaches one; ``trucks`` (T,) bool asks for a truck-sized
         box at those positions (testbed/sensing: occlusion_pd).
+    road: the lane map, or None when the scenario has none: ``road(xy (T, 2) [m]) -> (heading (T,) [rad], offset
+        (T,) [m], half_width (T,) [m], curvature (T,) [1/m])`` of the nearest lane (sensors.RoadMap.lane_frame; what
+        the built-in trackers' road-map aid reads, trackers/road.py).
     """
 
     index: int
@@ -46,6 +49,7 @@ class Frame:
     extent: np.ndarray
     heading: np.ndarray
     pd: Callable[..., np.ndarray] | None = None
+    road: Callable[[np.ndarray], tuple] | None = None
 
 
 @dataclass(frozen=True, eq=False)

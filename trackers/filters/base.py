@@ -147,6 +147,38 @@ class ModelFilter:
         return out
 
 
+    # Road-map hooks (trackers/road.py): a known input added to the prediction and a scalar pseudo-measurement.
+    def shift_many(self, states: list[FilterState], dkin: np.ndarray) -> list[FilterState]:
+        """States with [px, py, vx, vy] moved by dkin (T, 4) (a known input B u, trackers.road): for a linear
+        motion model with 2-D positions and velocities; any other model's states are returned unchanged."""
+        mot = self.motion
+        if not states or not mot.linear or len(mot.position) < 2 or len(mot.velocity) < 2:
+            return list(states)
+        idx = list(mot.position[:2]) + list(mot.velocity[:2])
+        out = []
+        for s, d in zip(states, dkin):
+            x = s.x.copy()
+            x[idx] += d
+            out.append(derive(s, x=x))
+        return out
+
+    def pseudo_update_many(self, states: list[FilterState], h: np.ndarray, y: np.ndarray,
+                           r: np.ndarray) -> list[FilterState]:
+        """Scalar Kalman updates of T states with the pseudo-measurement rows h (T, 2) on the 2-D position,
+        innovations y (T,) and variances r (T,) > 0 (trackers.road lane keeping): x + K y, Joseph-form P."""
+        pos = list(self.motion.position[:2])
+        out = []
+        for s, hp, yt, rt in zip(states, h, y, r):
+            H = np.zeros(len(s.x))
+            H[pos] = hp
+            PH = s.P @ H
+            K = PH / (H @ PH + rt)  # Kalman gain of a scalar measurement, §1.1 (1.6)
+            I_KH = np.eye(len(s.x)) - np.outer(K, H)
+            P = symmetrise(I_KH @ s.P @ I_KH.T + rt * np.outer(K, K))  # Joseph form, §1.1 (1.8)
+            out.append(derive(s, x=s.x + K * yt, P=check_covariance(P, "lane-kept covariance P")))
+        return out
+
+
 def batch_predict(filter_, states: list[FilterState], dt: float) -> list[FilterState]:
     """`predict_many` of any filter (the per-track loop for filters without one)."""
     many = getattr(filter_, "predict_many", None)

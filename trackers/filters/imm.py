@@ -342,6 +342,31 @@ class IMMFilter:
             out[t] = s
         return out
 
+    def shift_many(self, states: list[IMMState], dkin: np.ndarray) -> list[IMMState]:
+        """Road-map input (trackers.road): each mode's own `shift_many` (a mode with a nonlinear motion model, the
+        CT model, models the turn itself and is unchanged), the combined output recomputed, mu kept."""
+        return self._per_mode(states, lambda f, ms: f.shift_many(ms, dkin) if hasattr(f, "shift_many") else ms)
+
+    def pseudo_update_many(self, states: list[IMMState], h: np.ndarray, y: np.ndarray,
+                           r: np.ndarray) -> list[IMMState]:
+        """Lane keeping (trackers.road): every mode's scalar pseudo-measurement update with h (T, 2), y (T,) taken
+        relative to the combined estimate's offset and shifted to each mode's own, r (T,); mu kept [D]."""
+        pos = list(self.motion.position[:2])
+
+        def upd(f, ms):
+            if not hasattr(f, "pseudo_update_many"):
+                return ms
+            mpos = list(f.motion.position[:2])
+            y_i = y - np.einsum("tk,tk->t", h, np.array([m.x[mpos] for m in ms]) - np.array([s.x[pos] for s in states]))
+            return f.pseudo_update_many(ms, h, y_i, r)
+        return self._per_mode(states, upd)
+
+    def _per_mode(self, states: list[IMMState], fn) -> list[IMMState]:
+        if not states:
+            return []
+        modes = [fn(f, [s.modes[i] for s in states]) for i, f in enumerate(self.filters)]
+        return self._states_many(states, modes, np.array([s.mu for s in states]))
+
     # -------------------------------------------------------------------- internals
     def _stackable(self, states: list[FilterState]) -> bool:
         """True if T states can be stacked: IMMStates of r modes, mode i of one size in every track, one memory
