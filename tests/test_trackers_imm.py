@@ -303,6 +303,7 @@ IMM_BATCHED = {
     "three-modes": {"modes": ({"kind": "kf"}, {"kind": "ekf", "motion": "ct", "omega_std0": 0.3}, {"kind": "svsf"}),
                     "transition": [[0.9, 0.05, 0.05], [0.1, 0.8, 0.1], [0.2, 0.2, 0.6]], "mu0": [0.5, 0.3, 0.2]},
     "unreachable": {"modes": _modes("kf"), "transition": [[1.0, 0.0], [0.0, 1.0]], "mu0": [1.0, 0.0]},
+    "svsf-reset": {"modes": tuple({**m, "memory_after_miss": "reset"} for m in _modes("svsf"))},  # issue 33
 }
 
 
@@ -361,7 +362,8 @@ def test_the_batched_imm_equals_the_per_track_imm_to_1e_12(setting, T):
     CT modes, misses, hard and PDA weights, unused innovations) against the per-track predict /
     predicted_measurement / update (ModelFilter.update_many's loop), both from the same states each scan:
     x, P, e_post, mu, the info entries and every field of every mode state equal to 1e-12 (relative, or
-    absolute near 0); a track without a measurement keeps its prediction (the same object)."""
+    absolute near 0); a track without a measurement keeps its prediction (the same object), or with
+    memory_after_miss = "reset" in its modes the prediction with every memory at 0."""
     from trackers.filters.base import ModelFilter
 
     imm = make_filter("imm", sigma_v=2.0, sigma_w=0.5, **IMM_BATCHED[setting])
@@ -398,8 +400,9 @@ def test_the_batched_imm_equals_the_per_track_imm_to_1e_12(setting, T):
         b = ModelFilter.update_many(imm, batch, nu, W, w0)
         for t, (u, v) in enumerate(zip(a, b)):
             _assert_same(u, v)
-            if w0[t] == 1.0:
-                assert u is batch[t]
+            if w0[t] == 1.0:  # a miss: the prediction itself, or with the modes' memories reset
+                assert (u is batch[t]) == (setting != "svsf-reset")
+                np.testing.assert_array_equal(u.e_post, 0.0 if setting == "svsf-reset" else batch[t].e_post)
             robust += sum(int(k.endswith("regime") and val == 1.0) for k, val in u.info.items())
         states = a
     if setting == "gvbl-svsf-robust" and T > 1:

@@ -614,24 +614,31 @@ def test_memory_after_a_miss_is_kept_or_reset(kind):
 
 
 def test_memory_reset_reaches_the_trackers_batched_update_on_an_empty_scan():
-    """pda-gvbl-svsf and pda-svsf with memory_after_miss = "reset": after an empty scan every track's memory is 0;
-    with "keep" it is the memory of the last update (non-zero)."""
+    """pda-gvbl-svsf, pda-svsf and imm-pda-svsf (both modes) with memory_after_miss = "reset": after an empty scan
+    every track's memory (the IMM's mu-weighted one and each mode's) is 0; with "keep" it is the memory of the last
+    update (non-zero; the IMM's after its mixing, issue 33)."""
     Z = [np.array([[0.0, 0.0], [30.0, 5.0]]), np.array([[2.1, 0.1], [32.0, 5.2]]), np.array([[4.3, 0.1], [34.2, 5.1]])]
-    for name in ("pda-gvbl-svsf", "pda-svsf"):
+    for name in ("pda-gvbl-svsf", "pda-svsf", "imm-pda-svsf"):
         for mode in ("keep", "reset"):
-            trk = make_tracker(name, sigma_v=4.0, sigma_w=0.5, memory_after_miss=mode)
+            if name.startswith("imm"):
+                table = {"memory_after_miss": mode}
+                trk = make_tracker(name, sigma_v=4.0, sigma_w=0.5, filter={"svsf": table, "gvbl-svsf": table})
+            else:
+                trk = make_tracker(name, sigma_v=4.0, sigma_w=0.5, memory_after_miss=mode)
             tracks, nid = (), 1
             for z in Z + [np.zeros((0, 2))]:
                 res = trk.step(tracks, z, 0.1, nid)
                 before, tracks, nid = tracks, res.tracks, res.next_id
             live = [t for t in tracks if not t.candidate]
             assert len(live) == 2
-            memory = np.array([t.state.e_post for t in live])
+            memory = np.array([t.state.e_post for t in live] + [m.e_post for t in live
+                                                                for m in getattr(t.state, "modes", ())])
             if mode == "reset":
                 np.testing.assert_array_equal(memory, 0.0)
             else:
                 assert np.abs(memory).max() > 1e-3, name
-                np.testing.assert_array_equal(memory, [t.state.e_post for t in before if not t.candidate])
+                if not name.startswith("imm"):
+                    np.testing.assert_array_equal(memory, [t.state.e_post for t in before if not t.candidate])
 
 
 def test_apda_layer_previous_capped_or_psi_max_by_hand():

@@ -310,9 +310,9 @@ class IMMFilter:
 
     def update_many(self, preds: list[IMMState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray) -> list[IMMState]:
         """`update` of T tracks: nu (T, M, m) innovations relative to each track's z_c, W (T, M) weights (0 = not
-        used), w0 (T,) miss weights. A track with no weight > 0 or w0 = 1 keeps its prediction (the same object).
-        Bad input (non-finite used innovations or weights, rows not summing to 1) goes to the per-track loop,
-        which raises the reference's ValueError."""
+        used), w0 (T,) miss weights. A track with no weight > 0 or w0 = 1 gets each mode's own miss handling
+        (`_missed_many`), as in `update`. Bad input (non-finite used innovations or weights, rows not summing to 1)
+        goes to the per-track loop, which raises the reference's ValueError."""
         T, m = len(preds), self.measurement.ndim
         W, w0 = np.asarray(W, dtype=np.float64), np.asarray(w0, dtype=np.float64)
         nu = np.asarray(nu, dtype=np.float64)
@@ -325,10 +325,13 @@ class IMMFilter:
               & (w0 <= 1.0) & (np.abs(w0 + W_u.sum(axis=1) - 1.0) <= 1e-9))
         if not ok.all():
             return ModelFilter.update_many(self, preds, nu, W, w0)  # raises as the per-track check_weights
-        active = np.flatnonzero((w0 < 1.0) & use.any(axis=1))
+        updated = (w0 < 1.0) & use.any(axis=1)
+        active = np.flatnonzero(updated)
         out = list(preds)
+        for t, s in self._missed_many(preds, np.flatnonzero(~updated), nu_u, W_u, w0).items():
+            out[t] = s
         if active.size == 0:
-            return out  # every Lambda_i equal: mu stays c, the modes keep their predictions
+            return out
         ps = [preds[t] for t in active]
         nua, Wa, b0 = nu_u[active], W_u[active], w0[active]
         zs, Ss = self.mode_measurements_many(ps)  # (A, r, m), (A, r, m, m)
@@ -366,6 +369,25 @@ class IMMFilter:
             return []
         modes = [fn(f, [s.modes[i] for s in states]) for i, f in enumerate(self.filters)]
         return self._states_many(states, modes, np.array([s.mu for s in states]))
+
+    def _missed_many(self, preds: list[IMMState], idle: np.ndarray, nu: np.ndarray, W: np.ndarray,
+                     w0: np.ndarray) -> dict[int, IMMState]:
+        """The tracks `idle` (A,) (no weight > 0, or w0 = 1) after a scan without update, as `update` makes them:
+        every Lambda_i is equal, so mu stays c, and each mode filter's batched update is given the track's rows
+        of nu (T, M, m), W (T, M), w0 (T,), i.e. runs its own miss handling (an SVSF-family mode with
+        memory_after_miss = "reset" zeroes its memory). Returns {track: new state} for the tracks a mode changed;
+        the others keep their predictions (the same objects)."""
+        if idle.size == 0:
+            return {}
+        ps = [preds[t] for t in idle]
+        modes = [batch_update(f, [s.modes[i] for s in ps], nu[idle], W[idle], w0[idle])
+                 for i, f in enumerate(self.filters)]  # (4.16) with beta0 = 1 per mode, its memory rule [D]
+        changed = [j for j, s in enumerate(ps) if any(ms[j] is not m for ms, m in zip(modes, s.modes))]
+        if not changed:
+            return {}
+        like = [ps[j] for j in changed]
+        new = self._states_many(like, [[ms[j] for j in changed] for ms in modes], np.array([s.mu for s in like]))
+        return {int(idle[j]): s for j, s in zip(changed, new)}
 
     # -------------------------------------------------------------------- internals
     def _stackable(self, states: list[FilterState]) -> bool:
