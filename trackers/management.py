@@ -127,8 +127,8 @@ class ManagementParams:
     road_life: bool = param(True, "with a road from the caller: a track lives while credible for re-acquisition "
                             "(cross-lane std, gate area, neighbours; module docstring) instead of the max_unseen_s "
                             "clock and the isotropic max_position_std_m [D]")
-    max_gate_m2: float | None = param(1000.0, "with a road from the caller: delete a track whose gate (at the "
-                                      "associator's gate_alpha) exceeds this area [m^2]; it replaces max_unseen_s "
+    max_gate_m2: float | None = param(1000.0, "with a road from the caller: delete a track whose predicted gate "
+                                      "(at alpha = 16, the default gate) exceeds this area [m^2]; it replaces max_unseen_s "
                                       "and bounds a hidden track's life (module docstring) [D]; None: no bound",
                                       check=POSITIVE)
     credible_d2: float | None = param(1.0, "with a road from the caller: delete a track without a gated measurement "

@@ -25,6 +25,9 @@ from trackers.trackloss.regime import (RegimeState, advance, alpha_of, assess_wi
                                       windows_from_histories)
 
 PdInput = np.ndarray | float | Callable[[np.ndarray], np.ndarray] | None
+CREDIBLE_GATE_ALPHA = 16.0
+"""The chi-square threshold [-] at which `max_gate_m2` measures a track's gate (thesis §4.1: alpha = 16, P_G =
+0.9997, the default gate): a user's wider association gate does not shorten the tracks' lives."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -232,7 +235,7 @@ class Tracker:
         mp = self.management
         if road is None or not mp.road_life or mp.max_gate_m2 is None or not live:
             return live, pred, pdt, []
-        wide = gate_volume(pred.S, self.association.gate_alpha) > mp.max_gate_m2
+        wide = gate_volume(pred.S, CREDIBLE_GATE_ALPHA) > mp.max_gate_m2
         if not wide.any():
             return live, pred, pdt, []
         keep = np.flatnonzero(~wide)

@@ -108,13 +108,14 @@ def with_deletion(scn: Scenario, deletion: str) -> Scenario:
 
 
 # ------------------------------------------------------------------------------------- sensing, once per seed
-def _slim(truth, sensed: tuple, max_range_m: float, pd_for) -> SensedFrame:
+def _slim(truth, sensed: tuple, max_range_m: float, pd_for, road: RoadMap | None = None) -> SensedFrame:
     """The sensed frame kept for tracking from ``sense_frame``'s (scan, perception, detections): the scan the
-    occlusion-aware P_D reads (testbed.sensing.pd_scan: no points), not the point cloud."""
+    occlusion-aware P_D reads (testbed.sensing.pd_scan: no points), not the point cloud; ``road`` the lane map the
+    trackers read, as in run_scenario's frames."""
     scan, perc, dets = sensed
     bare = pd_scan(scan, perc.is_ground)
     return SensedFrame(truth, bare, None, dets, visibility(truth, scan, max_range_m),
-                       pd_for(bare) if pd_for is not None else None, bare)
+                       pd_for(bare) if pd_for is not None else None, bare, road)
 
 
 def sense_variants(scn: Scenario, outages: dict[str, tuple[OutageSpec, ...]]
@@ -133,14 +134,14 @@ def sense_variants(scn: Scenario, outages: dict[str, tuple[OutageSpec, ...]]
     reach = scn.sensor.lidar.max_range_m
     for truth in sim.frames():
         before = copy.deepcopy(rngs)
-        plain = _slim(truth, sense_frame(truth, static, scn, rngs, None, road), reach, pd_for)
+        plain = _slim(truth, sense_frame(truth, static, scn, rngs, None, road), reach, pd_for, road)
         for name, sv in scns.items():
             off, hidden = sv.sensor.outage_at(truth.time)
             if not (off or hidden):
                 out[name].append(plain)
                 continue
             mine = copy.deepcopy(before)
-            out[name].append(_slim(truth, sense_frame(truth, static, sv, mine, None, road), reach, pd_for))
+            out[name].append(_slim(truth, sense_frame(truth, static, sv, mine, None, road), reach, pd_for, road))
             if any(mine[k].bit_generator.state != rngs[k].bit_generator.state for k in rngs):
                 raise RuntimeError(f"frame {truth.frame}: the outage changed the noise streams' draws")
     return out, road
