@@ -583,6 +583,44 @@ def test_artificial_pda_forms_agree_when_beta0_is_zero(covariance):
     assert np.abs(va - vb).max() > 1e-3
 
 
+@pytest.mark.parametrize("covariance", ["joseph", "short"])
+@pytest.mark.parametrize("psi", [4.0, 1e-3])
+def test_artificial_pda_spread_term_of_each_form_by_hand(covariance, psi):
+    """The PDA covariance (4.16)-(4.17) of both artificial_pda forms, by hand. Prior as in the test above: x = 0,
+    P = I, z_prev = (-1, 0), tau = 1 s, sigma_w = 1, gamma = 0, psi = psi_v; nu = [(2, 0), (0, 0)], beta = (0.5, 0.25),
+    beta0 = 0.25. The hypotheses i = 0 (miss), 1, 2 have augmented innovations nu_bar_i (state order px, py, vx, vy):
+    measurements nu_bar_i = [nu_i; (z_hat + nu_i - z_prev) / tau - v] = (2, 0, 3, 0), (0, 0, 1, 0); the miss has no
+    measurement (nu_bar_0 = 0) in the per-measurement form and the artificial velocity of its projected measurement
+    z_hat in the combined one (nu_bar_0 = (0, 0, 1, 0)), so that in both e = sum_i beta_i nu_bar_i (i = 0..2) is the
+    innovation the gain acts on: (1, 0, 1.75, 0) per measurement, (1, 0, 2, 0) combined (= [nu_c; (z^a - z_prev) /
+    tau - v], z^a = (1, 0)). H_bar = I, so K = diag(|e| / max(|e|, psi)); R_bar = [[R, R / tau], [R / tau,
+    2 R / tau^2]].
+    P = beta0 P + (1 - beta0) P* + K [sum_i beta_i (nu_bar_i - e)(nu_bar_i - e)^T] K^T, P* = (I - K) P (I - K)^T +
+    K R_bar K^T (joseph) or (I - K) P (short). Combined, psi = 4, joseph: K = diag(0.25, 0, 0.5, 0), the spread's x
+    block is [[1, 1], [1, 1]] and P_xx = 0.78125, P_x,vx = 0.21875, P_vx,vx = 1.0625, P_yy = P_vy,vy = 1."""
+    nu, beta, beta0 = np.array([[2.0, 0.0], [0.0, 0.0]]), np.array([0.5, 0.25]), 0.25
+    R_bar = np.kron([[1.0, 1.0], [1.0, 2.0]], np.eye(2))  # [17] with R = I, tau = 1, in the order px, py, vx, vy
+    for form, miss in (("per_measurement", [0.0, 0.0, 0.0, 0.0]), ("combined", [0.0, 0.0, 1.0, 0.0])):
+        bars = np.array([miss, [2.0, 0.0, 3.0, 0.0], [0.0, 0.0, 1.0, 0.0]])  # nu_bar_0, nu_bar_1, nu_bar_2
+        w = np.array([beta0, *beta])
+        e = w @ bars
+        np.testing.assert_array_equal(e, [1.0, 0.0, 1.75 if form == "per_measurement" else 2.0, 0.0])
+        K = np.diag(np.abs(e) / np.maximum(np.abs(e), psi))  # (2.30) with H_bar = I, gamma = 0
+        I_K = np.eye(4) - K
+        P_star = I_K @ I_K.T + K @ R_bar @ K.T if covariance == "joseph" else I_K
+        spread = sum(wi * np.outer(b - e, b - e) for wi, b in zip(w, bars))
+        P_hand = beta0 * np.eye(4) + (1.0 - beta0) * P_star + K @ spread @ K.T
+        flt = make_filter("svsf", sigma_w=1.0, gamma=0.0, psi=psi, psi_v=psi, artificial_pda=form,
+                          covariance=covariance)
+        u = flt.update(_svsf_prior(flt), nu, beta, beta0)
+        np.testing.assert_allclose(u.x, K @ e, rtol=0, atol=1e-15, err_msg=form)
+        np.testing.assert_allclose(u.P, P_hand, rtol=0, atol=1e-14, err_msg=f"{form} {covariance}")
+        if form == "combined" and covariance == "joseph" and psi == 4.0:
+            np.testing.assert_allclose(u.P[np.ix_([0, 2], [0, 2])], [[0.78125, 0.21875], [0.21875, 1.0625]],
+                                       rtol=0, atol=1e-15)
+            np.testing.assert_allclose(u.P[[1, 3], [1, 3]], [1.0, 1.0], rtol=0, atol=1e-15)
+
+
 @pytest.mark.parametrize("kind", ["svsf", "gc-svsf", "gvbl-svsf"])
 def test_memory_after_a_miss_is_kept_or_reset(kind):
     """After a scan without update, "keep" returns the prediction itself and "reset" the prediction with

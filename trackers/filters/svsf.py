@@ -229,17 +229,24 @@ class SVSF(ModelFilter):
       In PDA form z_prev is the projected measurement z^a = e_{z,k|k-1} + H x_{k|k-1} of the last update
       (2.32), tau the time since it (so after missed scans the difference spans them), and every validated
       measurement gets its own augmented innovation nu_bar_i = [nu_i; (z_hat + nu_i - z_prev)/tau - H_v x],
-      which the PDA spread term (4.17) then uses. The first update (no z_prev) uses the position rows only.
+      from which both forms below build the PDA spread term (4.17). The first update (no z_prev) uses the
+      position rows only.
 
     `artificial_pda`, how the artificial velocity enters e_{z,k|k-1} under PDA (the thesis does not say):
     * "per_measurement" (default): e_{z,k|k-1} = sum_i beta_i nu_bar_i, the combined innovation (2.27) of
       the augmented innovations, so the velocity part carries 1 - beta0 of the differenced position
       (1 - beta0)((z_hat - z_prev)/tau - H_v x) + nu_c / tau: the reading that treats the artificial
       measurement like a real one, each hypothesis with its own.
+      The spread term (4.17) ("joseph", "short") is sum_{i=1..M} beta_i nu_bar_i nu_bar_i^T - e e^T: the spread of the
+      hypotheses' augmented innovations about e, the miss hypothesis at nu_bar_0 = 0 (no measurement, no
+      artificial one).
     * "combined": one artificial measurement from the projected measurement z^a = z_hat + nu_c (2.32):
       e_{z,k|k-1} = [nu_c; (z^a - z_prev)/tau - H_v x], i.e. (3.63)'s projected measurement differenced; the
-      reading in which z^a stands for the scan's measurement, as it does for z_prev.
-    The two agree when beta0 = 0. The spread term (4.17) ("joseph", "short") uses the nu_bar_i in both.
+      reading in which z^a stands for the scan's measurement, as it does for z_prev. z^a = sum_{i=0..M} beta_i
+      (z_hat + nu_i) (nu_0 = 0), so e = sum_{i=0..M} beta_i nu_bar_i with the miss hypothesis's artificial velocity
+      nu_bar_0 = [0; (z_hat - z_prev)/tau - H_v x]; the spread term (4.17) is the spread of these M + 1 about e,
+      B [sum_i beta_i nu_i nu_i^T - nu_c nu_c^T] B^T with B = [I; I/tau] (`combined_form`).
+    The two agree when beta0 = 0 (state, covariance and memories).
 
     gamma: SVSF memory in [0, 1); psi (m,) [m]: the fixed position layer half widths (the registry default
     3 sigma_w is [D]: ch. 2-3 give no value); psi_v [m/s]: the layer of the artificial velocity components,
@@ -309,6 +316,20 @@ class SVSF(ModelFilter):
         psi = np.concatenate([np.array(self.psi, dtype=np.float64), np.broadcast_to(psi_v, (m,))])
         return np.vstack([H, Hv]), R_bar, nu_bar, e_prev, psi  # [17] artificial measurement: H_bar = [H; H_v]
 
+    def combined_form(self, s: SVSFState, nu: np.ndarray, nu_c: np.ndarray, z_a: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """artificial_pda = "combined": (e (2m,), nu_s (M, 2m)) for the innovations nu (M, m), their combination
+        nu_c (m,) and the projected measurement z^a = z_hat + nu_c (m,).
+
+        e = e_{z,k|k-1} = [nu_c; (z^a - z_prev) / tau - H_v x], one artificial velocity from z^a (2.32). With the
+        hypotheses i = 0..M of (4.16) (0: no measurement, nu_0 = 0, projected measurement z_hat) and their augmented
+        innovations nu_bar_i = [nu_i; (z_hat + nu_i - z_prev) / tau - H_v x], e = sum_{i=0..M} beta_i nu_bar_i. The
+        spread term (4.17) is theirs about e, sum_{i=0..M} beta_i (nu_bar_i - e)(nu_bar_i - e)^T
+        = B [sum_i beta_i nu_i nu_i^T - nu_c nu_c^T] B^T with B = [I; I / tau]; `pda_covariance` computes it from
+        nu_s_i = nu_bar_i - nu_bar_0 = [nu_i; nu_i / tau] (its miss hypothesis is at 0)."""
+        e_v = (z_a - s.z_prev) / s.tau - s.x[list(self.motion.velocity)]  # (2.32) z^a differenced, [17]
+        return np.concatenate([nu_c, e_v]), np.hstack([nu, nu / s.tau])  # (4.17) spread from the combined form [D]
+
     def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState:
         """PDA-form SVSF update; nu (M, m) innovations, beta (M,), beta0 (see module docstring)."""
         m = self.measurement.ndim
@@ -324,7 +345,7 @@ class SVSF(ModelFilter):
                                    else (H0, R0, nu, s.e_post, np.array(self.psi, dtype=np.float64)))
         nu_c = combined_innovation(nu_b, beta)  # (2.27) e_{z,k|k-1} := combined innovation
         if with_vel and self.artificial_pda == "combined":  # (2.32) one artificial measurement from z^a [D]
-            nu_c = np.concatenate([nu_c[:m], (z_a - s.z_prev) / s.tau - s.x[list(self.motion.velocity)]])
+            nu_c, nu_b = self.combined_form(s, nu, nu_c[:m], z_a)
         E = np.abs(nu_c) + self.gamma * np.abs(e_prev)  # (2.10) |e_{k|k-1}| + gamma |e_{k-1|k-1}|
         K = np.linalg.pinv(H) * svsf_gain_factor(E, nu_c, psi)  # (2.30) K = H^+ diag(E o sat(e/psi)) diag(e)^-1
         x = s.x + K @ nu_c  # (2.29)
@@ -336,7 +357,7 @@ class SVSF(ModelFilter):
             I_KH = np.eye(len(s.x)) - K @ H
             P_star = (I_KH @ s.P @ I_KH.T + K @ R @ K.T if self.covariance == "joseph"  # (2.31)/(2.12) Joseph
                       else I_KH @ s.P)  # (2.54)/(2.89) short form as printed
-            P = pda_covariance(s.P, symmetrise(P_star), K, nu_b, beta, beta0)  # (4.16)-(4.17) with the SVSF P*
+            P = pda_covariance(s.P, symmetrise(P_star), K, nu_b, beta, beta0)  # (4.16)-(4.17), SVSF P*, spread of nu_b
         check_covariance(P, "SVSF updated covariance P")
         e_post = nu_c - H @ (K @ nu_c)  # (2.34)/(3.65) e_{z,k|k} = (I - H K) e_{z,k|k-1}
         info = {"psi_z": psi[:m], "chatter": np.maximum(0.0, np.abs(nu_c[:m]) - psi[:m])}  # (5.37) chattering
@@ -630,7 +651,8 @@ class SVSFParams(ModelParams):
                                 "'per_measurement', one per validated measurement combined with the weights "
                                 "beta (2.27) (the velocity correction carries 1 - beta0), or 'combined', one from "
                                 "the projected measurement z^a = z_hat + sum beta_i nu_i (2.32), (3.63) "
-                                "differenced; equal when beta0 = 0", choices=ARTIFICIAL_PDA)
+                                "differenced, whose PDA spread term (4.17) is the position spread mapped by "
+                                "[I; I/tau]; equal when beta0 = 0", choices=ARTIFICIAL_PDA)
     memory_after_miss: str = param("keep", MEMORY_AFTER_MISS_DOC, choices=MEMORY_AFTER_MISS)
 
 
