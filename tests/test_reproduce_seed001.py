@@ -224,7 +224,7 @@ def _check_report(path: Path, runs: int) -> str:
 
 
 def test_quick_reproduction_writes_summary_and_figures(tmp_path, monkeypatch):
-    """The quick run (10 runs, 300 scans in 5.1, 9 separations; about 15 s of one core) writes summary.md with
+    """The quick run (10 runs, 300 scans in 5.1, 9 separations; 14 s wall) writes summary.md with
     every section, every default tagged, verdicts consistent with their numbers, and eight PNG figures. The same
     verdict texts with each claim's support taken away print "indicative (10 runs): not a verdict" in a quick run
     and the verdict itself in a full one."""

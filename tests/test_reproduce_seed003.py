@@ -49,7 +49,7 @@ def _check_report(path: Path, runs: int) -> str:
 
 
 def test_quick_reproduction_writes_summary_and_figures(tmp_path):
-    """The quick run (10 runs, 2e5 noise samples; about 9 s of one core) writes summary.md with every section, the
+    """The quick run (10 runs, 2e5 noise samples; 9 s wall) writes summary.md with every section, the
     paper's P0 and X0 readings stated and tagged, the verdicts that hold at 10 runs, and four PNG figures."""
     assert "seed-003" in REPRODUCTIONS and entry("seed-003") is seed003.run
     path = seed003.run(tmp_path, quick=True, seed=0, progress=False)

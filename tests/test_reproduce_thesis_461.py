@@ -183,7 +183,7 @@ def _check_report(path: Path, runs: int) -> str:
 
 
 def test_quick_reproduction_writes_summary_and_figures(tmp_path):
-    """The quick run (2 runs per car; sensitivity on car 1, 2 runs; about 30 s of one core) writes summary.md
+    """The quick run (2 runs per car; sensitivity on car 1, 2 runs; 47 s wall) writes summary.md
     with every section, the thesis's Table 4.2 beside ours, verdicts consistent with the quoted numbers, and
     four PNGs. At the printed lambda = 1e-2 GVBL-SVSF never leaves the optimal regime, so it is the KF."""
     assert "thesis-4.6.1" in REPRODUCTIONS and entry("thesis-4.6.1") is sec461.run

@@ -147,7 +147,7 @@ def _check_verdicts(md: str, study) -> list[dict]:
 
 
 def test_quick_reproduction_writes_summary_and_consistent_verdicts(tmp_path, monkeypatch):
-    """The quick run (6 runs main, 2 per cell; about 30 s of one core): every section, the printed numbers, the
+    """The quick run (6 runs main, 2 per cell; 43-45 s wall): every section, the printed numbers, the
     tagged choices and three PNGs; each claim's verdict line is the one verdicts() computes on the same study,
     and 'holds' is said exactly when the measured numbers satisfy the claim's rule."""
     assert "thesis-5.1" in REPRODUCTIONS and entry("thesis-5.1") is sec51.run

@@ -16,7 +16,7 @@ def table(header: list[str], rows: list[list], blank: bool = True) -> list[str]:
 
 def indicative(n: int, unit: str = "runs") -> str:
     """The words a quick run prints instead of a verdict its runs cannot carry."""
-    return f"indicative ({n} {unit}): not a verdict"
+    return f"indicative ({_count(n, unit)}): not a verdict"
 
 
 def verdict(text: str, *, quick: bool, supported: bool, n: int, unit: str = "runs") -> str:
@@ -26,4 +26,12 @@ def verdict(text: str, *, quick: bool, supported: bool, n: int, unit: str = "run
     the contrary side); otherwise it prints ``indicative(n)``."""
     if not quick:
         return text
-    return f"{text} (quick run, n = {n} {unit})" if supported else indicative(n, unit)
+    return f"{text} (quick run, n = {_count(n, unit)})" if supported else indicative(n, unit)
+
+
+def _count(n: int, unit: str) -> str:
+    """'n unit' with a plural unit's 's' dropped for n == 1 ("1 run", "1 seed", "1 run per car")."""
+    if n != 1:
+        return f"{n} {unit}"
+    word, _, rest = unit.partition(" ")
+    return f"1 {word[:-1] if word.endswith('s') else word}" + (f" {rest}" if rest else "")

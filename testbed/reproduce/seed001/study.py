@@ -15,7 +15,7 @@ Study (testbed.reproduce.seed001.targets; the paper's claims C001-1..5 beside ou
 Verdicts are computed from the measured rates and intervals (see `verdicts`). Same runs for every method
 (common random numbers); the sweep's separations share their noise too.
 Full: 100 runs (paper), 1000 scans in 5.1, 15 separations (about 1 min of one core). Quick: 10 runs, 300 scans in
-5.1, 8 separations (about 10 s).
+5.1, 9 separations (14 s wall, measured with `time testbed reproduce seed-001 --quick`).
 """
 
 from __future__ import annotations

@@ -12,7 +12,8 @@ Parts (the paper's numbers beside ours in summary.md):
      lambda_theory = 0.85 lambda on the lost part (Fig. 7);
   3. ours only: the same target in the plane (forced_loss.plane_2d), n = 50 and adaptive.
 Full: 10 runs of 1000 + 1000 scans, 4 planar runs of 300 + 150 (about 4 min: the tracking parts are drawn until
-one keeps its target, about 1 in 80). Quick: 2 runs of 250 + 200, 1 planar run of 120 + 80.
+one keeps its target, about 1 in 80). Quick: 2 runs of 250 + 200, 1 planar run of 120 + 80 (5 s wall, measured
+with `time testbed reproduce seed-002 --quick`).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ Parts (the paper's claims, and ours beside them, in summary.md):
      permutation of minimum squared error; RMSE per target over time (the paper's Fig. 2), one run (Fig. 1);
   3. ours only: the ordering against the initial covariance P0 (the printed P0 is undecodable, [D]), and N = 2.
 Full: 100 runs (paper), 2e6 noise samples per covariance case (about 1.5 min of one core). Quick: 10 runs, 2e5
-samples (about 10 s).
+samples (9 s wall, measured with `time testbed reproduce seed-003 --quick`).
 Streams: the runs of every filter and every P0 are the same seeded runs (common random numbers).
 """
 

@@ -23,7 +23,8 @@ the paired per-seed difference lies on the better side of 0, does not hold when 
 "not shown" when it contains 0.
 
 Speed: one task per (pipeline, seed), on a process pool of the usable cores: about 90 s of sensing and 13 tracker
-runs from the cache (20-120 s each). Full: 2 pipelines x 5 seeds x 13 trackers; quick (CI): 15 s, 2 seeds, 4 trackers.
+runs from the cache (20-120 s each). Full: 2 pipelines x 5 seeds x 13 trackers; quick (CI): the first 15 s of the scenario, 2 seeds, 4 trackers (33 s wall
+on one core, measured with `time taskset -c 0 testbed reproduce thesis-highway --quick`).
 """
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ with `pda` on car 1). Main tables at the printed lambda = 1e-2 and at lambda = 1
 time around both: clutter density, heading change of the curve, switch rule, psi_max, robust_lower, truth noise.
 
 Run time (one core): full about 6.5 min (20 runs per car for the main tables, 8 per car per sensitivity row, full
-500 s); quick about 30 s (2 runs per car; sensitivity on car 1 only, 2 runs, one value per choice).
+500 s); quick 47 s wall, measured with `time testbed reproduce thesis-4.6.1 --quick` (2 runs per car; sensitivity on car 1 only, 2 runs, one value per choice).
 Streams: car c's runs come from SeedSequence((seed, c)).spawn(n); every filter and every filter-only variant sees
 the same runs (common random numbers); the sensitivity rows use the first runs of the main tables.
 """

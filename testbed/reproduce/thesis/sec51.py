@@ -17,7 +17,7 @@ Statistics (testbed.common.stats): RMSE per state over runs and scans with perce
 runs, paired bootstrap intervals for the differences between methods (the same resampled runs for every method),
 lost-track rates with Wilson 95 % intervals and the exact McNemar test between methods on the same runs.
 Run time (one core): full (200 runs in the main table, 30 per sensitivity cell, 15 at lambda = 30) about 7 min;
-quick (6, 2 and 1 runs) about 30 s. Streams: every cell uses the runs SeedSequence(seed).spawn(n) (common random numbers: run i is the
+quick (6, 2 and 1 runs) 43-45 s wall, measured with `time testbed reproduce thesis-5.1 --quick`. Streams: every cell uses the runs SeedSequence(seed).spawn(n) (common random numbers: run i is the
 same truth and sensor noise in every cell that shares the truth).
 """
 
