@@ -96,7 +96,7 @@ def test_lost_runs_are_compared_by_mcnemar_and_quick_verdicts_say_indicative():
 
 def _verdict_lines(md: str) -> dict[str, str]:
     """claim name -> verdict as printed, from the bold lines at the top."""
-    return dict(re.findall(r"^\*\*(.+?): (holds[^*]*|does not hold[^*]*|indicative \(\d+ runs\): not a verdict)\.\*\*",
+    return dict(re.findall(r"^\*\*(.+?): (holds[^*]*|does not hold[^*]*|indicative \(\d+ runs?\): not a verdict)\.\*\*",
                            md, flags=re.M))
 
 
@@ -130,12 +130,13 @@ def _check_verdicts(md: str, study) -> list[dict]:
     for v in vs:
         assert lines[v["name"]] == v["text"], v["name"]
         assert (v["verdict"] == "holds") == v["holds"]
+        n = v["cell"].n
         if not quick:
             assert v["text"] == v["verdict"]
         elif not v["supported"]:
-            assert v["text"] == f"indicative ({v['cell'].n} runs): not a verdict", v["name"]
+            assert v["text"] == f"indicative ({n} run{'s' if n != 1 else ''}): not a verdict", v["name"]
         else:
-            assert v["text"] == f"{v['verdict']} (quick run, n = {v['cell'].n} runs)", v["name"]
+            assert v["text"] == f"{v['verdict']} (quick run, n = {n} run{'s' if n != 1 else ''})", v["name"]
     m = study.main
     ordered = all((m.diff[(a, b)][2, :4] < 0).all() for a, b in (("apda-svsf", "pda-svsf"), ("pda-svsf", "pda-kf")))
     assert vs[1]["holds"] == ordered
