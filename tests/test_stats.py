@@ -17,6 +17,13 @@ def test_wilson_equals_scipys(k, n):
     assert float(lo) == pytest.approx(ref.low, abs=1e-12) and float(hi) == pytest.approx(ref.high, abs=1e-12)
 
 
+def test_wilson_bounds_are_exact_at_zero_and_all():
+    """k = n gives an upper bound of exactly 1 and k = 0 a lower bound of exactly 0 (30/30 gave 1 - 1.1e-16, a
+    negative error bar in a plot)."""
+    for n in range(1, 300):
+        assert wilson(n, n)[1] == 1.0 and wilson(0, n)[0] == 0.0
+
+
 def test_wilson_vectorised_nan_for_empty_and_refuses_bad_counts():
     lo, hi = wilson(np.array([0, 5, 0]), np.array([0, 10, 4]))
     assert math.isnan(lo[0]) and math.isnan(hi[0]) and lo[1] < 0.5 < hi[1] and lo[2] == 0.0

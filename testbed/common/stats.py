@@ -35,7 +35,8 @@ def wilson(k, n, confidence: float = 0.95):
         mid = (p + z * z / (2 * n)) / den
         half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
         lo, hi = np.where(n > 0, mid - half, np.nan), np.where(n > 0, mid + half, np.nan)
-    return np.clip(lo, 0.0, 1.0), np.clip(hi, 0.0, 1.0)
+    lo, hi = np.where(k == 0, 0.0, lo), np.where(k == n, 1.0, hi)  # exact there; rounding gave 1 - 1e-16 at 30/30
+    return np.where(n > 0, np.clip(lo, 0.0, 1.0), np.nan), np.where(n > 0, np.clip(hi, 0.0, 1.0), np.nan)
 
 
 def mean_ci(values, confidence: float = 0.95) -> tuple[int, float, float, float, float]:

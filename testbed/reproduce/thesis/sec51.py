@@ -550,6 +550,12 @@ def figure_rmse_time(path: Path, study: Study) -> None:
     plt.close(fig)
 
 
+def _bars(v: np.ndarray) -> list[np.ndarray]:
+    """Error-bar lengths [below, above] of rows (estimate, lo, hi), clipped at 0: a percentile interval may miss its
+    estimate, and a Wilson bound at k = n may fall below 1 by a rounding error."""
+    return [np.maximum(v[:, 0] - v[:, 1], 0.0), np.maximum(v[:, 2] - v[:, 0], 0.0)]
+
+
 def figure_density(path: Path, study: Study) -> None:
     """RMSE with 95 % intervals and lost rate vs clutter density (log x; lambda = 0 drawn at the left edge)."""
     import matplotlib.pyplot as plt
@@ -565,10 +571,10 @@ def figure_density(path: Path, study: Study) -> None:
             xs = x * (1.0 + 0.12 * (j - 1))  # small horizontal offsets so the intervals do not overlap
             st = [c.stats[name] for c in cs]
             pos = np.array([s.pos for s in st])
-            axes[0, col].errorbar(xs, pos[:, 0], yerr=[pos[:, 0] - pos[:, 1], pos[:, 2] - pos[:, 0]], fmt="o-",
+            axes[0, col].errorbar(xs, pos[:, 0], yerr=_bars(pos), fmt="o-",
                                   color=COLOURS[name], capsize=3, ms=4, lw=1.1, label=NAMES[name])
             lr = np.array([[s.lost_rate, *s.lost_ci] for s in st]) * 100
-            axes[1, col].errorbar(xs, lr[:, 0], yerr=[lr[:, 0] - lr[:, 1], lr[:, 2] - lr[:, 0]], fmt="o-",
+            axes[1, col].errorbar(xs, lr[:, 0], yerr=_bars(lr), fmt="o-",
                                   color=COLOURS[name], capsize=3, ms=4, lw=1.1, label=NAMES[name])
         axes[0, col].set_yscale("log")
         axes[0, col].set_title(f"{title}\nposition RMSE, {cs[0].n} runs per point, 95 % bootstrap intervals",
