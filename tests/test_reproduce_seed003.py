@@ -8,6 +8,7 @@ import os
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from testbed.reproduce import REPRODUCTIONS, entry
@@ -64,3 +65,11 @@ def test_full_reproduction(tmp_path):
     """The full run: the quick checks, plus the paper's ordering products below powers on average."""
     md = _check_report(seed003.run(tmp_path, quick=False, seed=0, progress=False), 100)
     assert _claim(md, "products below powers")[-1].startswith("on average")  # paired t interval below 0
+
+
+def test_p0_ordering_marks_only_paired_differences():
+    """'<' needs the paired t interval of the per-run RMS difference below 0; overlapping runs give '~'."""
+    base = np.linspace(0.3, 0.5, 8)
+    row = {"rmse_kf": 0.3, "rmse_products": 0.35, "rmse_powers": 0.36, "runs_kf": base,
+           "runs_products": base + 0.05, "runs_powers": base + 0.05 + np.array([0.02, -0.02] * 4)}
+    assert seed003.paired_order(row) == "kf < products ~ powers"

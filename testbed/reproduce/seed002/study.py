@@ -440,7 +440,8 @@ def _run_rows(res: list[dict], s: Settings) -> list[list[str]]:
          f"{_spread(det('n = 50', 'neither'))} scans before the first track-lost"],
         ["adaptive n: converges near", "n = 50", f"median n before the loss {_spread(ad_n)}"],
         ["adaptive n: detects the loss", "sooner than n = 50", f"first track-lost {_spread(det('adaptive', 'first'))};"
-         f" no later than n = 50 in {sum(a <= f for a, f in pairs)} of {len(pairs)} runs"],
+         f" no later than n = 50 in {sum(a <= f for a, f in pairs)} of {len(pairs)} runs (the paired t and bootstrap "
+         "intervals of the difference: claims table)"],
         [f"Fig. 6, n = {s.big_n} on tracking data", "both rejected (an 'almost lost' outlier)",
          f"at the loss: {', '.join(r['big']['at_loss'] for r in res)}; all pre-loss windows: neither "
          f"{win('big', 'pre', 'neither')}, tracking {win('big', 'pre', 'tracking')}"],
@@ -469,12 +470,14 @@ def after_loss(res: list[dict]) -> dict[str, dict[str, dict[str, float]]]:
 def _drift_text(sh: dict, name: str) -> str:
     """What the numbers say about one detector after the loss: which verdict leads early and late."""
     lead = {part: max(VERDICTS, key=lambda v: sh[part][v]) for part in ("early", "late")}
+    second = max((v for v in VERDICTS if v != lead["late"]), key=lambda v: sh["late"][v])
     pct = lambda part, v: f"{100 * sh[part][v]:.1f} %"  # noqa: E731
+    runner_up = f"; next late: '{second}' {pct('late', second)}"
     if lead["early"] == lead["late"]:
         return (f"{name} keeps '{lead['late']}' as its most frequent verdict ({pct('early', lead['early'])} early, "
-                f"{pct('late', lead['late'])} late)")
+                f"{pct('late', lead['late'])} late{runner_up})")
     return (f"{name} moves from '{lead['early']}' ({pct('early', lead['early'])} early) to '{lead['late']}' "
-            f"({pct('late', lead['late'])} late)")
+            f"({pct('late', lead['late'])} late{runner_up})")
 
 
 def _lost_lines(res: list[dict]) -> list[str]:
