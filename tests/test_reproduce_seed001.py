@@ -145,11 +145,14 @@ def test_intervals_and_verdict_logic():
     assert (m, lo, hi) == pytest.approx((2.0, 2.0 - 2.4841, 2.0 + 2.4841), abs=1e-4)
     a = np.array([True] * 9 + [False])
     b = np.zeros(10, dtype=bool)
-    assert study.mcnemar(a, b) == pytest.approx(2 * 0.5 ** 9, rel=1e-9)
+    assert study.mcnemar(a, b).p == pytest.approx(2 * 0.5 ** 9, rel=1e-9)  # the shared helper (testbed.common.stats)
+    assert (study.mcnemar(a, b).b, study.mcnemar(a, b).c) == (9, 0)
     row = lambda s, better: {"sep": s, "better": better}  # noqa: E731
     assert study.claim_sweep([row(1, "an"), row(2, None)])[0] == "holds"
     assert study.claim_sweep([row(1, "pda"), row(2, None)])[0] == "does not hold"
-    assert study.claim_sweep([row(1, None)])[0] == "does not hold"
+    assert study.claim_sweep([row(1, "pda"), row(2, None)])[1]["supported"]  # the contrary is shown
+    assert study.claim_sweep([row(1, None)]) == ("does not hold", {"an_better": [], "pda_better": [],
+                                                                   "supported": False})  # no difference anywhere
     assert study.claim_sweep([row(1, "an"), row(2, "pda")])[0].startswith("holds only under separations 1 sigma")
     with pytest.raises(ValueError, match="wilson"):
         study.wilson(3, 2)
@@ -163,8 +166,9 @@ def test_weight_properties_hold():
 
 # ------------------------------------------------------------------------------------------ the report
 def _verdict(md: str, key: str) -> str:
+    """The verdict and evidence after the claim's name, without a quick run's "(quick run, n = .. runs)"."""
     line = next(x for x in md.splitlines() if x.startswith(f"- **{key}"))
-    return line.split("): ", 1)[1].rstrip("*")
+    return re.sub(r" \(quick run, n = \d+ runs\):", ":", line.split("): ", 1)[1].rstrip("*"))
 
 
 def _rate(text: str, label: str) -> tuple[int, int]:
@@ -181,7 +185,8 @@ def _check_report(path: Path, runs: int) -> str:
     for tag in ("0.5 m/s^2 [D]", "g = 4, g^2 = 16 [D]", "P_D = 1 [D]", "P_G = 1 [T]", "Euclidean", "[D]: 5.1",
                 "the number of observations in track i's gate [D]", "P0 = diag(sigma^2, sigma^2, 100, 100) [D]"):
         assert tag in md, tag
-    assert "np.float64" not in md
+    assert "np.float64" not in md and "McNemar exact" in md and "paired t 95 % CI" in md
+    assert "X1(0) = [7000, 7000, 130, 40] [R] (the printed \"17000\" read as 7000)" in md and "\"17000\" [T]" not in md
     # C001-1: "holds" iff both RMS intervals meet [5.5, 6.5] m (the paired difference is 0 with P_D = 1, b = 0.01)
     v1 = _verdict(md, "C001-1")
     cis = re.findall(r"(PDA|AN \(25\)) [\d.]+ m \[([\d.]+), ([\d.]+)\]", v1)
@@ -218,14 +223,26 @@ def _check_report(path: Path, runs: int) -> str:
     return md
 
 
-def test_quick_reproduction_writes_summary_and_figures(tmp_path):
-    """The quick run (10 runs, 300 scans in 5.1, 9 separations; about 10 s of one core) writes summary.md with
-    every section, every default tagged, verdicts consistent with their numbers, and eight PNG figures."""
+def test_quick_reproduction_writes_summary_and_figures(tmp_path, monkeypatch):
+    """The quick run (10 runs, 300 scans in 5.1, 9 separations; 14 s wall) writes summary.md with
+    every section, every default tagged, verdicts consistent with their numbers, and eight PNG figures. The same
+    verdict texts with each claim's support taken away print "indicative (10 runs): not a verdict" in a quick run
+    and the verdict itself in a full one."""
     assert "seed-001" in REPRODUCTIONS and entry("seed-001") is study.run
+    seen, orig = {}, study.verdict_texts
+    monkeypatch.setattr(study, "verdict_texts", lambda *a, **k: seen.setdefault("args", a) and orig(*a, **k))
     path = study.run(tmp_path, quick=True, seed=0, progress=False)
     assert path == tmp_path / "summary.md"
     md = _check_report(path, 10)
     assert "**Quick run**" in md
+    s, props, rows, clutter_rows, claims, quick = seen["args"]
+    assert quick
+    unsupported = tuple((v, {**p, "supported": False}) for v, p in claims)
+    texts = orig(s, props, rows, clutter_rows, unsupported, True)
+    mc = [k for k in texts if not k.startswith("C001-4")]  # C001-4 is a property check, not a Monte Carlo
+    assert all(texts[k].startswith("indicative (10 runs): not a verdict: ") for k in mc), texts
+    full = orig(s, props, rows, clutter_rows, unsupported, False)
+    assert all(full[k].split(":")[0] == v for k, (v, _) in zip(mc, claims)), full
     # the paper's 5.2 / 5.3 geometry never puts the other target's detection in a gate (447 m, 1414 m vs 215 m)
     assert "| 0.00 % | 0.00 % | 0 |" in md
 

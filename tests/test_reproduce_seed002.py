@@ -1,10 +1,13 @@
 """Paper 002's forced-loss example (testbed.reproduce.seed002.forced_loss) and its reproduction (testbed.reproduce.seed002.study): the
 scenario kind, the detection delay after the loss, the false alarms while tracking, the quick report."""
 
+import re
+
 import numpy as np
 import pytest
 
 from testbed.reproduce.seed002 import forced_loss as fl
+from testbed.reproduce.markdown import verdict
 from testbed.reproduce.seed002 import study as seed002
 from trackers.trackloss.regime import RegimeConfig, assess_window
 
@@ -58,12 +61,52 @@ def test_n50_detects_the_loss_about_40_scans_after_it_without_false_alarms():
     assert np.median(first_ad) <= np.median(first), (first_ad, first)
 
 
+def _fake_run(first50, first_ad, settle, track50=1.0, uniq5=0.2, accept=0.95) -> dict:
+    """The per-run measures claim_results reads (see seed002.one_run)."""
+    pre = lambda tracking, lost=0.0: {"tracking": tracking, "both": 1 - tracking - lost, "neither": 0.0,  # noqa
+                                      "track-lost": lost}
+    return {"n = 5": {"pre": pre(uniq5)}, "n = 50": {"pre": pre(track50), "first": first50, "settle": settle},
+            "adaptive": {"first": first_ad}, "low_lambda": {"accept_L_early": accept}}
+
+
+def test_claims_are_decided_by_intervals_and_paired_for_two_detectors():
+    """The adaptive-vs-n = 50 delay is a paired comparison on the same runs; a quick verdict its intervals do
+    not carry is flagged unsupported (printed "indicative")."""
+    sure = [_fake_run(40.0 + d, 30.0 + d, 40.0 + d) for d in (-2.0, 0.0, 1.0, 3.0, -1.0, 2.0)]
+    by = {c["name"]: c for c in seed002.claim_results(sure)}
+    faster = next(c for n, c in by.items() if "sooner" in n)
+    assert faster["verdict"] == "holds" and faster["supported"] and "paired t 95 % CI" in faster["evidence"]
+    assert "-10.0 [-10.0, -10.0] (paired t 95 % CI)" in faster["evidence"]  # every run 10 scans sooner
+    assert "paired bootstrap 95 % CI" in faster["evidence"]
+    delay = next(c for n, c in by.items() if "about 40" in n)
+    assert delay["verdict"] == "holds" and delay["supported"]  # 40 +- 2 lies inside 30-50
+    assert len(by) == 5
+    two = [_fake_run(30.0, 20.0, 90.0), _fake_run(40.0, 50.0, 20.0, accept=0.1)]  # 2 runs, wide intervals
+    by2 = {c["name"]: c for c in seed002.claim_results(two)}
+    unsure = [c for c in by2.values() if not c["supported"]]
+    assert {("sooner" in n) or ("about 40" in n) or ("Fig. 7" in n) for n in (c["name"] for c in unsure)} == {True}
+    assert len(unsure) == 3
+    assert verdict(unsure[0]["verdict"], quick=True, supported=False, n=2) == "indicative (2 runs): not a verdict"
+
+
 def test_quick_reproduction_writes_its_report(tmp_path):
-    """The quick run writes summary.md (the paper's numbers beside ours) and every figure it lists."""
+    """The quick run writes summary.md (the paper's numbers beside ours, per-claim verdicts from its own numbers:
+    "indicative" where its 2 runs carry none) and every figure it lists; no fixed sentence its numbers contradict."""
     path = seed002.run(tmp_path, quick=True, seed=0, progress=False)
     text = path.read_text()
     for needle in ("paper 002 (stated)", "ours (measured)", "0.0604", "0.06039", "6.2195", "478.3304", "28.8177",
-                   "Fig. 5, n = 50: scans from the loss to track-lost"):
+                   "Fig. 5, n = 50: scans from the loss to track-lost", "## The paper's claims and ours (verdicts)",
+                   "paired t 95 % CI", "indicative (2 runs): not a verdict"):
         assert needle in text, needle
     figures = [line.split(":")[0][2:] for line in text.splitlines() if line.startswith("- fig")]
     assert len(figures) == 7 and all((tmp_path / f).stat().st_size > 5000 for f in figures)
+    # the after-loss sentence follows the table: which verdict leads for n = 50, early and late
+    block = text.split("## Verdicts after the loss")[1].split("\n## ")[0]
+    rows = {(r[0], r[1]): r for r in ([c.strip() for c in ln.strip(" |").split(" | ")] for ln in block.splitlines()
+                                      if ln.startswith("| n = 50"))}
+    late = rows[("n = 50", "from scan 151 after the loss")]
+    shares = dict(zip(seed002.VERDICTS, (float(v.strip(" %")) for v in late[2:6])))
+    lead = max(shares, key=shares.get)
+    assert re.search(rf"n = 50 (keeps|moves from .*? to) '{lead}'", text), lead
+    if lead != "both":
+        assert "'both' takes over" not in text

@@ -8,6 +8,7 @@ import os
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from testbed.reproduce import REPRODUCTIONS, entry
@@ -31,10 +32,16 @@ def _check_report(path: Path, runs: int) -> str:
     assert "diag(9, 625, 14400, 100, 25, 1) [D]" in md  # P0 is stated, tagged as our default
     assert "[3, 25, 120, 10, 5, 0] reconstructed (crossings 4.4 s, 11.7 s, 19.0 s)" in md
     assert f"Three targets, {runs} runs" in md
-    assert _claim(md, "noise covariance")[-1] == "yes"
-    assert _claim(md, "KF lowest")[-1] == "yes"
-    assert _claim(md, "kinks near the 5th and 10th s")[-1] == "yes"
-    assert _claim(md, "EKF follows the truth")[-1] == "yes"
+    quick = f" (quick run, n = {runs} runs)" if "**Quick run**" in md else ""
+    assert _claim(md, "noise covariance")[-1] == "yes" + quick
+    assert _claim(md, "KF lowest")[-1] == "yes" + quick  # the paired t intervals of KF - EKF lie below 0
+    kf = re.findall(r"KF - (?:products|powers) ([+-][\d.]+) m \[([+-][\d.]+), ([+-][\d.]+)\]", _claim(md, "KF lowest")[2])
+    assert len(kf) == 2 and all(float(hi) < 0 for _, _, hi in kf), kf
+    assert "(paired t 95 % CI" in _claim(md, "KF lowest")[2]
+    # without an interval the kinks are a verdict only in a full run; a quick run says so
+    assert _claim(md, "kinks near the 5th and 10th s")[-1] == ("indicative (10 runs): not a verdict" if quick else
+                                                               "yes")
+    assert _claim(md, "EKF follows the truth")[-1] == ("indicative (10 runs): not a verdict" if quick else "yes")
     # the three filters' mean RMSE of target 1 are printed and lie between 0.2 and 1 m
     means = re.search(r"KF ([\d.]+) m, products ([\d.]+) m, powers ([\d.]+) m", md)
     assert means and all(0.2 < float(v) < 1.0 for v in means.groups()), means
@@ -43,7 +50,7 @@ def _check_report(path: Path, runs: int) -> str:
 
 
 def test_quick_reproduction_writes_summary_and_figures(tmp_path):
-    """The quick run (10 runs, 2e5 noise samples; about 9 s of one core) writes summary.md with every section, the
+    """The quick run (10 runs, 2e5 noise samples; 9 s wall) writes summary.md with every section, the
     paper's P0 and X0 readings stated and tagged, the verdicts that hold at 10 runs, and four PNG figures."""
     assert "seed-003" in REPRODUCTIONS and entry("seed-003") is seed003.run
     path = seed003.run(tmp_path, quick=True, seed=0, progress=False)
@@ -57,4 +64,12 @@ def test_quick_reproduction_writes_summary_and_figures(tmp_path):
 def test_full_reproduction(tmp_path):
     """The full run: the quick checks, plus the paper's ordering products below powers on average."""
     md = _check_report(seed003.run(tmp_path, quick=False, seed=0, progress=False), 100)
-    assert _claim(md, "products below powers")[-1].startswith("on average")
+    assert _claim(md, "products below powers")[-1].startswith("on average")  # paired t interval below 0
+
+
+def test_p0_ordering_marks_only_paired_differences():
+    """'<' needs the paired t interval of the per-run RMS difference below 0; overlapping runs give '~'."""
+    base = np.linspace(0.3, 0.5, 8)
+    row = {"rmse_kf": 0.3, "rmse_products": 0.35, "rmse_powers": 0.36, "runs_kf": base,
+           "runs_products": base + 0.05, "runs_powers": base + 0.05 + np.array([0.02, -0.02] * 4)}
+    assert seed003.paired_order(row) == "kf < products ~ powers"

@@ -1,6 +1,7 @@
 """`testbed reproduce thesis-2.1` (thesis §2.1.6, Tables 2.2-2.3): the quick run writes summary.md with every section,
-verdicts consistent with the intervals it prints, and real PNGs; the building blocks (scenario, loss weights, Wilson
-and bootstrap intervals, verdict rules) are checked on hand-made inputs.
+verdicts consistent with the intervals and paired tests it prints ("indicative" where they carry none), and real
+PNGs; the building blocks (scenario, loss weights, Wilson and bootstrap intervals, the McNemar C3 rule, verdict
+rules) are checked on hand-made inputs.
 
 ROADTRACK_FULL=1 also runs the full reproduction (100 runs main, 50 per sensitivity variant; about 4-5 min of one
 core) and checks the same consistency.
@@ -13,7 +14,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import stats as sps
 
+from testbed.common.stats import mcnemar
 from testbed.reproduce import REPRODUCTIONS, entry
 from testbed.reproduce.thesis import sec21
 from testbed.reproduce.thesis import synthetic as sy
@@ -84,12 +87,20 @@ def test_bootstrap_intervals():
     assert est == lo == hi == pytest.approx(0.5)
 
 
-def _stats(n, ratio_x, ratio_y, lost_kf, lost_sv):
-    ratio = {eps: {f: {"x": (ratio_x, ratio_x * 0.9, ratio_x * 1.1), "y": (ratio_y, ratio_y * 0.9, ratio_y * 1.1)}
+def _stats(n, ratio_x, ratio_y, lost_kf, lost_sv, both=0, spread=0.1):
+    """CaseStats with the given ratios (interval +-spread relative) and lost runs: the KF loses runs 0..lost_kf-1,
+    every SVSF reading the `both` last of those and lost_sv - both runs after them (McNemar b = lost_kf - both,
+    c = lost_sv - both)."""
+    ratio = {eps: {f: {"x": (ratio_x, ratio_x * (1 - spread), ratio_x * (1 + spread)),
+                       "y": (ratio_y, ratio_y * (1 - spread), ratio_y * (1 + spread))}
                    for f in sec21.SVSF_FORMS} for eps in sec21.EPS}
     lost = {eps: {f: {c: (lost_kf if f == "kf" else lost_sv) for c in sec21.CRITERIA} for f in sec21.FILTERS}
             for eps in sec21.EPS}
-    return sec21.CaseStats(n=n, ratio=ratio, lost=lost, rmse={})
+    kf, sv = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    kf[:lost_kf] = True
+    sv[lost_kf - both:lost_kf - both + lost_sv] = True
+    paired = {eps: {f: {c: mcnemar(kf, sv) for c in sec21.CRITERIA} for f in sec21.SVSF_FORMS} for eps in sec21.EPS}
+    return sec21.CaseStats(n=n, ratio=ratio, lost=lost, rmse={}, paired=paired)
 
 
 def test_verdict_rules():
@@ -101,9 +112,36 @@ def test_verdict_rules():
         assert c["verdict"].startswith("holds only under") and "perturbed initial estimate" in c["verdict"]
     claims = sec21.claim_results({"base": bad})
     assert all(c["verdict"] == "does not hold" for c in claims.values())
-    # C3 needs disjoint Wilson intervals: 30/100 vs 20/100 overlap
+    # C3 by McNemar on the paired runs: 30 vs 20 disjoint losses (b = 30, c = 20, p = 0.20) is no difference
     assert not sec21.keeps(_stats(100, 1, 1, 30, 20), "literal", "pos")
     assert sec21.keeps(_stats(100, 1, 1, 43, 10), "literal", "pos")
+
+
+def test_c3_is_decided_by_mcnemar_not_by_disjoint_wilson_intervals():
+    """Issue 33's case: 200 runs, the KF loses 89 (44.5 %), the SVSF 68 (34 %), 60 of them the same runs: the
+    Wilson intervals overlap, but the discordant runs (29 against 8) make the paired difference significant."""
+    st = _stats(200, 1, 1, 89, 68, both=60)
+    t = st.paired[0.04]["literal"]["pos"]
+    assert (t.b, t.c) == (29, 8) and t.p == pytest.approx(sps.binomtest(8, 37).pvalue, rel=1e-12) and t.p < 0.01
+    assert sec21.wilson(89, 200)[0] < sec21.wilson(68, 200)[1]  # the old rule would say "no difference"
+    assert sec21.keeps(st, "literal", "pos") and not sec21.loses_more(st, "literal", "pos")
+    reverse = _stats(200, 1, 1, 68, 89, both=60)
+    assert not sec21.keeps(reverse, "literal", "pos") and sec21.loses_more(reverse, "literal", "pos")
+
+
+def test_quick_verdicts_are_indicative_unless_the_intervals_carry_them():
+    """A quick run prints "indicative (n runs): not a verdict" where nothing is significant; it states "holds"
+    (carried by its intervals) and "does not hold" when the contrary is shown, with its n."""
+    flat = _stats(10, 1.0, 1.0, 3, 3, spread=0.5)  # every ratio interval holds 1, no discordant runs
+    claims = sec21.claim_results({"base": flat}, quick=True)
+    assert all(c["verdict"] == "does not hold" and not c["supported"] for c in claims.values())
+    assert all(c["text"] == "indicative (10 runs): not a verdict" for c in claims.values())
+    assert all(c["text"] == "does not hold" for c in sec21.claim_results({"base": flat}).values())  # full: stated
+    worse = _stats(10, 2.0, 2.0, 0, 9)  # SVSF ratio intervals above 1, the SVSF loses 9 runs the KF keeps
+    claims = sec21.claim_results({"base": worse}, quick=True)
+    assert all(c["text"] == "does not hold (quick run, n = 10 runs)" for c in claims.values())
+    good = sec21.claim_results({"base": _stats(30, 0.5, 0.5, 20, 0)}, quick=True)
+    assert all(c["text"] == "holds (quick run, n = 30 runs)" for c in good.values())
 
 
 # ------------------------------------------------------------------------------------------ the report
@@ -120,6 +158,18 @@ def _ci(cell: str) -> tuple[float, float, float]:
     return tuple(float(v) for v in m.groups())
 
 
+def _mcnemar(cell: str) -> tuple[int, int, float]:
+    m = re.fullmatch(rf"(\d+) / (\d+), p = {NUM}", cell)
+    assert m, cell
+    return int(m.group(1)), int(m.group(2)), float(m.group(3))
+
+
+def _base_worse(md: str, heading: str) -> bool:
+    """Some PDA-SVSF reading's x or y RMSE ratio interval (paired bootstrap) lies above 1 in the table."""
+    rows = {r[0]: r for r in _rows(md, heading)}
+    return any(_ci(rows[s][-3 + j])[1] > 1.0 for s in ("x", "y") for j in range(3))
+
+
 def _count(cell: str) -> tuple[int, int]:
     m = re.match(r"(\d+)/(\d+) = ", cell)
     assert m, cell
@@ -134,7 +184,8 @@ def _check_report(path: Path, runs: int) -> str:
     assert "np.float64" not in md and " nan" not in md
     verdicts = {}
     for claim in ("C1", "C2", "C3"):
-        m = re.search(rf"^\*\*{claim} \(.*?\): (holds|does not hold|holds only under .*?)\.\*\* ", md, re.M)
+        m = re.search(rf"^\*\*{claim} \(.*?\): (holds|does not hold|holds only under .*?|indicative \({runs} runs\): "
+                      rf"not a verdict)(?: \(quick run, n = {runs} runs\))?\.\*\* ", md, re.M)
         assert m, claim
         verdicts[claim] = m.group(1)
     # C1 / C2: each per-variant yes/no agrees with the printed x-ratio interval (yes needs hi < 1; hi >= 1 means no)
@@ -147,21 +198,27 @@ def _check_report(path: Path, runs: int) -> str:
                 if _ci(cell)[2] >= 1.0:
                     assert mark == "no", (row[0], claim, cell)
                 yes[claim].append(mark == "yes")
-    # C3: each yes/no recomputed from the printed lost counts with the Wilson rule
+    # C3: each yes/no recomputed from the printed McNemar cells (b / c = runs only the KF / only the reading lost)
     rows3 = _rows(md, "### C3: lost-track rates at 4 %")
-    yes["C3"] = []
+    yes["C3"], reverse = [], []
     for row in rows3:
         (kf, n), *svsf = (_count(c) for c in row[2:6])
-        for (k, n2), mark in zip(svsf, row[6].split()):
-            assert n2 == n
-            holds = sec21.wilson(kf, n)[0] > sec21.wilson(k, n)[1]
+        for (k, n2), cell, mark in zip(svsf, row[6:9], row[9].split()):
+            b, c, p = _mcnemar(cell)
+            assert n2 == n and b - c == kf - k, (row, cell)  # the discordant counts agree with the lost counts
+            holds = b > c and p < 0.05
             assert mark == ("yes" if holds else "no"), row
             yes["C3"].append(holds)
+            reverse.append(row[0].startswith("base") and c > b and p < 0.05)
     base_marks = {"C1": rows[0][8].split(), "C2": rows[0][9].split(),
-                  "C3": rows3[0][6].split() + rows3[1][6].split()}
+                  "C3": rows3[0][9].split() + rows3[1][9].split()}
+    contrary = {"C1": _base_worse(md, "### Normal case (Table 2.2)"), "C2": _base_worse(md, "### 2 % model error"),
+                "C3": any(reverse)}
     for claim, v in verdicts.items():
         if all(m == "yes" for m in base_marks[claim]):
             assert v == "holds", claim
+        elif v.startswith("indicative"):
+            assert "**Quick run**" in md and not contrary[claim], claim  # a quick run whose numbers carry nothing
         elif any(yes[claim]):
             assert v.startswith("holds only under"), claim
         else:
@@ -179,13 +236,15 @@ def _check_report(path: Path, runs: int) -> str:
 
 
 def test_quick_reproduction_writes_summary_and_figures(tmp_path):
-    """The quick run (10 runs, 4 variants; about 20 s of one core): every section, verdicts consistent with the
-    printed intervals and counts, four real PNGs."""
+    """The quick run (10 runs, 3 variants; 21-24 s wall): every section, verdicts consistent with the
+    printed intervals and counts ("indicative" where they carry none: C3 at seed 0), four real PNGs."""
     assert "thesis-2.1" in REPRODUCTIONS and entry("thesis-2.1") is sec21.run
     path = sec21.run(tmp_path, quick=True, seed=0, progress=False)
     assert path == tmp_path / "summary.md"
     md = _check_report(path, 10)
     assert "**Quick run**" in md
+    assert re.search(r"^\*\*C3 \(.*?\): indicative \(10 runs\): not a verdict\.\*\*", md, re.M)
+    assert "McNemar exact" in md and "paired bootstrap 95 % CI" in md
     # the normal-case KF RMSE is near the clairvoyant steady state (6.2 m per axis), far below the thesis's 92.4 m
     kf_x = _ci(_rows(md, "### Normal case (Table 2.2)")[0][3])[0]
     pos, _ = sec21.kf_steady_state(sec21.SIGMA_V, sec21.SIGMA_W, sec21.TS)

@@ -12,7 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import stats as sps
 
+from testbed.common.stats import mcnemar
 from testbed.reproduce import REPRODUCTIONS, entry
 from testbed.reproduce.thesis import sec461
 from report_checks import read_report
@@ -78,8 +80,9 @@ def _eval(car, diffs, y_imp, inside_imp, outside_imp):
                                        (d, d - 0.01, d + 0.01) if d else (0.0, 0.0, 0.0), imp, d == 0.0)
     states = tuple(mk(d, y_imp if j == 1 else (0.0, 0.0, 0.0)) for j, d in enumerate(diffs))
     ins = mk(-0.1 if inside_imp[0] > 0 else 0.1, inside_imp)
+    none = np.zeros(5, dtype=bool)
     return sec461.CarEval(car, 5, states, mk(-0.1), ins, mk(0.0, outside_imp), 1.1, 1.0, 0.2, 0.3,
-                          {"kf": 0, "gvbl": 0})
+                          {"kf": 0, "gvbl": 0}, mcnemar(none, none))
 
 
 def test_claim_rules():
@@ -101,6 +104,39 @@ def test_claim_rules():
                                                                   ("row b", sec461.claim_c1(worse))])
     assert line.startswith("**C1 (x): holds only under row a.**")
     assert "does not hold" in sec461.verdict_line("C1", "x", sec461.claim_c1(worse), [])
+
+
+def test_paired_statistics_name_their_tests_and_equal_the_shared_helpers():
+    """The difference is the shared paired t interval, the improvement the shared paired bootstrap (same draws)."""
+    rng = np.random.default_rng(4)
+    a = rng.normal(2.0, 0.2, 8)
+    b = a - rng.normal(0.1, 0.05, 8)
+    p = sec461.paired(a, b, np.random.default_rng(9))
+    ref = sps.ttest_rel(b, a).confidence_interval(0.95)
+    assert p.diff[1] == pytest.approx(ref.low, abs=1e-12) and p.diff[2] == pytest.approx(ref.high, abs=1e-12)
+    idx = np.random.default_rng(9).integers(0, 8, size=(sec461.N_BOOT, 8))
+    boot = 100.0 * (1.0 - b[idx].mean(axis=1) / a[idx].mean(axis=1))
+    assert p.imp[1] == pytest.approx(np.percentile(boot, 2.5)) and p.imp[2] == pytest.approx(np.percentile(boot, 97.5))
+
+
+def test_quick_verdict_is_indicative_unless_the_intervals_carry_it():
+    """A quick run prints "indicative (n runs per car): not a verdict" when its intervals show nothing either way;
+    a worse entry (the contrary shown) or a rule that holds is stated with its n."""
+    flat = [_eval(c, (0.0,) * 4, (0.0, 0.0, 0.0), (0.0, -1.0, 1.0), (0.0, -1.0, 1.0)) for c in (1, 2, 3)]
+    for fn in (sec461.claim_c1, sec461.claim_c2):
+        v = fn(flat)
+        assert not v.holds
+    c1 = sec461.claim_c1(flat)
+    assert not c1.contrary
+    line = sec461.verdict_line("C1", "x", c1, [], quick=True, n=2)
+    assert line.startswith("**C1 (x): indicative (2 runs per car): not a verdict.**")
+    assert sec461.verdict_line("C1", "x", c1, []).startswith("**C1 (x): does not hold.**")  # the full form states it
+    worse = [_eval(c, (-0.1, 0.1, -0.1, -0.1), (30.0, 25.0, 35.0), (20.0, 10.0, 30.0), (2.0, 0.0, 4.0))
+             for c in (1, 2, 3)]
+    assert sec461.verdict_line("C1", "x", sec461.claim_c1(worse), [], quick=True, n=2).startswith(
+        "**C1 (x): does not hold (quick run, n = 2 runs per car).**")
+    small = [_eval(c, (-0.1,) * 4, (5.0, 1.0, 9.0), (20.0, 10.0, 30.0), (2.0, 0.0, 4.0)) for c in (1, 2, 3)]
+    assert sec461.claim_c2(small).contrary  # 1-9 % misses the thesis's 22-42 %: "does not hold" is carried
 
 
 # ------------------------------------------------------------------------------------------ the report
@@ -126,11 +162,15 @@ def _check_report(path: Path, runs: int) -> str:
             assert cells[2] == f"{th['kf'][j]:.2f}" and cells[3] == f"{th['gvbl'][j]:.2f}"
     assert f"({runs} runs per car)" in md
     # one bold verdict per claim, consistent with the printed-parameter numbers it quotes
-    verdicts = re.findall(r"^\*\*(C[123]) \(.*?\): (holds|does not hold|holds only under [^*]+)\.\*\*(.*)$", md, re.M)
+    verdicts = re.findall(r"^\*\*(C[123]) \(.*?\): (holds|does not hold|holds only under [^*]+?|indicative \(\d+ runs per "
+                          r"car\): not a verdict)(?: \(quick run, n = \d+ runs per car\))?\.\*\*(.*)$", md, re.M)
     assert [v[0] for v in verdicts] == ["C1", "C2", "C3"], verdicts
+    for cid, word, _ in verdicts:  # only a quick run may be indicative
+        assert not word.startswith("indicative") or "**Quick run**" in md, cid
     c1 = re.search(r"(\d+)/12 entries better, (\d+) worse", verdicts[0][2])
     assert c1, verdicts[0]
     assert (verdicts[0][1] == "holds") == (int(c1.group(1)) >= 11 and c1.group(2) == "0")
+    assert "paired t 95 % CI" in md and "paired bootstrap 95 % CI" in md and "McNemar exact" in md
     ys = [tuple(map(float, m)) for m in re.findall(r"car \d ([+-][\d.]+) % \[([+-][\d.]+), ([+-][\d.]+)\]",
                                                    verdicts[1][2])]
     assert len(ys) == 3
@@ -143,7 +183,7 @@ def _check_report(path: Path, runs: int) -> str:
 
 
 def test_quick_reproduction_writes_summary_and_figures(tmp_path):
-    """The quick run (2 runs per car; sensitivity on car 1, 2 runs; about 30 s of one core) writes summary.md
+    """The quick run (2 runs per car; sensitivity on car 1, 2 runs; 47 s wall) writes summary.md
     with every section, the thesis's Table 4.2 beside ours, verdicts consistent with the quoted numbers, and
     four PNGs. At the printed lambda = 1e-2 GVBL-SVSF never leaves the optimal regime, so it is the KF."""
     assert "thesis-4.6.1" in REPRODUCTIONS and entry("thesis-4.6.1") is sec461.run

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from testbed.reproduce import REPRODUCTIONS, entry
+from testbed.reproduce.markdown import verdict
 from testbed.reproduce.thesis import sec51
 from testbed.reproduce.thesis import synthetic as sy
 from report_checks import read_report
@@ -52,16 +53,51 @@ def test_paired_difference_and_ordering_on_hand_made_errors():
     rng = np.random.default_rng(1)
     e = rng.normal(size=(20, 11, 4))
     a, b = sy.MonteCarlo(errors=0.5 * e), sy.MonteCarlo(errors=e)
-    idx = sec51.boot_index(20, 0, 0)
-    d = sec51.paired_diff(a, b, idx)
+    d = sec51.paired_diff(a, b, 0, 0)
     rb = np.sqrt(np.mean(e[:, 1:] ** 2, axis=(0, 1)))
     np.testing.assert_allclose(d[0, :4], -0.5 * rb, rtol=1e-12)
     assert (d[2] < 0).all() and (d[1] <= d[0]).all() and (d[0] <= d[2]).all()
+    # the shared paired bootstrap resamples the runs of boot_index (the same for every method of a cell)
+    idx = sec51.boot_index(20, 0, 0)
+    mse_a, mse_b = np.mean(a.errors[:, 1:] ** 2, axis=1), np.mean(e[:, 1:] ** 2, axis=1)
+    boot = np.sqrt(mse_a[idx].mean(axis=1))[:, 1] - np.sqrt(mse_b[idx].mean(axis=1))[:, 1]
+    assert d[1, 1] == pytest.approx(np.percentile(boot, 2.5), abs=1e-12)
+
+
+def _cell(stats: dict, lost: dict, n: int = 20) -> "sec51.CellResult":
+    """A CellResult with given MethodStats and lost-run arrays, no RMSE differences."""
+    tests = {(a, b): sec51.mcnemar(lost[a], lost[b]) for a in lost for b in lost if a != b}
+    return sec51.CellResult("k", "k", "[D]", sec51.BASE, stats, {}, n, {}, tests)
+
+
+def _ms(lost: int, n: int = 20, pos: float = 1.0) -> "sec51.MethodStats":
+    return sec51.MethodStats(np.ones(4), np.ones(4), np.ones(4), np.array([pos, pos, pos]), lost, n,
+                             sec51.wilson(lost, n), np.ones(4))
+
+
+def test_lost_runs_are_compared_by_mcnemar_and_quick_verdicts_say_indicative():
+    """'PDA-KF fails while the SVSF methods track' needs the KF to lose more of the same runs (McNemar p < 0.05);
+    a quick verdict that its cell's intervals do not carry reads 'indicative (n runs): not a verdict'."""
+    n = 40  # 0 of 40 lost: Wilson upper 8.8 % <= 10 % ("tracks"); 30 of 40: lower 59 % >= 50 % ("fails")
+    kf, sv = np.zeros(n, bool), np.zeros(n, bool)
+    kf[:30] = True
+    c = _cell({"pda-kf": _ms(30, n), "pda-svsf": _ms(0, n), "apda-svsf": _ms(0, n)},
+              {"pda-kf": kf, "pda-svsf": sv, "apda-svsf": sv}, n)
+    t = c.lost_test[("pda-kf", "pda-svsf")]
+    assert (t.b, t.c) == (30, 0) and t.p == pytest.approx(2 * 0.5 ** 30) and c.loses_more("pda-kf", "pda-svsf")
+    rule, contrary = sec51.claim_rules()["ten"]
+    assert rule(c) and not contrary(c)
+    few = np.zeros(2, bool)
+    unclear = _cell({"pda-kf": _ms(1, 2), "pda-svsf": _ms(1, 2), "apda-svsf": _ms(1, 2)},
+                    {"pda-kf": few, "pda-svsf": few, "apda-svsf": few}, 2)
+    assert not rule(unclear) and not contrary(unclear)  # 1 of 2 lost: neither "fails" nor "tracks" is shown
+    assert verdict("does not hold", quick=True, supported=False, n=2) == "indicative (2 runs): not a verdict"
 
 
 def _verdict_lines(md: str) -> dict[str, str]:
-    """claim name -> verdict, from the bold lines at the top."""
-    return dict(re.findall(r"^\*\*(.+?): (holds|does not hold|holds only under [^*]+)\.\*\*", md, flags=re.M))
+    """claim name -> verdict as printed, from the bold lines at the top."""
+    return dict(re.findall(r"^\*\*(.+?): (holds[^*]*|does not hold[^*]*|indicative \(\d+ runs?\): not a verdict)\.\*\*",
+                           md, flags=re.M))
 
 
 def _check_report(path: Path, study_runs: int) -> str:
@@ -88,11 +124,19 @@ def _check_verdicts(md: str, study) -> list[dict]:
     """Each claim's verdict line is the one verdicts() computes on the same study; 'holds' is said exactly when
     the measured numbers satisfy the claim's rule; the printed evidence is the study's."""
     lines = _verdict_lines(md)
-    vs = sec51.verdicts(study)
+    quick = "**Quick run**" in md
+    vs = sec51.verdicts(study, quick)
     assert len(lines) == len(vs) == 6, lines
     for v in vs:
-        assert lines[v["name"]] == v["verdict"], v["name"]
+        assert lines[v["name"]] == v["text"], v["name"]
         assert (v["verdict"] == "holds") == v["holds"]
+        n = v["cell"].n
+        if not quick:
+            assert v["text"] == v["verdict"]
+        elif not v["supported"]:
+            assert v["text"] == f"indicative ({n} run{'s' if n != 1 else ''}): not a verdict", v["name"]
+        else:
+            assert v["text"] == f"{v['verdict']} (quick run, n = {n} run{'s' if n != 1 else ''})", v["name"]
     m = study.main
     ordered = all((m.diff[(a, b)][2, :4] < 0).all() for a, b in (("apda-svsf", "pda-svsf"), ("pda-svsf", "pda-kf")))
     assert vs[1]["holds"] == ordered
@@ -104,7 +148,7 @@ def _check_verdicts(md: str, study) -> list[dict]:
 
 
 def test_quick_reproduction_writes_summary_and_consistent_verdicts(tmp_path, monkeypatch):
-    """The quick run (6 runs main, 2 per cell; about 30 s of one core): every section, the printed numbers, the
+    """The quick run (6 runs main, 2 per cell; 43-45 s wall): every section, the printed numbers, the
     tagged choices and three PNGs; each claim's verdict line is the one verdicts() computes on the same study,
     and 'holds' is said exactly when the measured numbers satisfy the claim's rule."""
     assert "thesis-5.1" in REPRODUCTIONS and entry("thesis-5.1") is sec51.run

@@ -82,3 +82,31 @@ def test_finished_tasks_are_kept_and_not_run_again(quick):
         r["seed"] == 1 for r in highway.done_rows(partial, highway.settings(True, 1)))  # seeds 1, 2: only seed 1 kept
     longer = highway.Settings(s.trackers, s.seeds, 20.0)
     assert highway.done_rows(partial, longer) == []  # another duration: everything runs again
+
+
+def _claims_df(tp_gain: list[float]) -> pd.DataFrame:
+    """jpda-gvbl-svsf and jpda-kf on len(tp_gain) seeds, both pipelines and denominators: TP % differs by
+    tp_gain[seed], FP and break-ups equal."""
+    rows = []
+    for pipeline in highway.PIPELINES:
+        for cars in ("seen", "trackable"):
+            for seed, gain in enumerate(tp_gain):
+                for name, tp in (("jpda-gvbl-svsf", 85.0 + gain), ("jpda-kf", 85.0)):
+                    rows.append(dict(pipeline=pipeline, cars=cars, seed=seed, tracker=name, tp_pct=tp, fp_pct=5.0,
+                                     breakup_pct=1.0, cars_seen=50, cars_tracked=40, false_tracks=3,
+                                     cars_relabelled=1))
+    return pd.DataFrame(rows)
+
+
+def test_quick_verdicts_are_indicative_unless_the_paired_intervals_carry_them():
+    """Two seeds whose TP differences straddle 0: the quick summary says "indicative (2 seeds): not a verdict",
+    the full one "does not hold"; a TP shown worse on every variant is stated in the quick run with its n."""
+    s = highway.Settings(("jpda-kf", "jpda-gvbl-svsf"), (0, 1), 15.0)
+    mixed = _claims_df([+2.0, -1.0])
+    quick = highway.summary_text(mixed, s, quick=True)
+    assert "**Table 4.3: jpda-gvbl-svsf beats jpda-kf: indicative (2 seeds): not a verdict.**" in quick
+    assert "**Table 4.3: jpda-gvbl-svsf beats jpda-kf: does not hold (no variant shows a better TP %).**" in \
+        highway.summary_text(mixed, s, quick=False)
+    worse = highway.summary_text(_claims_df([-2.0, -2.1, -1.9]), highway.Settings(s.trackers, (0, 1, 2), 15.0), True)
+    assert "beats jpda-kf: does not hold (worse on TP % (full pipeline, seen cars)" in worse
+    assert "(quick run, n = 3 seeds).**" in worse and "paired t 95 % CI" in worse

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common import safe_io
-from ..common.stats import mean_ci
+from ..common.stats import PAIRED_T, mean_ci, paired_t
 from . import store
 
 BOUNDS = {"tp_pct": (0.0, 100.0), "fp_pct": (0.0, math.inf), "breakup_pct": (0.0, 100.0),
@@ -138,7 +138,8 @@ def fmt_ci(mean: float, lo: float, hi: float) -> str:
 def paired_differences(df, baseline: str, grid_keys, scores) -> "pd.DataFrame":
     """Per scenario, tracker (not ``baseline``), grid point and score: the per-seed difference tracker minus
     baseline over the seeds both finished with a finite score (common random numbers: the same seed is the
-    same traffic and sensor noise), as n, mean, ci_lo, ci_hi (Student t 95 %)."""
+    same traffic and sensor noise), as n, mean, ci_lo, ci_hi (the paired t 95 % interval,
+    testbed.common.stats.paired_t)."""
     import pandas as pd
 
     ok = df[df["status"] == "ok"]
@@ -152,10 +153,12 @@ def paired_differences(df, baseline: str, grid_keys, scores) -> "pd.DataFrame":
             point = point if isinstance(point, tuple) else (point,)
             for score in scores:
                 both = gp[[score]].join(base[[score]], rsuffix="_base", how="inner")
-                d = (both[score] - both[f"{score}_base"]).to_numpy(dtype=np.float64)
-                n, mean, _, lo, hi = mean_ci(d)
+                if both.empty:
+                    t = paired_t([math.nan], [math.nan])
+                else:
+                    t = paired_t(both[score].to_numpy(dtype=np.float64), both[f"{score}_base"].to_numpy(np.float64))
                 rows.append(dict(scenario=scenario, tracker=tracker, **dict(zip(grid_keys, point)), score=score,
-                                 n=n, mean=mean, ci_lo=lo, ci_hi=hi))
+                                 n=t.n, mean=t.est, ci_lo=t.lo, ci_hi=t.hi))
     return pd.DataFrame(rows)
 
 
@@ -211,10 +214,10 @@ def _paired_table(pairs, baseline: str, grid_keys, scores) -> list[str]:
                      *[fmt_ci(*(by.loc[c, ["mean", "ci_lo", "ci_hi"]])) if c in by.index else "–" for c in scores]])
     return [f"## Paired differences against `{baseline}`", "",
             f"Per seed, the tracker's score minus `{baseline}`'s on the same seed (same traffic and sensor noise), "
-            "mean over the seeds with a 95 % Student-t interval; an interval that excludes 0 is a difference the "
-            "runs show. n = seeds both finished.", "",
+            f"mean over the seeds with the {PAIRED_T} (the Student-t interval of the per-seed differences); an "
+            "interval that excludes 0 is a difference the runs show. n = seeds both finished.", "",
             _md_table(["scenario", "tracker", *[f"`{k}`" for k in grid_keys], "n",
-                       *[f"Δ {LABELS.get(c, c)}" for c in scores]], rows), ""]
+                       *[f"Δ {LABELS.get(c, c)} [{PAIRED_T}]" for c in scores]], rows), ""]
 
 
 def _plot_paired(pairs, baseline: str, scenario: str, grid_keys, scores, path: Path) -> bool:
@@ -250,8 +253,8 @@ def _plot_paired(pairs, baseline: str, scenario: str, grid_keys, scores, path: P
                       [t + (" (" + ", ".join(_fmt(v) for v in p) + ")" if p else "") for t, p in labels], fontsize=7)
         ax.set_xlabel(f"Δ {LABELS.get(score, score)}", fontsize=8)
         ax.grid(alpha=0.3)
-    _save(fig, axes, len(scores), f"{scenario}: paired difference against {baseline} per seed (mean, 95 % CI; red: "
-          "excludes 0)", path)
+    _save(fig, axes, len(scores), f"{scenario}: paired difference against {baseline} per seed (mean, {PAIRED_T}; "
+          "red: excludes 0)", path)
     return True
 
 

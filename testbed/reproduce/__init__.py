@@ -7,6 +7,17 @@ Each reproduction is a module of this package with one entry point::
 which writes ``out_dir/summary.md`` and its PNG figures and returns the summary's path. ``quick`` is the
 reduced run (fewer Monte Carlo runs and steps; for CI and a first look), ``progress`` shows tqdm bars.
 The full reports are committed in ``docs/results/reproduce/<NAME>/``.
+
+Methods run on the same draws are compared by paired statistics (testbed/common/stats.py: McNemar for lost runs,
+paired t or paired bootstrap intervals for differences of errors), and every comparison table names its test. A
+quick run states a verdict only where its own intervals or tests carry it (with its n); otherwise it prints
+"indicative (n runs): not a verdict" (testbed/reproduce/markdown.py: ``verdict``).
+
+Quick forms, wall time of ``time testbed reproduce NAME --quick`` (Python start included; measured on the shared
+2-core machine; thesis-highway on one core, ``taskset -c 0``):
+
+    seed-000 8 s; seed-001 14 s; seed-002 5 s; seed-003 9 s; seed-000-highway 12 s; seed-002-highway 17 s;
+    thesis-highway 33 s; thesis-2.1 21-24 s (28 s with four variants before); thesis-4.6.1 47 s; thesis-5.1 43-45 s
 """
 from __future__ import annotations
 

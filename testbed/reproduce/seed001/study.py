@@ -15,7 +15,7 @@ Study (testbed.reproduce.seed001.targets; the paper's claims C001-1..5 beside ou
 Verdicts are computed from the measured rates and intervals (see `verdicts`). Same runs for every method
 (common random numbers); the sweep's separations share their noise too.
 Full: 100 runs (paper), 1000 scans in 5.1, 15 separations (about 1 min of one core). Quick: 10 runs, 300 scans in
-5.1, 8 separations (about 10 s).
+5.1, 9 separations (14 s wall, measured with `time testbed reproduce seed-001 --quick`).
 """
 
 from __future__ import annotations
@@ -25,15 +25,14 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from . import targets as tg
 from ...common.safe_io import save_figure, write_text
 from trackers.association.an import all_neighbours
 from trackers.association.params import AssociationParams
 from trackers.association.pda import pda
-from ..markdown import table as md_table
-from ...common.stats import mean_ci, wilson
+from ..markdown import table as md_table, verdict as shown_verdict
+from ...common.stats import MCNEMAR, PAIRED_T, mcnemar, mean_ci, paired_t, wilson
 
 NAMES = {"pda": "PDA", "an": "AN (25)", "an-spread": "AN + spread"}
 LONG = {"pda": "PDA: Gaussian weights, covariance (20)-(21)",
@@ -44,6 +43,7 @@ STYLES = {"pda": "-", "an": "--", "an-spread": ":"}
 PAPER = dict(rms51=6.0, rms52=30.0)
 MIN_STEPS = 5  # [D] a track is lost if the criterion holds for the last >= 5 scans (the run's tail)
 MAJORITY = 0.5  # a method "loses" (or "keeps") a track if the Wilson interval lies above (below) 50 % of runs
+SAME_M = 0.5  # [D] C001-1 "the same": a quick run states it only if the paired difference lies within +-0.5 m
 
 
 @dataclass(frozen=True)
@@ -76,12 +76,6 @@ def rms_interval(mse: np.ndarray) -> tuple[float, float, float]:
     """(RMS, lo, hi) from per-run mean squared errors mse (R,) [m^2]: t interval of the mean MSE, square-rooted."""
     m, lo, hi = t_interval(mse)
     return math.sqrt(m), math.sqrt(max(lo, 0.0)), math.sqrt(hi)
-
-
-def mcnemar(a: np.ndarray, b: np.ndarray) -> float:
-    """Exact two-sided McNemar p-value for paired bool outcomes a, b (R,) (same runs)."""
-    n01, n10 = int((~a & b).sum()), int((a & ~b).sum())
-    return 1.0 if n01 + n10 == 0 else float(stats.binomtest(n10, n01 + n10, 0.5).pvalue)
 
 
 @dataclass(frozen=True)
@@ -323,10 +317,12 @@ def claim_51(b51: Block, sens51: list[tuple[float, float, Block]]) -> tuple[str,
         f = 1.0 / math.sqrt(2.0) if per_axis else 1.0
         r = {n: tuple(f * v for v in b.res[n].rms()) for n in ("pda", "an")}
         mse = {n: (b.res[n].err[:, 1:] ** 2).mean(axis=1)[:, 0] for n in ("pda", "an")}
-        d = t_interval(np.sqrt(mse["pda"]) - np.sqrt(mse["an"]))
+        d = tuple(paired_t(np.sqrt(mse["pda"]), np.sqrt(mse["an"])))
         return {"same": d[1] <= 0.0 <= d[2], "six": all(_meets(v, PAPER["rms51"], 0.5) for v in r.values()),
                 "rms": r, "diff": d}
     p = parts(b51)
+    # carried by the intervals: "the same" within +-SAME_M, or a difference shown, or an RMS interval off 6 m
+    p["supported"] = (-SAME_M <= p["diff"][1] and p["diff"][2] <= SAME_M) or not p["same"] or not p["six"]
     alts = []
     for sa, st, b in sens51[1:]:
         for per_axis in (False, True):
@@ -350,17 +346,20 @@ def _two_target_parts(blk: dict, scenario: str) -> dict:
     an, pd_ = b.res["an"], b.res["pda"]
     out = {"pda_any": pd_.any_lost(), "pda_both": pd_.both_lost(), "an_any": an.any_lost(),
            "spread_any": b.res["an-spread"].any_lost() if "an-spread" in b.res else None,
-           "an_rms": [an.rms(t) for t in range(2)], "pda_rms": [pd_.rms(t) for t in range(2)]}
+           "an_rms": [an.rms(t) for t in range(2)], "pda_rms": [pd_.rms(t) for t in range(2)],
+           "test": mcnemar(pd_.lost.any(axis=1), an.lost.any(axis=1))}
     if scenario == "5.2":
         out["ok"] = {"PDA loses a track": out["pda_any"].above, "AN keeps both": out["an_any"].below,
                      "AN RMS ~30 m": all(_meets(v, PAPER["rms52"], 5.0) for v in out["an_rms"])}
+        out["contrary"] = out["pda_any"].below or out["an_any"].above or not out["ok"]["AN RMS ~30 m"]
     else:
         K = an.err.shape[1] - 1
         early = (an.err[:, 1:11] ** 2).mean(axis=(1, 2))
         late = (an.err[:, K - 9:] ** 2).mean(axis=(1, 2))
-        out["trend"] = (math.sqrt(early.mean()), math.sqrt(late.mean()), t_interval(late - early))
+        out["trend"] = (math.sqrt(early.mean()), math.sqrt(late.mean()), tuple(paired_t(late, early)))
         out["ok"] = {"PDA loses both": out["pda_both"].above, "AN keeps both": out["an_any"].below,
                      "AN error decreases": out["trend"][2][2] < 0.0}
+        out["contrary"] = out["pda_both"].below or out["an_any"].above or out["trend"][2][1] > 0.0
     return out
 
 
@@ -368,6 +367,7 @@ def claim_two(main: dict, sens: list[tuple[Choice, dict]], scenario: str) -> tup
     """C001-2 (5.2) and C001-3 (5.3): every part must hold (see `_two_target_parts`); else the sensitivity
     choices under which all parts hold are named."""
     p = _two_target_parts(main, scenario)
+    p["supported"] = all(p["ok"].values()) or p["contrary"]
     if all(p["ok"].values()):
         return "holds", p
     alts = [c.label for c, blk in sens[1:] if all(_two_target_parts(blk, scenario)["ok"].values())]
@@ -382,9 +382,9 @@ def sweep_rows(blocks: list[Block], seps: tuple[float, ...]) -> list[dict]:
              "gate": {n: Rate(int(x.lost_gate.any(axis=1).sum()), x.lost.shape[0]) for n, x in b.res.items()},
              "both": {n: x.both_lost() for n, x in b.res.items()},
              "rms": {n: x.rms()[0] for n, x in b.res.items()}}
-        a, p = b.res["an"].lost.any(axis=1), b.res["pda"].lost.any(axis=1)
-        r["p"] = mcnemar(p, a)
-        r["better"] = None if r["p"] >= 0.05 else ("an" if a.sum() < p.sum() else "pda")
+        r["test"] = mcnemar(b.res["pda"].lost.any(axis=1), b.res["an"].lost.any(axis=1))  # b: PDA only, c: AN
+        r["p"] = r["test"].p
+        r["better"] = None if not r["test"].significant() else ("an" if r["test"].b > r["test"].c else "pda")
         rows.append(r)
     return rows
 
@@ -397,10 +397,11 @@ def _loss_centre(rows: list[dict], name: str) -> float:
 
 def claim_sweep(rows: list[dict]) -> tuple[str, dict]:
     """C001-5: AN better than PDA (paired McNemar p < 0.05 on runs losing a track) at some separation and PDA
-    better at none: holds; PDA better somewhere and AN nowhere, or no difference anywhere: does not hold."""
+    better at none: holds; PDA better somewhere and AN nowhere, or no difference anywhere: does not hold.
+    info["supported"]: a difference was shown somewhere (no difference anywhere carries no verdict)."""
     an_b = [r["sep"] for r in rows if r["better"] == "an"]
     pda_b = [r["sep"] for r in rows if r["better"] == "pda"]
-    info = {"an_better": an_b, "pda_better": pda_b}
+    info = {"an_better": an_b, "pda_better": pda_b, "supported": bool(an_b or pda_b)}
     fmt = lambda v: ", ".join(f"{s:g}" for s in v)  # noqa: E731
     if an_b and not pda_b:
         return "holds", info
@@ -409,17 +410,21 @@ def claim_sweep(rows: list[dict]) -> tuple[str, dict]:
     return "does not hold", info
 
 
-def claim_clutter(rows: list[tuple[float, dict]]) -> tuple[str, list]:
+def claim_clutter(rows: list[tuple[float, dict]]) -> tuple[str, dict]:
     """Conclusion: AN keeps both tracks in heavy clutter where PDA loses them (5.2 and 5.3): holds at b if AN
-    keeps both (Wilson upper < 50 %) and PDA loses a track (lower > 50 %) in both scenarios."""
+    keeps both (Wilson upper < 50 %) and PDA loses a track (lower > 50 %) in both scenarios. Info: keeps (the b at
+    which AN keeps both tracks), supported (it holds at the heaviest b, or there PDA keeps or AN loses, shown)."""
     ok = [b for b, blk in rows if all(blk[s].res["an"].any_lost().below and blk[s].res["pda"].any_lost().above
                                       for s in ("5.2", "5.3"))]
     keeps = [b for b, blk in rows if all(blk[s].res["an"].any_lost().below for s in ("5.2", "5.3"))]
+    heavy = rows[-1][1]
+    contrary = any(heavy[s].res["pda"].any_lost().below or heavy[s].res["an"].any_lost().above for s in ("5.2", "5.3"))
+    info = {"keeps": keeps, "supported": bool(ok and ok[-1] == rows[-1][0]) or contrary}
     if ok and ok[-1] == rows[-1][0]:
-        return "holds", keeps
+        return "holds", info
     if ok:
-        return "holds only under b in {" + ", ".join(f"{b:g}" for b in ok) + "} per scan", keeps
-    return "does not hold", keeps
+        return "holds only under b in {" + ", ".join(f"{b:g}" for b in ok) + "} per scan", info
+    return "does not hold", info
 
 
 # ------------------------------------------------------------------------------------- figures
@@ -616,8 +621,10 @@ def _setup_lines(s: Settings, seed: int, b51: Block, main: dict, gate_r: float) 
         ["model", "X(k+1) = F X + G a, Z = H X + V, (1)-(7)", "the same [T]; F, G of the NCV model (trackers.models)"],
         ["5.1", "X(0) = [6000, 6000, 150, 60], T = 0.1 s, 1000 samples, sigma 30 m, b 0.01",
          f"the same [T]; {b51.scn.steps} scans"],
-        ["5.2", "X1(0) = [\"17000\", 7000, 130, 40], X2(0) = [7000, 8000, 110, 0], T = 1 s, 100, sigma 50 m, b 0.01",
-         "X1(0) = [7000, 7000, 130, 40] [R]; the rest [T]; closest approach 447 m at t = 20 s [I]"],
+        ["5.2", "X1(0) = [\"17000\" (garbled), 7000, 130, 40], X2(0) = [7000, 8000, 110, 0], T = 1 s, 100, sigma "
+                "50 m, b 0.01", "X1(0) = [7000, 7000, 130, 40] [R] (the printed \"17000\" read as 7000); X1's "
+                "other entries, X2(0), T, the 100 samples, sigma and b as printed [T]; closest approach 447 m at "
+                "t = 20 s [I]"],
         ["5.3", "X1(0) = [6000, 6000, 150, 60], X2(0) = [7000, 7000, 150, 60], T = 1 s, 100, sigma 50 m, b 0.01",
          "the same [T]; separation 1414 m (557 m across the track) [I]"],
         ["Monte Carlo runs", "100", f"{s.runs}, seed {seed}; the same runs for every method"],
@@ -689,11 +696,14 @@ def _scenario_lines(key: str, main: dict, p: dict, fig_run: int) -> list[str]:
     lines = [f"### {title}", "", f"{b.runs.n_runs} runs; rates with Wilson 95 % intervals, RMS with Student-t "
              f"95 % intervals (n = {b.runs.n_runs} runs). The x-y figure shows run {fig_run}.", ""]
     lines += md_table(head, rows)
+    t = p["test"]
+    lines += [f"PDA against AN (25) on the same runs, runs losing >= 1 track ({MCNEMAR}): b = {t.b} (only PDA lost), "
+              f"c = {t.c} (only AN lost), p = {t.p:.2g}.", ""]
     if key == "5.3":
         e, l_, d = p["trend"]
         lines += [f"AN (25) error trend: RMS over scans 1-10 {e:.1f} m, over the last 10 scans {l_:.1f} m; paired "
                   f"difference of the per-run mean squared error (late - early) {d[0]:.0f} m^2 [{d[1]:.0f}, "
-                  f"{d[2]:.0f}].", ""]
+                  f"{d[2]:.0f}] ({PAIRED_T}).", ""]
     return lines
 
 
@@ -707,7 +717,7 @@ def _sweep_lines(rows: list[dict], cross: list[dict], n_runs: int, gate_sigma: f
                     + [f"{r['rms'][n]:.0f}" for n in r["rms"]])
     names = list(rows[0]["rates"])
     head = (["separation / sigma", "separation [m]"] + [f"ours: {NAMES[n]} runs losing >= 1" for n in names]
-            + ["McNemar p (PDA vs AN (25))", "better (p < 0.05)"] + [f"gate criterion {NAMES[n]}" for n in names]
+            + [f"{MCNEMAR} p (PDA vs AN (25))", "better (p < 0.05)"] + [f"gate criterion {NAMES[n]}" for n in names]
             + [f"RMS {NAMES[n]} [m]" for n in names])
     cb = [[f"{r['sep']:g}"] + [str(r["rates"][n]) for n in r["rates"]] + [f"{r['p']:.2g}", NAMES.get(r["better"], "–")]
           for r in cross]
@@ -721,7 +731,7 @@ def _sweep_lines(rows: list[dict], cross: list[dict], n_runs: int, gate_sigma: f
             + md_table(head, body)
             + [f"Crossing geometry (ours): 5.2's velocities, closest approach swept (at t = 50 s), {n_runs} runs:", ""]
             + md_table(["closest approach / sigma"] + [f"ours: {NAMES[n]} runs losing >= 1" for n in names]
-                     + ["McNemar p", "better"], cb))
+                     + [f"{MCNEMAR} p", "better"], cb))
 
 
 def _sens_lines(sens: list[tuple[Choice, dict]], seps: tuple[float, ...]) -> list[str]:
@@ -755,7 +765,8 @@ def _lines_51(b51: Block, sens51: list[tuple[float, float, Block]], p: dict) -> 
            f"{b51.runs.n_runs} runs of {b51.scn.steps} scans. RMS with Student-t 95 % intervals over runs.", ""]
     out += md_table(["method", "paper 001: position RMS", "ours: 2-D RMS", "ours: per-axis RMS", "ours: runs lost"],
                   rows)
-    out += [f"Paired per-run RMS difference PDA - AN (25): {d[0]:.3g} m [{d[1]:.3g}, {d[2]:.3g}]; scans with a "
+    out += [f"Paired per-run RMS difference PDA - AN (25): {d[0]:.3g} m [{d[1]:.3g}, {d[2]:.3g}] ({PAIRED_T}); "
+            "scans with a "
             f"second observation in the gate: {100 * (b51.res['an'].tracks.n_gated >= 2).mean():.3f} %.", ""]
     srows = []
     for sa, st, b in sens51:
@@ -771,13 +782,17 @@ def _clutter_lines(rows: list[tuple[float, dict]]) -> list[str]:
     body = []
     for b, blk in rows:
         gate_area = math.pi * 16.0 * float(np.mean(blk["5.2"].res["an"].tracks.sqrt_s[:, -1]) ** 2)
+        tests = [mcnemar(blk[s].res["pda"].lost.any(axis=1), blk[s].res["an"].lost.any(axis=1)) for s in ("5.2", "5.3")]
         body.append([f"{b:g}", f"{b / blk['5.2'].scn.area():.2g}", f"{b * gate_area / blk['5.2'].scn.area():.3g}"]
-                    + [str(blk[s].res[n].any_lost()) for s in ("5.2", "5.3") for n in ("pda", "an")])
+                    + [str(blk[s].res[n].any_lost()) for s in ("5.2", "5.3") for n in ("pda", "an")]
+                    + [f"{t.b} / {t.c}, p = {t.p:.2g}" for t in tests])
     head = ["b per scan", "lambda [1/m^2] (5.2)", "clutter per gate per scan (5.2)", "ours: 5.2 PDA", "ours: 5.2 AN (25)",
-            "ours: 5.3 PDA", "ours: 5.3 AN (25)"]
+            "ours: 5.3 PDA", "ours: 5.3 AN (25)", f"5.2 PDA vs AN: {MCNEMAR} b / c, p",
+            f"5.3 PDA vs AN: {MCNEMAR} b / c, p"]
     return (["## Clutter (the conclusion's \"heavy clutter density\", ours)", "",
              "Runs losing >= 1 track against the clutter rate b (the paper: 0.01 per scan, \"almost clutter-free\" "
-             "over these regions).", ""] + md_table(head, body))
+             f"over these regions); the methods compared on the same runs by the {MCNEMAR} test (b / c = runs only "
+             "PDA / only AN (25) lost).", ""] + md_table(head, body))
 
 
 AMBIGUITIES = [
@@ -848,10 +863,13 @@ def _draw(out: Path, s: Settings, b51, main, rows, cross, gate_r: float, clutter
     return run52, run53, show
 
 
-def _verdict_texts(s: Settings, props, rows, clutter_rows, claims) -> dict[str, str]:
+def verdict_texts(s: Settings, props, rows, clutter_rows, claims, quick: bool = False) -> dict[str, str]:
     """Claim -> its one-line verdict and evidence; claims: the (verdict, parts) of claim_51, claim_two (5.2, 5.3),
-    claim_sweep and claim_clutter."""
-    (v1, p1), (v2, p2), (v3, p3), (v5, i5), (vc, keeps) = claims
+    claim_sweep and claim_clutter. A quick run states a verdict only where its parts say its intervals and tests
+    carry it ("supported"), else "indicative (n runs): not a verdict"."""
+    (v1, p1), (v2, p2), (v3, p3), (v5, i5), (vc, ic) = claims
+    v1, v2, v3, v5, vc = (shown_verdict(v, quick=quick, supported=p["supported"], n=s.runs)
+                          for v, p in ((v1, p1), (v2, p2), (v3, p3), (v5, i5), (vc, ic)))
     pa, pn = p2["pda_any"], p2["an_any"]
     hb, hblk = clutter_rows[-1]
     r51 = p1["rms"]
@@ -859,10 +877,10 @@ def _verdict_texts(s: Settings, props, rows, clutter_rows, claims) -> dict[str, 
     return {
         "C001-1 (5.1, Fig. 2: PDA and AN the same, RMS 6 m)":
             f"{v1}: RMS PDA {_ci(r51['pda'])}, AN (25) {_ci(r51['an'])} (2-D, sigma_a = 0.5); paired difference "
-            f"{p1['diff'][0]:.2g} m [{p1['diff'][1]:.2g}, {p1['diff'][2]:.2g}]; n = {s.runs}",
+            f"{p1['diff'][0]:.2g} m [{p1['diff'][1]:.2g}, {p1['diff'][2]:.2g}] ({PAIRED_T}); n = {s.runs}",
         "C001-2 (5.2, Figs. 3-5: PDA loses one track, AN keeps both, AN RMS 30 m)":
-            f"{v2}: runs losing a track PDA {pa}, AN (25) {pn}; AN RMS {_ci(p2['an_rms'][0])} / "
-            f"{_ci(p2['an_rms'][1])}; parts at the defaults: {_tagged(p2['ok'])}",
+            f"{v2}: runs losing a track PDA {pa}, AN (25) {pn} ({MCNEMAR} PDA vs AN: {p2['test']}); AN RMS "
+            f"{_ci(p2['an_rms'][0])} / {_ci(p2['an_rms'][1])}; parts at the defaults: {_tagged(p2['ok'])}",
         "C001-3 (5.3, Figs. 6-8: PDA loses both tracks, AN keeps both, its error decreases)":
             f"{v3}: runs losing both PDA {p3['pda_both']}, runs losing a track AN (25) {p3['an_any']}; AN RMS "
             f"early {p3['trend'][0]:.1f} m, late {p3['trend'][1]:.1f} m; parts at the defaults: {_tagged(p3['ok'])}",
@@ -871,16 +889,16 @@ def _verdict_texts(s: Settings, props, rows, clutter_rows, claims) -> dict[str, 
             f"within 1e-12 on {2000} seeded random gates (table below)",
         "C001-5 (loss against separation: AN better than PDA for close targets)":
             f"{v5}: AN (25) better at {', '.join(f'{x:g}' for x in i5['an_better']) or 'no'} sigma, PDA better at "
-            f"{', '.join(f'{x:g}' for x in i5['pda_better']) or 'no'} sigma (paired McNemar p < 0.05, {s.runs} "
+            f"{', '.join(f'{x:g}' for x in i5['pda_better']) or 'no'} sigma ({MCNEMAR} p < 0.05, {s.runs} "
             f"runs per separation); peak loss PDA "
             f"{max(r['rates']['pda'].p for r in rows) * 100:.0f} %, AN (25) "
             f"{max(r['rates']['an'].p for r in rows) * 100:.0f} %",
         "Conclusion (AN tracks close targets in heavy clutter, PDA fails even in light clutter)":
             f"{vc}: AN (25) keeps both tracks in 5.2 and 5.3 for b in "
-            f"{{{', '.join(f'{b:g}' for b in keeps) or 'none'}}} per scan; at the heaviest b = {hb:g} runs losing a "
-            f"track: 5.2 PDA {hblk['5.2'].res['pda'].any_lost()}, AN {hblk['5.2'].res['an'].any_lost()}; 5.3 PDA "
-            f"{hblk['5.3'].res['pda'].any_lost()}, AN {hblk['5.3'].res['an'].any_lost()}; at b = 0.01 PDA loses "
-            f"in 5.2 {pa}, 5.3 {p3['pda_any']}",
+            f"{{{', '.join(f'{b:g}' for b in ic['keeps']) or 'none'}}} per scan; at the heaviest b = {hb:g} runs "
+            f"losing a track: 5.2 PDA {hblk['5.2'].res['pda'].any_lost()}, AN {hblk['5.2'].res['an'].any_lost()}; "
+            f"5.3 PDA {hblk['5.3'].res['pda'].any_lost()}, AN {hblk['5.3'].res['an'].any_lost()}; at b = 0.01 PDA "
+            f"loses in 5.2 {pa}, 5.3 {p3['pda_any']}",
     }
 
 
@@ -935,13 +953,16 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
     (_, p1), (_, p2), (_, p3) = claims[:3]
     run52, run53, show = _draw(out, s, b51, main, rows, cross, gate_r, clutter_rows)
     md = ["# Reproduction of paper 001: PDA against the all-neighbours weights linear in distance", ""]
-    md += _verdict_lines(_verdict_texts(s, props, rows, clutter_rows, claims))
-    md += [("**Quick run** (reduced: fewer runs, shorter 5.1, fewer separations; the full report is in "
-            "docs/results/reproduce/seed-001/)." if quick else "Full run."),
+    md += _verdict_lines(verdict_texts(s, props, rows, clutter_rows, claims, quick))
+    md += [(f"**Quick run** (reduced: {s.runs} runs, {s.steps_51} scans in 5.1, {len(s.seps)} separations; the full "
+            "report is in docs/results/reproduce/seed-001/). A verdict that this run's own intervals and tests do not "
+            "carry reads \"indicative (n runs): not a verdict\"." if quick else "Full run."),
            f"Regenerate with `testbed reproduce seed-001{' --quick' if quick else ''} --seed {seed}`. Every number "
            "below is ours unless a column says \"paper\". A claim holds if every part of it holds at the defaults; "
            "\"holds only under\" names the choices (sensitivity tables) under which all its parts hold. \"Loses\" "
-           "means the Wilson 95 % interval of the runs losing a track lies above 50 %, \"keeps\" below 50 %.", ""]
+           "means the Wilson 95 % interval of the runs losing a track lies above 50 %, \"keeps\" below 50 %. Every "
+           f"method runs on the same runs, so comparisons between methods are paired: lost runs by the {MCNEMAR} "
+           f"test, error differences by the {PAIRED_T}.", ""]
     md += _setup_lines(s, seed, b51, main, gate_r)
     md += ["## The paper's claims and ours", ""] + _lines_51(b51, sens51, p1)
     md += _scenario_lines("5.2", main, p2, run52) + _scenario_lines("5.3", main, p3, run53)

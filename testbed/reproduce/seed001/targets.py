@@ -107,8 +107,9 @@ def single_target(steps: int = 1000, **kw) -> Scenario:
 
 
 def crossing(**kw) -> Scenario:
-    """Paper 001 §5.2: X1(0) = [7000, 7000, 130, 40] (printed "17000": [R]), X2(0) = [7000, 8000, 110, 0],
-    T = 1 s, 100 samples, sigma = 50 m, b = 0.01 [T]. Closest approach 447 m at t = 20 s [I]."""
+    """Paper 001 §5.2: X1(0) = [7000, 7000, 130, 40] [R] (the printed, garbled "17000" read as 7000); X1's other
+    entries, X2(0) = [7000, 8000, 110, 0], T = 1 s, 100 samples, sigma = 50 m, b = 0.01 as printed [T]. Closest
+    approach 447 m at t = 20 s [I]."""
     return Scenario("5.2 crossing", ((7000.0, 7000.0, 130.0, 40.0), (7000.0, 8000.0, 110.0, 0.0)), 1.0, 100, 50.0,
                     **kw)
 

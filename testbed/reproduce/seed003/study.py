@@ -10,7 +10,7 @@ Parts (the paper's claims, and ours beside them, in summary.md):
      permutation of minimum squared error; RMSE per target over time (the paper's Fig. 2), one run (Fig. 1);
   3. ours only: the ordering against the initial covariance P0 (the printed P0 is undecodable, [D]), and N = 2.
 Full: 100 runs (paper), 2e6 noise samples per covariance case (about 1.5 min of one core). Quick: 10 runs, 2e5
-samples (about 10 s).
+samples (9 s wall, measured with `time testbed reproduce seed-003 --quick`).
 Streams: the runs of every filter and every P0 are the same seeded runs (common random numbers).
 """
 
@@ -25,7 +25,8 @@ from sensors.symmetric import FORMS, SymmetricSensor, monte_carlo_moments
 from . import sme_targets as st
 from ...common.safe_io import save_figure, write_text
 from trackers.sme import symmetric_noise_covariance, symmetric_noise_mean
-from ..markdown import table as md_table
+from ..markdown import table as md_table, verdict as shown_verdict
+from ...common.stats import PAIRED_T, paired_t, wilson
 
 FILTERS = ("kf", "products", "powers")
 NAMES = {"kf": "KF (associated, linear)", "products": "EKF sum of products", "powers": "EKF sum of powers"}
@@ -135,6 +136,13 @@ def kink(mc: MonteCarlo, name: str, target: int, t_cross: float) -> tuple[float,
     return float(ratio[i]), float(mc.times[k[i]])
 
 
+def per_run_rms(mc: MonteCarlo, name: str, target: int, t0: float = 1.0) -> np.ndarray:
+    """(R,) RMS position error [m] of `target` per run over t >= t0 (labelled estimates): the per-run values the
+    paired comparisons use (every filter runs on the same runs)."""
+    k = mc.times >= t0 - 1e-9
+    return np.sqrt(((mc.est[name][:, k, target] - mc.truth[None, k, target]) ** 2).mean(axis=1))
+
+
 def share_below(mc: MonteCarlo, a: str, b: str, target: int, t0: float = 1.0) -> float:
     """Share of steps with t >= t0 at which RMSE_a <= RMSE_b for `target`."""
     k = mc.times >= t0 - 1e-9
@@ -142,8 +150,9 @@ def share_below(mc: MonteCarlo, a: str, b: str, target: int, t0: float = 1.0) ->
 
 
 def p0_rows(scn: st.LineTargets, n_runs: int, seed: int, bar=None) -> list[dict]:
-    """Target 1's mean RMSE over 1-20 s and the divergence rate of every filter, for each P0 variant: the same
-    n_runs seeded runs under every P0, all variants filtered in one batch."""
+    """Target 1's mean RMSE over 1-20 s, the divergence rate and the per-run RMS over 1-20 s (runs_<filter>, for the
+    paired ordering) of every filter, for each P0 variant: the same n_runs seeded runs under every P0, all variants
+    filtered in one batch."""
     runs = st.simulate(scn, n_runs, seed)
     V = len(P0_VARIANTS)
     stacked = st.LineRuns(truth=runs.truth, z=np.tile(runs.z, (V, 1, 1)), sigma=runs.sigma)
@@ -159,6 +168,7 @@ def p0_rows(scn: st.LineTargets, n_runs: int, seed: int, bar=None) -> list[dict]
             part = e[v * n_runs:(v + 1) * n_runs]
             row[f"rmse_{name}"] = float(st.position_rmse(part, runs.truth)[k, 0].mean())
             row[f"div_{name}"] = float(st.diverged(part, runs.truth, DIVERGED_M).mean())
+            row[f"runs_{name}"] = np.sqrt(((part[:, k, 0] - runs.truth[None, k, 0]) ** 2).mean(axis=1))  # (R,)
         if bar is not None:
             bar.update(1)
     return rows
@@ -256,6 +266,8 @@ def _claim_stats(mc: MonteCarlo, scn: st.LineTargets) -> dict:
     away = (mc.times >= 14) & (mc.times <= 18)
     return dict(
         m={f: window_mean(mc, f, 0, 1.0, t_end) for f in FILTERS},
+        paired={(a, b): paired_t(per_run_rms(mc, a, 0), per_run_rms(mc, b, 0))
+                for a, b in (("kf", "products"), ("kf", "powers"), ("products", "powers"))},
         kf_low=min(share_below(mc, "kf", "products", 0), share_below(mc, "kf", "powers", 0)),
         prod_pow=share_below(mc, "products", "powers", 0),
         kinks=[(t, kink(mc, "products", 0, t), kink(mc, "powers", 0, t))
@@ -268,45 +280,63 @@ def _claim_stats(mc: MonteCarlo, scn: st.LineTargets) -> dict:
                                                              for f in FILTERS) for i in range(scn.n_targets)))
 
 
-def _claim_rows(mc: MonteCarlo, cov: list[dict], scn: st.LineTargets) -> list[list[str]]:
+def _pt(t) -> str:
+    return f"{t.est:+.3f} m [{t.lo:+.3f}, {t.hi:+.3f}]"
+
+
+def _claim_rows(mc: MonteCarlo, cov: list[dict], scn: st.LineTargets, quick: bool = False) -> list[list[str]]:
+    """The claims table: (claim, paper, ours, verdict). A quick run states a verdict only where its own numbers
+    carry it (an interval or test, or an event seen), else "indicative (n runs): not a verdict"."""
     c = _claim_stats(mc, scn)
-    m, exch, perm, div = c["m"], c["exch"], c["perm"], c["div"]
+    m, exch, perm, div, pt = c["m"], c["exch"], c["perm"], c["div"], c["paired"]
     worst = max(cov, key=lambda r: r["cov_z"])
     cz, cn = worst["cov_z"], max(r["cov_norm"] for r in cov)
     kink_txt = "; ".join(f"crossing at {t:.1f} s: products {p[0]:.2f} at {p[1]:.2f} s, powers {w[0]:.2f} at "
                          f"{w[1]:.2f} s" for t, p, w in c["kinks"])
     kinks_hold = all(p[0] > c["base"]["products"] and w[0] > c["base"]["powers"] for _, p, w in c["kinks"])
-    return [
+    kf_low = pt[("kf", "products")].below and pt[("kf", "powers")].below
+    pp = pt[("products", "powers")]
+    n = len(mc.diverged["kf"])
+    div_k = max(int(mc.diverged[f].sum()) for f in FILTERS)
+    div_lo, div_hi = wilson(div_k, n)
+    rows = [  # (claim, paper, ours, verdict, supported)
         ["noise covariance (§III)", "analytic R \"verified\" by Monte Carlo (no numbers)",
          f"max abs(MC - analytic) = {cz:.2f} standard errors (in that case the raw noise's own sample variance "
          f"is {worst['raw_z']:.1f} SE off sigma^2), max {100 * cn:.2f} % of sqrt(R_aa R_bb) over {len(cov)} cases",
-         "yes" if cz < 5 else "no"],
+         "yes" if cz < 5 else "no", True],
         ["KF lowest (Fig. 2)", "RMSE(KF) < RMSE(EKF), target 1",
          f"mean RMSE 1-20 s: KF {m['kf']:.3f} m, products {m['products']:.3f} m, powers {m['powers']:.3f} m; "
-         f"KF <= both EKFs at {100 * c['kf_low']:.1f} % of steps",
-         "yes" if m["kf"] < min(m["products"], m["powers"]) else "no"],
+         f"KF <= both EKFs at {100 * c['kf_low']:.1f} % of steps; per-run RMS 1-20 s, KF - products "
+         f"{_pt(pt[('kf', 'products')])}, KF - powers {_pt(pt[('kf', 'powers')])} ({PAIRED_T}, {n} runs)",
+         "yes" if kf_low else "no", kf_low or pt[("kf", "products")].above or pt[("kf", "powers")].above],
         ["products below powers (Fig. 2, §V)", "RMSE(products) < RMSE(powers)",
          f"mean {m['products']:.3f} vs {m['powers']:.3f} m; products <= powers at {100 * c['prod_pow']:.1f} % of "
-         "steps (see the P0 table)", ("on average" if m["products"] < m["powers"] else "no")
-         + ("" if c["prod_pow"] > 0.9 else ", not at every time")],
+         f"steps; per-run RMS 1-20 s, products - powers {_pt(pp)} ({PAIRED_T}, {n} runs; see the P0 table)",
+         ("on average" if pp.below else "no") + ("" if not pp.below or c["prod_pow"] > 0.9 else ", not at every time"),
+         pp.below or pp.above],
         ["kinks near the 5th and 10th s", "due to track label exchange",
          f"peak EKF/KF RMSE ratio within 1 s of target 1's crossings: {kink_txt}; away from crossings (14-18 s) "
-         f"products {c['base']['products']:.2f}, powers {c['base']['powers']:.2f}", "yes" if kinks_hold else "partly"],
+         f"products {c['base']['products']:.2f}, powers {c['base']['powers']:.2f}", "yes" if kinks_hold else "partly",
+         False],
         ["tracks without identity (Fig. 1)", "in some runs the filter follows the targets \"without identifying "
          "the particle\"", f"runs whose slots end as a permutation of the targets: products "
          f"{100 * perm['products']:.0f} %, powers {100 * perm['powers']:.0f} % (fixed by the labelling)",
-         "yes" if max(perm.values()) > 0 else "not seen"],
+         "yes" if max(perm.values()) > 0 else "not seen", max(perm.values()) > 0],
         ["track exchange at crossovers (Fig. 1, 2)", "\"may occur\"; the cause of the kinks",
          f"runs whose labelling changes after 1 s: products {100 * exch['products']:.0f} %, powers "
          f"{100 * exch['powers']:.0f} %", "yes" if max(exch.values()) > 0 else "not seen: slots keep their target "
-         "through every crossing (the joint state carries the velocities), so the kinks are not label exchanges"],
+         "through every crossing (the joint state carries the velocities), so the kinks are not label exchanges",
+         max(exch.values()) > 0],
         ["EKF follows the truth", "\"tracks the positions very well\"",
          f"diverged runs (labelled final error > {DIVERGED_M:g} m): KF {100 * div['kf']:.0f} %, products "
-         f"{100 * div['products']:.0f} %, powers {100 * div['powers']:.0f} %",
-         "yes" if max(div.values()) <= 0.05 else "partly"],
+         f"{100 * div['products']:.0f} %, powers {100 * div['powers']:.0f} % (most: {div_k}/{n}, Wilson 95 % "
+         f"[{100 * div_lo:.0f}, {100 * div_hi:.0f}] %)", "yes" if max(div.values()) <= 0.05 else "partly",
+         div_hi <= 0.05 or div_lo > 0.05],
         ["targets 2 and 3 similar", "\"similar results\" (not shown)", f"mean RMSE 1-20 s: {c['per_target']}",
-         "see figure"],
+         "see figure", True],
     ]
+    return [r[:3] + [r[3] if r[3] == "see figure" else shown_verdict(r[3], quick=quick, supported=r[4], n=n)]
+            for r in rows]
 
 
 def _rmse_lines(mc: MonteCarlo, scn: st.LineTargets) -> list[str]:
@@ -344,10 +374,21 @@ def _cov_lines(cov: list[dict]) -> list[str]:
             + md_table(["entry", "analytic", "Monte Carlo", "difference"], detail))
 
 
+def paired_order(row: dict) -> str:
+    """The filters by mean RMSE, '<' where the paired t 95 % interval of the per-run RMS difference lies below 0
+    (the same runs for every filter), '~' where it does not."""
+    names = sorted(FILTERS, key=lambda f: row[f"rmse_{f}"])
+    out = names[0]
+    for a, b in zip(names, names[1:]):
+        out += (" < " if paired_t(row[f"runs_{a}"], row[f"runs_{b}"]).below else " ~ ") + b
+    return out
+
+
 def _p0_lines(rows: list[dict], n_runs: int) -> list[str]:
     body = [[r["label"]] + [_f(r[f"rmse_{f}"]) for f in FILTERS] + [f"{100 * r[f'div_{f}']:.0f} %" for f in FILTERS]
-            + [" < ".join(sorted(FILTERS, key=lambda f: r[f"rmse_{f}"]))] for r in rows]
-    head = ["P0 (ours, all [D])", "KF", "products", "powers", "KF div.", "products div.", "powers div.", "ordering"]
+            + [paired_order(r)] for r in rows]
+    head = ["P0 (ours, all [D])", "KF", "products", "powers", "KF div.", "products div.", "powers div.",
+            f"ordering (< : {PAIRED_T} of the per-run RMS below 0, ~ : not shown)"]
     return (["## Dependence on P0 (ours): target 1 mean RMSE 1-20 s [m] and diverged runs", "",
              f"{n_runs} runs each, the same runs for every row. The paper's P0 is unreadable, so its ordering claim "
              "is tested across readings. With equal position entries the EKF is permutation-equivariant: in exact "
@@ -410,14 +451,15 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
     figure_rmse(out / "rmse_all_targets.png", scn3, mc3, tuple(range(scn3.n_targets)), s.runs)
     figure_rmse(out / "rmse_two_targets.png", scn2, mc2, (0, 1), s.runs)
     md = ["# Reproduction of paper 003: symmetric measurement equations with an EKF", "",
-          ("**Quick run** (reduced: fewer runs and noise samples; the full report is in "
-           "docs/results/reproduce/seed-003/)." if quick else "Full run."),
+          (f"**Quick run** (reduced: {s.runs} runs, {s.cov_samples:.0e} noise samples; the full report is in "
+           "docs/results/reproduce/seed-003/). A verdict that this run's own intervals, tests or observed events do "
+           "not carry reads \"indicative (n runs): not a verdict\"." if quick else "Full run."),
           f"Regenerate with `testbed reproduce seed-003{' --quick' if quick else ''} --seed {seed}`.", ""]
     md += _setup_lines(scn3, s, seed, quick)
     md += ["## The paper's claims and ours", "",
            f"Three targets, {s.runs} runs, P0 = default [D]. \"Paper\" is what paper 003 states; \"ours\" is measured "
            "here.", ""]
-    md += md_table(["claim", "paper 003 (stated)", "ours (measured)", "holds?"], _claim_rows(mc3, cov, scn3))
+    md += md_table(["claim", "paper 003 (stated)", "ours (measured)", "holds?"], _claim_rows(mc3, cov, scn3, quick))
     md += _rmse_lines(mc3, scn3) + _cov_lines(cov) + _p0_lines(p0, s.p0_runs) + _n2_lines(mc2, scn2)
     md += ["## Figures", "",
            f"- `fig1_single_run.png`: truth (dashed) and the unlabelled EKF slots of run {run0}, the first run whose "

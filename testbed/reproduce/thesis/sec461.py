@@ -19,7 +19,7 @@ with `pda` on car 1). Main tables at the printed lambda = 1e-2 and at lambda = 1
 time around both: clutter density, heading change of the curve, switch rule, psi_max, robust_lower, truth noise.
 
 Run time (one core): full about 6.5 min (20 runs per car for the main tables, 8 per car per sensitivity row, full
-500 s); quick about 30 s (2 runs per car; sensitivity on car 1 only, 2 runs, one value per choice).
+500 s); quick 47 s wall, measured with `time testbed reproduce thesis-4.6.1 --quick` (2 runs per car; sensitivity on car 1 only, 2 runs, one value per choice).
 Streams: car c's runs come from SeedSequence((seed, c)).spawn(n); every filter and every filter-only variant sees
 the same runs (common random numbers); the sensitivity rows use the first runs of the main tables.
 """
@@ -33,9 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from . import synthetic as sy
-from ..markdown import table as md_table
+from ..markdown import table as md_table, verdict as shown_verdict
 from ...common.safe_io import save_figure, write_text
-from ...common.stats import mean_ci, wilson
+from ...common.stats import MCNEMAR, PAIRED_BOOTSTRAP, PAIRED_T, McNemar, mcnemar, mean_ci, paired_bootstrap, \
+    paired_t, wilson
 from trackers.filters import make_filter
 from trackers.models import ConstantVelocity
 
@@ -299,27 +300,31 @@ def _t(values: np.ndarray) -> tuple[float, float, float]:
     return mean, lo, hi
 
 
+def _improvement(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    return 100.0 * (1.0 - B.mean(axis=1) / A.mean(axis=1))  # percentage improvement (reference §10.1)
+
+
 def paired(a: np.ndarray, b: np.ndarray, rng: np.random.Generator) -> Paired:
-    """Paired comparison of per-run values a (KF) and b (GVBL), both (R,)."""
+    """Paired comparison of per-run values a (KF) and b (GVBL), both (R,): the difference b - a with a paired t
+    interval, the improvement with a paired bootstrap interval (testbed.common.stats; rng: the bootstrap
+    stream)."""
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
     if a.shape != b.shape or a.ndim != 1 or a.size == 0:
         raise ValueError(f"paired needs two equal non-empty 1-D arrays, got {a.shape} and {b.shape}")
     identical = bool(np.max(np.abs(a - b)) < 1e-9)
-    imp = 100.0 * (1.0 - b.mean() / a.mean())  # percentage improvement (reference §10.1)
-    idx = rng.integers(0, a.size, size=(N_BOOT, a.size))
-    boot = 100.0 * (1.0 - b[idx].mean(axis=1) / a[idx].mean(axis=1))
+    imp = paired_bootstrap(a, b, rng, stat=_improvement, n_boot=N_BOOT)
     if identical:
-        imp = 0.0
-    lo, hi = (imp, imp) if identical or a.size < 2 else tuple(np.percentile(boot, [2.5, 97.5]))
-    d = (0.0, 0.0, 0.0) if identical else _t(b - a)
-    return Paired(a.size, _t(a), _t(b), d, (float(imp), float(lo), float(hi)), identical)
+        return Paired(a.size, _t(a), _t(b), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), True)
+    d = paired_t(b, a)
+    return Paired(a.size, _t(a), _t(b), (d.est, d.lo, d.hi), (imp.est, imp.lo, imp.hi), False)
 
 
 @dataclass(frozen=True, eq=False)
 class CarEval:
     """One car under one setting: states: Paired per state over all scans; inside / outside: Paired position RMSE
     in and out of the manoeuvres; trace_in / trace_out: mean tr P ratio GVBL / KF in and out; robust, robust_in:
-    share of updates in the robust regime (all, inside); lost: lost runs per filter; n."""
+    share of updates in the robust regime (all, inside); lost: lost runs per filter; lost_test: McNemar test of
+    the KF's lost runs against GVBL's on the same runs; n."""
 
     car: int
     n: int
@@ -332,6 +337,7 @@ class CarEval:
     robust: float
     robust_in: float
     lost: dict
+    lost_test: McNemar
 
 
 def evaluate(cache: Cache, st: Setting, car: int, n: int, rng: np.random.Generator) -> CarEval:
@@ -346,22 +352,27 @@ def evaluate(cache: Cache, st: Setting, car: int, n: int, rng: np.random.Generat
     robust = float(np.nanmean(reg)) if np.isfinite(reg).any() else 0.0
     reg_in = reg[:, ins[1:]]
     robust_in = float(np.nanmean(reg_in)) if np.isfinite(reg_in).any() else 0.0
-    lost = {f: int(sum(sy.lost_at(np.hypot(e[:, 0], e[:, 1]), LOST_M) is not None for e in t.err))
-            for f, t in (("kf", kf), ("gvbl", gv))}
+    lost_runs = {f: np.array([sy.lost_at(np.hypot(e[:, 0], e[:, 1]), LOST_M) is not None for e in t.err])
+                 for f, t in (("kf", kf), ("gvbl", gv))}
+    lost = {f: int(v.sum()) for f, v in lost_runs.items()}
     return CarEval(car=car, n=n, states=tuple(paired(a[:, j], b[:, j], rng) for j in range(4)),
                    position=paired(per_run_position_rmse(kf.err), per_run_position_rmse(gv.err), rng),
                    inside=paired(per_run_position_rmse(kf.err, ins), per_run_position_rmse(gv.err, ins), rng),
                    outside=paired(per_run_position_rmse(kf.err, out), per_run_position_rmse(gv.err, out), rng),
                    trace_in=mean_tr(gv.trace, ins) / mean_tr(kf.trace, ins),
                    trace_out=mean_tr(gv.trace, out) / mean_tr(kf.trace, out), robust=robust, robust_in=robust_in,
-                   lost=lost)
+                   lost=lost, lost_test=mcnemar(lost_runs["kf"], lost_runs["gvbl"]))
 
 
 # ------------------------------------------------------------------------------------------ claims
 @dataclass(frozen=True)
 class Verdict:
+    """holds: the claim's rule holds; contrary: the runs' own intervals show the opposite (so "does not hold" is
+    carried by them); text: the evidence."""
+
     holds: bool
     text: str
+    contrary: bool = False
 
 
 def claim_c1(evals: list[CarEval]) -> Verdict:
@@ -373,7 +384,8 @@ def claim_c1(evals: list[CarEval]) -> Verdict:
     same = sum(p.identical for _, _, p in entries)
     holds = not worse and better >= len(entries) - 1
     return Verdict(holds, f"{better}/{len(entries)} entries better, {len(worse)} worse"
-                   + (f" ({', '.join(worse)})" if worse else "") + (f", {same} identical" if same else ""))
+                   + (f" ({', '.join(worse)})" if worse else "") + (f", {same} identical" if same else "")
+                   + f" ({PAIRED_T} of GVBL - KF)", contrary=bool(worse))
 
 
 def claim_c2(evals: list[CarEval]) -> Verdict:
@@ -381,8 +393,10 @@ def claim_c2(evals: list[CarEval]) -> Verdict:
     lo_c, hi_c = C2_RANGE
     ys = [(e.car, e.states[1].imp) for e in evals]
     holds = all(lo > 0.0 and lo <= hi_c and hi >= lo_c for _, (_, lo, hi) in ys)
+    outside = any(hi < lo_c or lo > hi_c for _, (_, lo, hi) in ys)  # an interval that misses 22-42 %
     return Verdict(holds, "y improvement " + ", ".join(f"car {c} {_p1(m)} % [{_p1(lo)}, {_p1(hi)}]"
-                                                        for c, (m, lo, hi) in ys))
+                                                        for c, (m, lo, hi) in ys) + f" ({PAIRED_BOOTSTRAP})",
+                   contrary=outside)
 
 
 def claim_c3(evals: list[CarEval]) -> Verdict:
@@ -390,7 +404,8 @@ def claim_c3(evals: list[CarEval]) -> Verdict:
     larger improvement inside than outside."""
     holds = all(e.inside.better and e.inside.imp[0] > e.outside.imp[0] for e in evals)
     return Verdict(holds, "position improvement inside / outside the manoeuvres: " + ", ".join(
-        f"car {e.car} {_pct(e.inside.imp).replace(' [', ' % [', 1)} / {_p1(e.outside.imp[0])} %" for e in evals))
+        f"car {e.car} {_pct(e.inside.imp).replace(' [', ' % [', 1)} / {_p1(e.outside.imp[0])} %" for e in evals)
+        + f" ({PAIRED_BOOTSTRAP}; better: {PAIRED_T} below 0)", contrary=any(e.inside.worse for e in evals))
 
 
 CLAIMS = (("C1", "JPDA-GVBL-SVSF RMSE <= JPDA-KF for every car and state (Table 4.2)", claim_c1),
@@ -399,13 +414,27 @@ CLAIMS = (("C1", "JPDA-GVBL-SVSF RMSE <= JPDA-KF for every car and state (Table 
            claim_c3))
 
 
-def verdict_line(cid: str, claim: str, printed: Verdict, sens: list[tuple[str, Verdict]]) -> str:
-    """The bold one-line verdict of a claim: at the printed parameters, else the sensitivity rows where it holds."""
+RULES_LINES = [f"Verdict rules (computed from the intervals; both filters run on the same runs, so every comparison "
+               f"is paired): C1 holds when no (car, state) entry is worse ({PAIRED_T} of the per-run RMSE "
+               "difference GVBL - KF above 0) and all but at most one are better (interval below 0; the thesis has "
+               f"one tie); C2 when every car's y improvement interval ({PAIRED_BOOTSTRAP}) lies above 0 and overlaps "
+               "22-42 %; C3 when for every car the position RMSE inside the manoeuvres is better (paired t interval "
+               "below 0) and improves more than outside. \"holds only under\" lists the sensitivity rows where the "
+               "rule holds.", ""]
+"""The verdict rules, as the report states them."""
+
+
+def verdict_line(cid: str, claim: str, printed: Verdict, sens: list[tuple[str, Verdict]], quick: bool = False,
+                 n: int = 0) -> str:
+    """The bold one-line verdict of a claim: at the printed parameters, else the sensitivity rows where it holds.
+    A quick run (n runs per car) states it only when its own intervals carry it (it holds, or they show the
+    contrary), else "indicative (n runs per car): not a verdict"."""
     if printed.holds:
         word = "holds"
     else:
         where = [label for label, v in sens if v.holds]
         word = f"holds only under {'; '.join(where)}" if where else "does not hold"
+    word = shown_verdict(word, quick=quick, supported=printed.holds or printed.contrary, n=n, unit="runs per car")
     return f"**{cid} ({claim}): {word}.** Printed parameters: {printed.text}."
 
 
@@ -676,13 +705,16 @@ def _main_lines(st: Setting, evals: list[CarEval], lost_n: int) -> list[str]:
                          _ci(p.kf), _ci(p.gvbl), "0 (identical)" if p.identical else _ci(p.diff, 3),
                          "0 (identical)" if p.identical else _pct(p.imp)])
     head = ["car", "state", "thesis JPDA-KF", "thesis JPDA-GVBL-SVSF", "thesis improvement [%]",
-            "ours JPDA-KF [95 % CI]", "ours JPDA-GVBL-SVSF [95 % CI]", "ours paired GVBL - KF [95 % CI]",
-            "ours improvement [%] [95 % CI]"]
+            "ours JPDA-KF [95 % CI]", "ours JPDA-GVBL-SVSF [95 % CI]", f"ours GVBL - KF [{PAIRED_T}]",
+            f"ours improvement [%] [{PAIRED_BOOTSTRAP}]"]
     lost = []
     for e in evals:
+        cells = []
         for f in FILTERS:
             lo, hi = wilson(e.lost[f], e.n)
-            lost.append([e.car, NAMES[f], f"{e.lost[f]}/{e.n}", f"[{100 * lo:.0f}, {100 * hi:.0f}] %"])
+            cells.append(f"{e.lost[f]}/{e.n} [{100 * lo:.0f}, {100 * hi:.0f}] %")
+        t = e.lost_test
+        lost.append([e.car, *cells, f"{t.b} / {t.c}, p = {t.p:.2g}"])
     mc = []
     for e in evals:
         mc.append([e.car, _ci(e.inside.kf), _ci(e.inside.gvbl), _pct(e.inside.imp), _ci(e.outside.kf),
@@ -691,16 +723,19 @@ def _main_lines(st: Setting, evals: list[CarEval], lost_n: int) -> list[str]:
     return ([f"## Table 4.2: {st.label} ({lost_n} runs per car)", "",
              "RMSE per state over all 1000 scans; \"thesis\" columns are Table 4.2 (500 runs), \"ours\" are measured "
              f"here (n = {lost_n} runs per car, the same runs for both filters). Improvement = 100 (1 - RMSE_GVBL / "
-             "RMSE_KF), its interval by a paired bootstrap over runs.", ""]
+             f"RMSE_KF), its interval by a {PAIRED_BOOTSTRAP} over runs; the difference GVBL - KF of the per-run "
+             f"RMSEs with a {PAIRED_T}.", ""]
             + md_table(head, rows)
             + ["Inside vs outside the manoeuvres (C3): position RMSE sqrt(mean(ex^2 + ey^2)) [m] per run, mean and "
                "95 % interval; trace ratio = mean tr P of GVBL / KF; robust = share of GVBL updates in the robust "
                "regime.", ""]
-            + md_table(["car", "ours KF inside", "ours GVBL inside", "ours improvement inside [%]", "ours KF outside",
-                      "ours GVBL outside", "ours improvement outside [%]", "trace ratio inside",
-                      "trace ratio outside", "robust inside", "robust overall"], mc)
-            + [f"Lost runs (position error > {LOST_M:g} m to the end), Wilson 95 % intervals:", ""]
-            + md_table(["car", "filter", "lost", "95 % CI"], lost))
+            + md_table(["car", "ours KF inside", "ours GVBL inside", f"ours improvement inside [%] [{PAIRED_BOOTSTRAP}]",
+                        "ours KF outside", "ours GVBL outside", f"ours improvement outside [%] [{PAIRED_BOOTSTRAP}]",
+                        "trace ratio inside", "trace ratio outside", "robust inside", "robust overall"], mc)
+            + [f"Lost runs (position error > {LOST_M:g} m to the end) with Wilson 95 % intervals, and the two filters "
+               f"compared on the same runs by the {MCNEMAR} test (b / c = runs only the KF / only GVBL lost):", ""]
+            + md_table(["car", f"ours {NAMES['kf']} lost [95 % CI]", f"ours {NAMES['gvbl']} lost [95 % CI]",
+                        f"KF vs GVBL: {MCNEMAR} b / c, p"], lost))
 
 
 def _sens_lines(rows: list[dict], s: Settings) -> list[str]:
@@ -715,11 +750,12 @@ def _sens_lines(rows: list[dict], s: Settings) -> list[str]:
         body.append([r["setting"].label + (" (GVBL identical to its base)" if r["same"] else ""), r["choice"],
                      f"{kfp:.2f}", f"{gvp:.2f}", y, ins,
                      f"{100 * np.mean([e.robust for e in ev]):.1f} %", lost]
-                    + [("holds" if v.holds else "no") + f" ({v.text.split(',')[0]})" if cid == "C1"
-                       else ("holds" if v.holds else "no") for cid, v in r["verdicts"]])
+                    + [("yes" if v.holds else "no") + f" ({v.text.split(',')[0]})" if cid == "C1"
+                       else ("yes" if v.holds else "no") for cid, v in r["verdicts"]])
     head = ["setting", "choice varied", "ours KF position RMSE [m] (mean over cars)", "ours GVBL position RMSE [m]",
-            "ours y improvement [%] per car [95 % CI]", "ours position improvement inside manoeuvres [%] per car",
-            "ours robust share", "ours lost runs KF/GVBL per car", "C1", "C2", "C3"]
+            f"ours y improvement [%] per car [{PAIRED_BOOTSTRAP}]",
+            f"ours position improvement inside manoeuvres [%] per car [{PAIRED_BOOTSTRAP}]",
+            "ours robust share", "ours lost runs KF/GVBL per car", "C1 rule met", "C2 rule met", "C3 rule met"]
     return (["## Sensitivity: one choice at a time", "",
              f"Each row changes one choice from its base (printed lambda = 1e-2, or lambda = 1e-4); {s.sens_runs} "
              f"runs per car, cars {', '.join(map(str, s.sens_cars))}, full 500 s; the base rows are the first runs of "
@@ -828,8 +864,9 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
     figure_sensitivity(out / "sensitivity.png", sens_rows)
 
     md = ["# Reproduction of thesis §4.6.1: JPDA-GVBL-SVSF against JPDA-KF, three manoeuvring cars", "",
-          ("**Quick run** (reduced: 2 runs per car, sensitivity on car 1 with 2 runs; the full report is in "
-           "docs/results/reproduce/thesis-4.6.1/)." if quick else "Full run."),
+          (f"**Quick run** (reduced: {s.main_runs} runs per car, sensitivity on car 1 with {s.sens_runs} runs; the "
+           "full report is in docs/results/reproduce/thesis-4.6.1/). A verdict that this run's own intervals do not "
+           "carry reads \"indicative (n runs per car): not a verdict\"." if quick else "Full run."),
           f"Regenerate with `testbed reproduce thesis-4.6.1{' --quick' if quick else ''} --seed {seed}`.", "",
           "## Verdicts", ""]
     verdicts = {}
@@ -838,13 +875,9 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
         rows = [(r["setting"].label, dict(r["verdicts"])[cid]) for r in sens_rows if r["setting"] != PRINTED]
         if len(s.sens_cars) < len(CARS):  # a row on fewer cars cannot establish a three-car claim
             rows = [(label + " (car 1 only)", v) for label, v in rows]
-        verdicts[cid] = verdict_line(cid, claim, printed, rows)
+        verdicts[cid] = verdict_line(cid, claim, printed, rows, quick, s.main_runs)
         md += [verdicts[cid], ""]
-    md += [f"Verdict rules (computed from the intervals): C1 holds when no (car, state) entry is worse (paired "
-           "95 % interval of GVBL - KF above 0) and all but at most one are better (interval below 0; the thesis "
-           "has one tie); C2 when every car's y improvement interval lies above 0 and overlaps 22-42 %; C3 when "
-           "for every car the position RMSE inside the manoeuvres is better (interval below 0) and improves more "
-           "than outside. \"holds only under\" lists the sensitivity rows where the rule holds.", ""]
+    md += RULES_LINES
     md += _setup_lines(s, seed)
     md += _main_lines(PRINTED, ev_p, s.main_runs) + _main_lines(SPARSE, ev_s, s.main_runs)
     md += _sens_lines(sens_rows, s)

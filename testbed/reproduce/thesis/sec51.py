@@ -13,10 +13,11 @@ PDA-KF fails while both SVSF-based methods track; at lambda = 10 APDA-SVSF below
 density PDA-SVSF fails and APDA-SVSF keeps tracking. Sensitivity (one choice at a time from the base): clutter
 density (0, 1e-3, 1e-2, 0.1, 1, 10 per m^2, and the "per gate" / "per scan" readings), clutter window, start state,
 the APDA layer switch, P_G, the SVSF memory after a miss, psi_max, and (diagnostic) the turn rates halved.
-Statistics: RMSE per state over runs and scans with percentile-bootstrap 95 % intervals over runs, paired bootstrap
-intervals for the differences between methods, lost-track rates with Wilson 95 % intervals.
+Statistics (testbed.common.stats): RMSE per state over runs and scans with percentile-bootstrap 95 % intervals over
+runs, paired bootstrap intervals for the differences between methods (the same resampled runs for every method),
+lost-track rates with Wilson 95 % intervals and the exact McNemar test between methods on the same runs.
 Run time (one core): full (200 runs in the main table, 30 per sensitivity cell, 15 at lambda = 30) about 7 min;
-quick (6, 2 and 1 runs) about 30 s. Streams: every cell uses the runs SeedSequence(seed).spawn(n) (common random numbers: run i is the
+quick (6, 2 and 1 runs) 43-45 s wall, measured with `time testbed reproduce thesis-5.1 --quick`. Streams: every cell uses the runs SeedSequence(seed).spawn(n) (common random numbers: run i is the
 same truth and sensor noise in every cell that shares the truth).
 """
 
@@ -31,9 +32,9 @@ from typing import Callable, Mapping
 import numpy as np
 
 from . import synthetic as sy
-from ..markdown import table as md_table
+from ..markdown import table as md_table, verdict as shown_verdict
 from ...common.safe_io import save_figure, write_text
-from ...common.stats import wilson
+from ...common.stats import MCNEMAR, PAIRED_BOOTSTRAP, McNemar, mcnemar, paired_bootstrap, wilson
 from trackers.filters import make_filter
 from trackers.gating import gate_probability
 
@@ -175,7 +176,8 @@ class MethodStats:
 @dataclass(frozen=True)
 class CellResult:
     """A cell: its label, tag and choices; stats per method; diff[(a, b)] (3, 5): RMSE_a - RMSE_b for the four
-    states and the position (rows: estimate, lo, hi), paired bootstrap; n runs; mcs: the raw Monte Carlo."""
+    states and the position (rows: estimate, lo, hi), paired bootstrap; lost_test[(a, b)]: McNemar test of a's
+    lost runs against b's (b: only a lost, c: only b lost); n runs; mcs: the raw Monte Carlo."""
 
     key: str
     label: str
@@ -185,6 +187,13 @@ class CellResult:
     diff: dict[tuple[str, str], np.ndarray]
     n: int
     mcs: dict[str, sy.MonteCarlo]
+    lost_test: dict[tuple[str, str], McNemar] = dataclasses.field(default_factory=dict)
+
+    def loses_more(self, a: str, b: str) -> bool:
+        """On the same runs `a` loses the target more often than `b` (McNemar exact p < 0.05); False if either
+        method was not run in this cell."""
+        t = self.lost_test.get((a, b))
+        return t is not None and t.b > t.c and t.significant()
 
     def below(self, a: str, b: str, cols=range(4)) -> bool:
         """RMSE_a < RMSE_b on every column in `cols` (0-3 states, 4 position) with the interval below 0 (False if
@@ -219,17 +228,19 @@ def method_stats(mc: sy.MonteCarlo, idx: np.ndarray) -> MethodStats:
                        lost_ci=wilson(k, n), tracked_rmse=tracked)
 
 
-def paired_diff(a: sy.MonteCarlo, b: sy.MonteCarlo, idx: np.ndarray) -> np.ndarray:
-    """(3, 5) RMSE_a - RMSE_b per state and position: estimate, 2.5 and 97.5 % paired bootstrap percentiles."""
-    ma, mb = per_run_mse(a), per_run_mse(b)
+def _five(m: np.ndarray) -> np.ndarray:
+    """RMSE of the four states and the position from per-run MSE m (k, R, 4) -> (k, 5)."""
+    r = np.sqrt(m.mean(axis=1))
+    return np.concatenate([r, np.hypot(r[..., :1], r[..., 1:2])], axis=-1)
 
-    def five(m: np.ndarray, axis: int) -> np.ndarray:
-        r = np.sqrt(m.mean(axis=axis))
-        return np.concatenate([r, np.hypot(r[..., :1], r[..., 1:2])], axis=-1)
 
-    est = five(ma, 0) - five(mb, 0)
-    bs = five(ma[idx], 1) - five(mb[idx], 1)
-    return np.vstack([est, np.percentile(bs, 2.5, axis=0), np.percentile(bs, 97.5, axis=0)])
+def paired_diff(a: sy.MonteCarlo, b: sy.MonteCarlo, seed: int, tag: int) -> np.ndarray:
+    """(3, 5) RMSE_a - RMSE_b per state and position: estimate, 2.5 and 97.5 % percentiles of the paired bootstrap
+    (testbed.common.stats.paired_bootstrap; the resampled runs are boot_index(n, seed, tag), shared by every
+    method of the cell)."""
+    r = paired_bootstrap(per_run_mse(a), per_run_mse(b), np.random.SeedSequence((seed, 51, tag)), n_boot=BOOT,
+                         stat=lambda A, B: _five(A) - _five(B))
+    return np.vstack([r.est, r.lo, r.hi])
 
 
 def cell_result(key: str, label: str, tag: str, c: Choices, mcs: dict[str, sy.MonteCarlo], seed: int,
@@ -237,8 +248,10 @@ def cell_result(key: str, label: str, tag: str, c: Choices, mcs: dict[str, sy.Mo
     n = len(next(iter(mcs.values())).errors)
     idx = boot_index(n, seed, tag_id)
     stats = {m: method_stats(mc, idx) for m, mc in mcs.items()}
-    diff = {(a, b): paired_diff(mcs[a], mcs[b], idx) for a in mcs for b in mcs if a != b}
-    return CellResult(key, label, tag, c, stats, diff, n, mcs)
+    diff = {(a, b): paired_diff(mcs[a], mcs[b], seed, tag_id) for a in mcs for b in mcs if a != b}
+    lost = {m: mc.lost(LOST_M, LOST_SCANS) for m, mc in mcs.items()}
+    tests = {(a, b): mcnemar(lost[a], lost[b]) for a in mcs for b in mcs if a != b}
+    return CellResult(key, label, tag, c, stats, diff, n, mcs, tests)
 
 
 # ------------------------------------------------------------------------------------------ the study
@@ -370,61 +383,94 @@ def _pos_txt(st: MethodStats) -> str:
     return f"{st.pos[0]:.2f} m [{st.pos[1]:.2f}, {st.pos[2]:.2f}]"
 
 
-def verdicts(study: Study) -> list[dict]:
-    """One dict per claim: name, thesis statement, verdict (computed), evidence text, holds_printed (bool)."""
-    m, c10 = study.main, study.cells["density=10"]
-    chigh = study.cells["density=30"]
-    all_track = lambda c: all(m_ in c.stats and c.stats[m_].tracks for m_ in METHODS)  # noqa: E731
-    svsf_better = lambda c: c.below("pda-svsf", "pda-kf", (4,)) and c.below("apda-svsf", "pda-kf", (4,))  # noqa
-    ten = lambda c: (all(k in c.stats for k in METHODS) and c.stats["pda-kf"].fails  # noqa: E731
-                     and c.stats["pda-svsf"].tracks and c.stats["apda-svsf"].tracks)
-    apda_below = lambda c: c.below("apda-svsf", "pda-svsf")  # noqa: E731
-    high = lambda c: ("pda-svsf" in c.stats and "apda-svsf" in c.stats  # noqa: E731
-                      and c.stats["pda-svsf"].fails and c.stats["apda-svsf"].tracks)
-    ev_main = "; ".join(f"{NAMES[k]} {_pos_txt(st)}, {_lost_txt(st)}" for k, st in m.stats.items())
-    ev10 = "; ".join(f"{NAMES[k]} {_pos_txt(st)}, {_lost_txt(st)}" for k, st in c10.stats.items())
-    evh = "; ".join(f"{NAMES[k]} {_pos_txt(st)}, {_lost_txt(st)}" for k, st in chigh.stats.items())
-    d1 = m.diff[("apda-svsf", "pda-svsf")][:, 4]
-    d2 = m.diff[("pda-svsf", "pda-kf")][:, 4]
-    d10 = c10.diff[("apda-svsf", "pda-svsf")][:, 4]
+def _not_tracking(st: MethodStats) -> bool:
+    """The contrary of "tracks", shown: lost-rate lower bound above TRACKS_MAX or position RMSE lower bound above
+    TRACK_RMSE_M."""
+    return st.lost_ci[0] > TRACKS_MAX or st.pos[1] > TRACK_RMSE_M
+
+
+def _above(c: CellResult, a: str, b: str, cols=range(4)) -> bool:
+    """RMSE_a above RMSE_b on some column of `cols`, the paired interval above 0 (the contrary of `below`)."""
+    return (a, b) in c.diff and any(c.diff[(a, b)][1, j] > 0.0 for j in cols)
+
+
+def claim_rules() -> dict[str, tuple[Callable[[CellResult], bool], Callable[[CellResult], bool]]]:
+    """Claim key -> (rule, contrary shown) on one cell."""
+    has = lambda c, *ms: all(m in c.stats for m in ms)  # noqa: E731
+    return {
+        "track": (lambda c: has(c, *METHODS) and all(c.stats[m].tracks for m in METHODS),
+                  lambda c: any(_not_tracking(st) for st in c.stats.values())),
+        "order": (CellResult.ordering_holds,
+                  lambda c: _above(c, "apda-svsf", "pda-svsf") or _above(c, "pda-svsf", "pda-kf")),
+        "svsf": (lambda c: c.below("pda-svsf", "pda-kf", (4,)) and c.below("apda-svsf", "pda-kf", (4,)),
+                 lambda c: _above(c, "pda-svsf", "pda-kf", (4,)) or _above(c, "apda-svsf", "pda-kf", (4,))),
+        "ten": (lambda c: (has(c, *METHODS) and c.stats["pda-kf"].fails and c.stats["pda-svsf"].tracks
+                           and c.stats["apda-svsf"].tracks and c.loses_more("pda-kf", "pda-svsf")
+                           and c.loses_more("pda-kf", "apda-svsf")),
+                lambda c: has(c, *METHODS) and (c.stats["pda-kf"].lost_ci[1] < FAILS_MIN or _not_tracking(
+                    c.stats["pda-svsf"]) or _not_tracking(c.stats["apda-svsf"]))),
+        "apda": (lambda c: c.below("apda-svsf", "pda-svsf"), lambda c: _above(c, "apda-svsf", "pda-svsf")),
+        "high": (lambda c: (has(c, "pda-svsf", "apda-svsf") and c.stats["pda-svsf"].fails
+                            and c.stats["apda-svsf"].tracks and c.loses_more("pda-svsf", "apda-svsf")),
+                 lambda c: has(c, "pda-svsf", "apda-svsf") and (c.stats["pda-svsf"].lost_ci[1] < FAILS_MIN
+                                                                or _not_tracking(c.stats["apda-svsf"]))),
+    }
+
+
+def _lost_pair(c: CellResult, a: str, b: str) -> str:
+    return f"{NAMES[a]} vs {NAMES[b]} lost runs: {MCNEMAR} {c.lost_test[(a, b)]}" if (a, b) in c.lost_test else ""
+
+
+def _diff_txt(c: CellResult, a: str, b: str) -> str:
+    d = c.diff[(a, b)][:, 4]
+    return f"{NAMES[a]} - {NAMES[b]} = {d[0]:+.2f} m [{d[1]:+.2f}, {d[2]:+.2f}]"
+
+
+def verdicts(study: Study, quick: bool = False) -> list[dict]:
+    """One dict per claim: name, thesis statement, verdict (computed), evidence text, holds_printed (bool),
+    supported (the claim's own cell carries the verdict: it holds, or the contrary is shown), text (the verdict as
+    printed; "indicative (n runs): not a verdict" for an unsupported quick verdict)."""
+    m, c10, chigh = study.main, study.cells["density=10"], study.cells["density=30"]
+    ev = lambda c: "; ".join(f"{NAMES[k]} {_pos_txt(st)}, {_lost_txt(st)}" for k, st in c.stats.items())  # noqa
+    pb = f" ({PAIRED_BOOTSTRAP})"
     out = [
-        dict(name="all three methods track the target at lambda = 1 / m^2",
+        dict(key="track", cell=m, name="all three methods track the target at lambda = 1 / m^2",
              thesis="\"All three methods were able to track the target\" (§5.6.1)",
-             holds=all_track(m), hits=_cells_where(study, all_track),
-             evidence=f"{m.n} runs: {ev_main} (lost: position error > {LOST_M:g} m on the last >= {LOST_SCANS} "
-                      "scans)"),
-        dict(name="RMSE ordering APDA-SVSF < PDA-SVSF < PDA-KF at lambda = 1 / m^2, every state",
+             evidence=f"{m.n} runs: {ev(m)} (lost: position error > {LOST_M:g} m on the last >= {LOST_SCANS} scans)"),
+        dict(key="order", cell=m, name="RMSE ordering APDA-SVSF < PDA-SVSF < PDA-KF at lambda = 1 / m^2, every state",
              thesis="Table 5.2: x 0.08 < 0.29 < 0.56, y 0.07 < 0.35 < 0.51, vx 1.61 < 1.99 < 2.09, "
                     "vy 1.36 < 2.01 < 2.07",
-             holds=m.ordering_holds(), hits=_cells_where(study, CellResult.ordering_holds),
-             evidence=f"{m.n} runs, position RMSE {ev_main}; APDA-SVSF - PDA-SVSF = {d1[0]:+.2f} m "
-                      f"[{d1[1]:+.2f}, {d1[2]:+.2f}], PDA-SVSF - PDA-KF = {d2[0]:+.2f} m [{d2[1]:+.2f}, {d2[2]:+.2f}]"
-                      f"; ordering by position: {m.order_text()}"),
-        dict(name="the SVSF-based methods outperform PDA-KF at lambda = 1 / m^2 (position)",
+             evidence=f"{m.n} runs, position RMSE {ev(m)}; {_diff_txt(m, 'apda-svsf', 'pda-svsf')}, "
+                      f"{_diff_txt(m, 'pda-svsf', 'pda-kf')}{pb}; ordering by position: {m.order_text()}"),
+        dict(key="svsf", cell=m, name="the SVSF-based methods outperform PDA-KF at lambda = 1 / m^2 (position)",
              thesis="\"the SVSF-based methods outperform the KF based method\" (§5.6.1, Table 5.2)",
-             holds=svsf_better(m), hits=_cells_where(study, svsf_better),
-             evidence=f"PDA-SVSF - PDA-KF = {d2[0]:+.2f} m [{d2[1]:+.2f}, {d2[2]:+.2f}], APDA-SVSF - PDA-KF = "
-                      f"{m.diff[('apda-svsf', 'pda-kf')][0, 4]:+.2f} m [{m.diff[('apda-svsf', 'pda-kf')][1, 4]:+.2f}, "
-                      f"{m.diff[('apda-svsf', 'pda-kf')][2, 4]:+.2f}]"),
-        dict(name="at lambda = 10 / m^2 PDA-KF fails while PDA-SVSF and APDA-SVSF track",
+             evidence=f"{_diff_txt(m, 'pda-svsf', 'pda-kf')}, {_diff_txt(m, 'apda-svsf', 'pda-kf')}{pb}"),
+        dict(key="ten", cell=c10, name="at lambda = 10 / m^2 PDA-KF fails while PDA-SVSF and APDA-SVSF track",
              thesis="§5.6.1, Fig. 5.6: \"Both APDA-SVSF and PDA-SVSF are able to handle the tracking scenario. "
-                    "However, the PDA-KF fails\"",
-             holds=ten(c10), hits=[c for c in _cells_where(study, ten) if c.choices.density >= 10.0],
-             evidence=f"{c10.n} runs: {ev10}"),
-        dict(name="at lambda = 10 / m^2 APDA-SVSF RMSE below PDA-SVSF on every state",
+                    "However, the PDA-KF fails\"", dens=(10.0, math.inf),
+             evidence=f"{c10.n} runs: {ev(c10)}; {_lost_pair(c10, 'pda-kf', 'pda-svsf')}; "
+                      f"{_lost_pair(c10, 'pda-kf', 'apda-svsf')}"),
+        dict(key="apda", cell=c10, name="at lambda = 10 / m^2 APDA-SVSF RMSE below PDA-SVSF on every state",
              thesis="Table 5.3: x 0.09 vs 0.28, y 0.08 vs 0.34, vx 1.98 vs 2.13, vy 1.11 vs 2.04 (\"dramatically "
                     "decreased\")",
-             holds=apda_below(c10), hits=_cells_where(study, apda_below),
-             evidence=f"{c10.n} runs: APDA-SVSF - PDA-SVSF position = {d10[0]:+.2f} m [{d10[1]:+.2f}, {d10[2]:+.2f}]"),
-        dict(name=f"at a still higher density (ours: lambda = {HIGH_DENSITY:g} / m^2) PDA-SVSF fails and APDA-SVSF "
+             evidence=f"{c10.n} runs: APDA-SVSF - PDA-SVSF position = "
+                      f"{_diff_txt(c10, 'apda-svsf', 'pda-svsf').split(' = ')[1]}{pb}"),
+        dict(key="high", cell=chigh, dens=(10.0 + 1e-9, math.inf),
+             name=f"at a still higher density (ours: lambda = {HIGH_DENSITY:g} / m^2) PDA-SVSF fails and APDA-SVSF "
                   "keeps tracking",
              thesis="\"if the spatial density of the clutter further increases, the PDA-SVSF also fails ... the "
                     "APDA-SVSF still performs well\" (no number)",
-             holds=high(chigh), hits=[c for c in _cells_where(study, high) if c.choices.density > 10.0],
-             evidence=f"{chigh.n} runs: {evh}"),
+             evidence=f"{chigh.n} runs: {ev(chigh)}; {_lost_pair(chigh, 'pda-svsf', 'apda-svsf')}"),
     ]
+    rules = claim_rules()
     for v in out:
-        v["verdict"] = _verdict(v["holds"], [] if v["holds"] else v["hits"])
+        rule, contrary = rules[v["key"]]
+        lo, hi = v.get("dens", (-math.inf, math.inf))
+        v["holds"] = rule(v["cell"])
+        hits = [c for c in _cells_where(study, rule) if lo <= c.choices.density <= hi]
+        v["verdict"] = _verdict(v["holds"], [] if v["holds"] else hits)
+        v["supported"] = v["holds"] or contrary(v["cell"])
+        v["text"] = shown_verdict(v["verdict"], quick=quick, supported=v["supported"], n=v["cell"].n)
     return out
 
 
@@ -504,6 +550,12 @@ def figure_rmse_time(path: Path, study: Study) -> None:
     plt.close(fig)
 
 
+def _bars(v: np.ndarray) -> list[np.ndarray]:
+    """Error-bar lengths [below, above] of rows (estimate, lo, hi), clipped at 0: a percentile interval may miss its
+    estimate, and a Wilson bound at k = n may fall below 1 by a rounding error."""
+    return [np.maximum(v[:, 0] - v[:, 1], 0.0), np.maximum(v[:, 2] - v[:, 0], 0.0)]
+
+
 def figure_density(path: Path, study: Study) -> None:
     """RMSE with 95 % intervals and lost rate vs clutter density (log x; lambda = 0 drawn at the left edge)."""
     import matplotlib.pyplot as plt
@@ -519,10 +571,10 @@ def figure_density(path: Path, study: Study) -> None:
             xs = x * (1.0 + 0.12 * (j - 1))  # small horizontal offsets so the intervals do not overlap
             st = [c.stats[name] for c in cs]
             pos = np.array([s.pos for s in st])
-            axes[0, col].errorbar(xs, pos[:, 0], yerr=[pos[:, 0] - pos[:, 1], pos[:, 2] - pos[:, 0]], fmt="o-",
+            axes[0, col].errorbar(xs, pos[:, 0], yerr=_bars(pos), fmt="o-",
                                   color=COLOURS[name], capsize=3, ms=4, lw=1.1, label=NAMES[name])
             lr = np.array([[s.lost_rate, *s.lost_ci] for s in st]) * 100
-            axes[1, col].errorbar(xs, lr[:, 0], yerr=[lr[:, 0] - lr[:, 1], lr[:, 2] - lr[:, 0]], fmt="o-",
+            axes[1, col].errorbar(xs, lr[:, 0], yerr=_bars(lr), fmt="o-",
                                   color=COLOURS[name], capsize=3, ms=4, lw=1.1, label=NAMES[name])
         axes[0, col].set_yscale("log")
         axes[0, col].set_title(f"{title}\nposition RMSE, {cs[0].n} runs per point, 95 % bootstrap intervals",
@@ -597,8 +649,9 @@ def _setup_lines(study: Study, seed: int) -> list[str]:
                                    f"{100 * FAILS_MIN:.0f} %", "[D]"],
         ["Monte Carlo", f"{study.settings.main} runs main table (thesis: 500), {study.settings.cell} per sensitivity "
                         f"cell, {study.settings.high} at lambda = {HIGH_DENSITY:g}; seed {seed}", "[D]"],
-        ["intervals", f"RMSE: percentile bootstrap over runs ({BOOT} resamples), differences paired; lost rates: "
-                      "Wilson 95 %", "[D]"],
+        ["intervals and tests", f"RMSE: percentile bootstrap over runs ({BOOT} resamples), differences paired "
+                                f"({PAIRED_BOOTSTRAP}); lost rates: Wilson 95 %; lost runs between methods: "
+                                f"{MCNEMAR}", "[D]"],
     ]
     return (["## Set-up", "",
              "Tags: [T] printed in the thesis (§5.6.1, Table 5.1); [R] reconstructed from the thesis (garbled or "
@@ -633,8 +686,14 @@ def _diffmd_table(cell: CellResult) -> list[str]:
         d = cell.diff[(a, b)]
         rows.append([f"{NAMES[a]} - {NAMES[b]}"] + [_ci(d[0, j], d[1, j], d[2, j]) for j in range(5)]
                     + ["yes" if cell.below(a, b) else "no"])
-    return md_table(["ours: paired difference", "x [m]", "y [m]", "vx [m/s]", "vy [m/s]", "position [m]",
-                   "below on every state?"], rows)
+    tests = [[f"{NAMES[a]} vs {NAMES[b]}", f"{cell.stats[a].lost} / {cell.stats[b].lost} of {cell.n}",
+              f"{cell.lost_test[(a, b)].b} / {cell.lost_test[(a, b)].c}", f"{cell.lost_test[(a, b)].p:.2g}"]
+             for a, b in (("pda-kf", "pda-svsf"), ("pda-kf", "apda-svsf"), ("pda-svsf", "apda-svsf"))
+             if (a, b) in cell.lost_test]
+    return (md_table([f"ours: paired difference RMSE_a - RMSE_b [{PAIRED_BOOTSTRAP}]", "x [m]", "y [m]", "vx [m/s]",
+                      "vy [m/s]", "position [m]", "below on every state?"], rows)
+            + md_table(["ours: lost runs compared on the same runs", "lost a / b", f"{MCNEMAR}: b / c (only a / "
+                        "only b lost)", f"{MCNEMAR} p"], tests))
 
 
 def _sens_rows(study: Study, keys: list[str]) -> list[list]:
@@ -654,7 +713,7 @@ def _sens_rows(study: Study, keys: list[str]) -> list[list]:
 
 SENS_HEAD = ["cell (one change from the base)", "tag", "runs", "PDA-KF pos. RMSE [m]", "PDA-KF lost %",
              "PDA-SVSF pos. RMSE [m]", "PDA-SVSF lost %", "APDA-SVSF pos. RMSE [m]", "APDA-SVSF lost %",
-             "ours: ordering by position (< : paired CI excludes 0)", "thesis ordering on all 4 states?"]
+             f"ours: ordering by position (< : {PAIRED_BOOTSTRAP} excludes 0)", "thesis ordering on all 4 states?"]
 
 
 def _summary(study: Study, vs: list[dict], seed: int, quick: bool) -> str:
@@ -662,18 +721,22 @@ def _summary(study: Study, vs: list[dict], seed: int, quick: bool) -> str:
     md = ["# Reproduction of thesis §5.6.1 (Table 5.1): APDA-SVSF vs PDA-SVSF vs PDA-KF, manoeuvring target in "
           "clutter", ""]
     for v in vs:
-        md.append(f"**{v['name']}: {v['verdict']}.** {v['evidence']}.")
+        md.append(f"**{v['name']}: {v['text']}.** {v['evidence']}.")
         md.append("")
-    md += [("**Quick run** (reduced: fewer runs; the full report is in docs/results/reproduce/thesis-5.1/)."
+    md += [(f"**Quick run** (reduced: {s.main} runs in the main cell, {s.cell} per sensitivity cell, {s.high} at "
+            f"lambda = {HIGH_DENSITY:g}; the full report is in docs/results/reproduce/thesis-5.1/). A verdict that "
+            "its cell's own intervals and tests do not carry reads \"indicative (n runs): not a verdict\"."
             if quick else "Full run."),
            f"Regenerate with `testbed reproduce thesis-5.1{' --quick' if quick else ''} --seed {seed}`. "
            "Verdicts are computed from the numbers below: \"holds\" at the printed set-up; \"holds only under\" "
            "lists the sensitivity cells (one choice changed at a time) in which it holds; \"does not hold\" "
-           "where it holds in none.", ""]
+           f"where it holds in none. Every method runs on the same runs, so method comparisons are paired: RMSE "
+           f"differences by a {PAIRED_BOOTSTRAP}, lost runs by the {MCNEMAR} test (p < 0.05 where a claim says one "
+           "method fails and another tracks).", ""]
     md += _setup_lines(study, seed)
     md += ["## The claims: the thesis's and ours", ""]
     md += md_table(["claim", "thesis (§5.6.1, numbers from reference §10.2)", "ours (measured)", "verdict"],
-                 [[v["name"], v["thesis"], v["evidence"], v["verdict"]] for v in vs])
+                 [[v["name"], v["thesis"], v["evidence"], v["text"]] for v in vs])
     md += ["## Table 5.2 (lambda = 1 / m^2): thesis beside ours", "",
            f"RMSE per state over all runs and scans 1..300, 95 % percentile-bootstrap intervals over runs; the last "
            f"column leaves out the runs this method lost. Main cell: {s.main} runs.", ""]
@@ -765,7 +828,7 @@ def run(out_dir: Path, *, quick: bool = False, seed: int = 0, progress: bool = T
         study = run_study(s, seed, tick=lambda: bar.update(1))
         ex = example_runs(seed)
         bar.update(1)
-    vs = verdicts(study)
+    vs = verdicts(study, quick)
     figure_trajectory(out / "trajectory.png", ex)
     figure_rmse_time(out / "rmse_time.png", study)
     figure_density(out / "ordering_density.png", study)
