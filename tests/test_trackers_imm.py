@@ -15,6 +15,7 @@ from trackers.errors import FilterError
 from trackers.filters.imm import IMMFilter, IMMState
 from trackers.gating import log_gaussian
 from trackers.registry import WRAPPERS
+from state_fields import state_fields
 
 X0 = np.array([10.0, -5.0, 20.0, 1.0])
 P0 = np.diag([1.0, 1.0, 4.0, 4.0])
@@ -307,22 +308,8 @@ IMM_BATCHED = {
 }
 
 
-def _imm_fields(s, prefix: str = "") -> dict:
-    """Every array of an IMM state: x, P, e_post, mu, each info entry, and every field of every mode state."""
-    out = {}
-    for k, v in vars(s).items():
-        if k == "info":
-            out.update({f"{prefix}info.{key}": val for key, val in v.items()})
-        elif k == "modes":
-            for i, m in enumerate(v):
-                out.update(_imm_fields(m, f"{prefix}modes[{i}]."))
-        else:
-            out[prefix + k] = v
-    return out
-
-
 def _assert_same(a, b) -> None:
-    fa, fb = _imm_fields(a), _imm_fields(b)
+    fa, fb = state_fields(a), state_fields(b)
     assert set(fa) == set(fb), set(fa) ^ set(fb)
     assert type(a) is type(b) and all(type(x) is type(y) for x, y in zip(a.modes, b.modes))
     for k in fa:

@@ -26,6 +26,7 @@ from trackers.filters import FILTERS, make_filter
 from trackers.filters.base import batch_predict, batch_predicted_measurements, batch_update
 from trackers.filters.imm import IMMFilter
 from trackers.registry import WRAPPERS
+from state_fields import state_fields
 
 SIGMAS = {"sigma_v": 2.0, "sigma_w": 0.5}
 EXERCISE = {"gvbl-svsf": {"psi_max": 0.5}}
@@ -141,23 +142,9 @@ def scan(k: int, z_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 # ---------------------------------------------------------------------------------------------------- checks
-def fields(s, prefix: str = "") -> dict:
-    """Every field of a state by dotted name: arrays, scalars, each info entry, each IMM mode state's fields."""
-    out = {}
-    for k, v in vars(s).items():
-        if k == "info":
-            out.update({f"{prefix}info.{key}": val for key, val in v.items()})
-        elif k == "modes":
-            for i, m in enumerate(v):
-                out.update(fields(m, f"{prefix}modes[{i}]."))
-        else:
-            out[prefix + k] = v
-    return out
-
-
 def assert_same(a, b, where: str) -> None:
     """Same type, same fields, each equal to 1e-10 (relative, or absolute near 0; NaN equals NaN)."""
-    fa, fb = fields(a), fields(b)
+    fa, fb = state_fields(a), state_fields(b)
     assert type(a) is type(b) and set(fa) == set(fb), (where, type(a), type(b), set(fa) ^ set(fb))
     keys = [k for k in fa if fa[k] is not None or fb[k] is not None]
     assert all(fa[k] is not None and fb[k] is not None for k in keys), (where, keys)

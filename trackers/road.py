@@ -66,14 +66,9 @@ def lane_pseudo_measurement(road: RoadInput, xy: np.ndarray) -> tuple[np.ndarray
     return lane_normals(heading), -np.asarray(offset, dtype=np.float64), half_width ** 2 / 3.0
 
 
-def cross_and_along_std(road: RoadInput, xy: np.ndarray, P_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Standard deviations (T,), (T,) [m] across and along the nearest lane of position covariances P_pos
-    (T, 2, 2) at xy (T, 2)."""
+def cross_lane_std(road: RoadInput, xy: np.ndarray, P_pos: np.ndarray) -> np.ndarray:
+    """Standard deviation (T,) [m] across the nearest lane of position covariances P_pos (T, 2, 2) at xy (T, 2)."""
     if len(xy) == 0:
-        return np.zeros(0), np.zeros(0)
-    heading = road(xy)[0]
-    n = lane_normals(heading)
-    t = np.column_stack([np.cos(heading), np.sin(heading)])
-    var_c = np.einsum("ti,tij,tj->t", n, P_pos, n)
-    var_a = np.einsum("ti,tij,tj->t", t, P_pos, t)
-    return np.sqrt(np.maximum(var_c, 0.0)), np.sqrt(np.maximum(var_a, 0.0))
+        return np.zeros(0)
+    n = lane_normals(road(xy)[0])
+    return np.sqrt(np.maximum(np.einsum("ti,tij,tj->t", n, P_pos, n), 0.0))

@@ -19,7 +19,7 @@ from trackers.gating import gate, mahalanobis2_and_log_gaussian
 from trackers.initiation import pair_candidates, single_point, two_point
 from trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
                                  position_std, score_decide, score_increment)
-from trackers.road import RoadInput, centripetal_input, cross_and_along_std, input_shift, lane_pseudo_measurement
+from trackers.road import RoadInput, centripetal_input, cross_lane_std, input_shift, lane_pseudo_measurement
 from trackers.state import FilterState
 from trackers.trackloss.regime import (RegimeState, advance, alpha_of, assess_windows, gamma_best_fast, initial_state,
                                       windows_from_histories)
@@ -167,12 +167,16 @@ class Tracker:
     def kinematics(self, tracks: tuple[Track, ...]) -> tuple[np.ndarray, np.ndarray]:
         """Position-velocity estimates of `tracks` from each filter's output: kin (T, 2d) [p; v] and its
         covariance (T, 2d, 2d), d the number of position entries of the filter's motion model."""
+        return self.state_kinematics([tr.state for tr in tracks])
+
+    def state_kinematics(self, states: list) -> tuple[np.ndarray, np.ndarray]:
+        """`kinematics` of filter states (T of them): kin (T, 2d) [p; v], cov (T, 2d, 2d)."""
         mot = self.filter.motion
         idx = np.array(list(mot.position) + list(mot.velocity))
-        kin = np.zeros((len(tracks), idx.size))
-        cov = np.zeros((len(tracks), idx.size, idx.size))
-        for t, tr in enumerate(tracks):
-            x, P = self.filter.output(tr.state)
+        kin = np.zeros((len(states), idx.size))
+        cov = np.zeros((len(states), idx.size, idx.size))
+        for t, s in enumerate(states):
+            x, P = self.filter.output(s)
             kin[t], cov[t] = x[idx], P[np.ix_(idx, idx)]
         return kin, cov
 
@@ -292,8 +296,9 @@ class Tracker:
         idx = [t for t, tr in enumerate(live) if tr.confirmed and W[t].sum() < 0.5]
         if not idx or not hasattr(flt, "pseudo_update_many"):
             return states
-        mot = flt.motion
-        kin = np.array([flt.output(states[t])[0][list(mot.position[:2]) + list(mot.velocity[:2])] for t in idx])
+        kin, _ = self.state_kinematics([states[t] for t in idx])
+        if kin.shape[1] != 4:  # the lane map is 2-D: [px, py, vx, vy] only
+            return states
         h, y, r = lane_pseudo_measurement(road, kin[:, :2])
         steady = np.abs(np.einsum("tk,tk->t", h, kin[:, 2:])) <= self.management.lane_keeping_max_cross_mps
         steady &= y * y <= 3.0 * r  # on the road: within its lane's half width (r = w^2 / 3); not off-road objects
@@ -321,12 +326,15 @@ class Tracker:
             drop = mp.deletion_drop(self.association.pd, inp.pg)
             confirmed, delete = score_decide(score, max_score, was_confirmed, mp, drop,
                                              miss_loss(self.association.pd, inp.pg))
-        std = self._position_std(states)
+        kin, cov = self.state_kinematics(states)  # one pass over the filters' outputs for both life rules
+        d = kin.shape[1] // 2
+        std = position_std(cov[:, :d, :d])
         diag["position_std"] = std
-        if road is None or not mp.road_life:
+        if road is None or not mp.road_life or d != 2:
             delete = delete | self._beyond_bounds(std, unseen)
         else:
-            delete = delete | self._not_credible(states, inp, pred, W.sum(axis=1) >= 0.5, confirmed, road)
+            delete = delete | self._not_credible(kin[:, :2], cov[:, :2, :2], pred, W.sum(axis=1) >= 0.5, confirmed,
+                                                 road)
         ids = np.array([tr.id for tr in live], dtype=np.int64).reshape(T)
         dup = duplicate_counts(pred.z_hat, pred.S, inp.gated, confirmed & was_confirmed, ids,
                                np.array([tr.duplicate_scans for tr in live], dtype=np.int64).reshape(T), mp.merge_d2,
@@ -352,14 +360,6 @@ class Tracker:
         diag["w0"] = np.asarray(w0, dtype=np.float64)
         return survivors, deleted, diag
 
-    def _position_std(self, states) -> np.ndarray:
-        """Position standard deviation (T,) [m] of each updated state: sqrt of the largest eigenvalue of the
-        position block of the filter's output covariance."""
-        pos = np.array(list(self.filter.motion.position))
-        P = np.array([self.filter.output(s)[1][np.ix_(pos, pos)] for s in states]).reshape(len(states), pos.size,
-                                                                                            pos.size)
-        return position_std(P)
-
     def _beyond_bounds(self, std: np.ndarray, unseen: np.ndarray) -> np.ndarray:
         """(T,) tracks past the life bounds [D]: position std above max_position_std_m or unseen for longer
         than max_unseen_s (module trackers.management), whatever their P_D."""
@@ -371,22 +371,19 @@ class Tracker:
             out |= unseen > mp.max_unseen_s + 1e-9
         return out
 
-    def _not_credible(self, states, inp: AssociationInput, pred: _Prediction, updated: np.ndarray,
+    def _not_credible(self, xy: np.ndarray, P_pos: np.ndarray, pred: _Prediction, updated: np.ndarray,
                       confirmed: np.ndarray, road: RoadInput) -> np.ndarray:
         """(T,) tracks no longer credible for re-acquisition with a road map [D] (trackers.management, "Life with
         a road map"): cross-lane std above max_position_std_m or, not updated by the scan
         (``updated`` (T,): association weights summing to 1/2 or more), another confirmed track's predicted
-        position within credible_d2 under the track's own S."""
-        mp, T = self.management, len(states)
+        position within credible_d2 under the track's own S. xy (T, 2) [m], P_pos (T, 2, 2) [m^2]: the updated
+        positions and their covariances."""
+        mp, T = self.management, len(xy)
         out = np.zeros(T, dtype=bool)
         if T == 0:
             return out
-        pos = list(self.filter.motion.position[:2])
-        outs = [self.filter.output(s) for s in states]
-        xy = np.array([x[pos] for x, _ in outs])
         if mp.max_position_std_m is not None:
-            cross, _ = cross_and_along_std(road, xy, np.array([P[np.ix_(pos, pos)] for _, P in outs]))
-            out |= cross > mp.max_position_std_m
+            out |= cross_lane_std(road, xy, P_pos) > mp.max_position_std_m
         others = np.flatnonzero(confirmed)
         if mp.credible_d2 is not None and others.size > 1 and self.filter.measurement.linear:  # z = position
             d = pred.z_hat[:, None, :2] - pred.z_hat[None, others, :2]  # (T, C, 2)
