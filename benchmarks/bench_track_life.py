@@ -5,12 +5,14 @@ or relabelled, from run folders' tables alone; or runs made here before and afte
     python benchmarks/bench_track_life.py --compare [--scenarios cut_in_out u_turn ...] [--trackers jpda-kf ...]
         [--seeds 0 1 2] [--duration S] [--out runs/bench_track_life]
 
---compare runs each scenario (full length unless --duration) and seed with each tracker twice, from one sensing
-cache per perception: "before" with the road-map aid off (no curvature input, no lane keeping, the
-max_unseen_s / isotropic max_position_std_m life bounds, and the perception's crown-over-trunk test without its
-lift_min_top_m bound: today's main before issue 29) and "after" (the defaults), and prints one row per
-(scenario, tracker, variant): TP / FP / break-up % in the thesis's form (per car seen, summed over the seeds),
-the largest confirmed gate, and the break-ups by cause (testbed.scoring.events).
+--compare runs each scenario (full length unless --duration) and seed with each tracker once per variant, from one
+sensing cache per perception: "before" with the road-map aid off (no curvature input, no lane keeping, the
+max_unseen_s / isotropic max_position_std_m life bounds, the perception's crown-over-trunk test without its
+lift_min_top_m bound: main before issue 29), "after" (the defaults) and "detection_R" (the defaults with the
+detections' own covariances instead of the filter's sigma_w); it prints one row per (scenario, tracker, variant): TP / FP /
+break-up % in the thesis's form (per car seen, summed over the seeds), the largest confirmed gate, the break-ups
+by cause (testbed.scoring.events), and the position NEES and NIS (means and fractions inside the chi-square 95 %
+band, averaged over the seeds).
 
 Per run folder (written by `testbed run`, tables kept): TP / FP / break-ups in the thesis's form (per car
 seen, scores.json), the largest gate area [m^2] of a confirmed track and how many confirmed tracks passed
@@ -86,22 +88,53 @@ def diagnose(run: Path) -> dict:
                 breakup_pct=s["breakup_pct"], cars_seen=s["cars_seen"], relabel_events=s["relabel_events"],
                 largest_gate_m2=gate, tracks_over_1000_m2=over, missed=len(missed), missed_barely_detected=barely,
                 missed_well_detected=len(missed) - barely, **{f"breakup_{k}": v for k, v in causes.items()},
-                ms_tracking=meta["timings_ms_per_frame"]["tracking"])
+                ms_tracking=meta["timings_ms_per_frame"]["tracking"],
+                **consistency(truth, tb["tracks"], tb["diagnostics"], sc["match_distance_m"]))
 
 
 BEFORE = {"tracker.management.road_curvature": False, "tracker.management.road_lane_keeping": False,
-          "tracker.management.road_life": False, "sensor.perception.lift_min_top_m": 0.0}
-"""The overrides that give the behaviour before issue 29 (the road-map aid off, the old perception test)."""
+          "tracker.management.road_life": False, "sensor.perception.lift_min_top_m": 0.0,
+          "tracker.filter.detection_R": False}
+"""The overrides that give the behaviour before issue 29 (the road-map aid off, the old perception test, the
+filter's fixed R)."""
+VARIANTS = {"before": BEFORE, "after": {}, "detection_R": {"tracker.filter.detection_R": True}}
+"""--variants: before issue 29; the defaults; the defaults with the detections' own covariances (filter key
+detection_R, off by default) instead of the filter's fixed R (sigma_w)."""
+CHI2_2_95 = 5.991464547107979
+"""The 95 % point of the chi-square distribution with 2 degrees of freedom (NEES and NIS of a 2-D position)."""
 
 
-def compare(scenarios, trackers, seeds, duration, out: Path) -> list[dict]:
-    """Run every (scenario, seed, tracker) before and after (module docstring); one diagnosed row per run."""
+def consistency(truth, tracks, diag, match_m: float) -> dict:
+    """Position NEES of the confirmed tracks matched to a car (e^T P^-1 e, e the estimate minus the car's centre,
+    P the track's 2x2 position covariance) and NIS of the confirmed tracks' updates (diagnostic "nis", scans with
+    a gated detection): their means (2 for a consistent filter) and the fractions inside the chi-square 95 % band
+    (0.95 expected)."""
+    g = truth[~truth.is_ego]
+    t = tracks[tracks.status == "confirmed"]
+    rt, rg = assign_frames(t.frame.to_numpy(), t[["x", "y"]].to_numpy(), g.frame.to_numpy(),
+                           g[["x", "y"]].to_numpy(), match_m)
+    e = t[["x", "y"]].to_numpy()[rt] - g[["x", "y"]].to_numpy()[rg]
+    cov = np.stack(t["cov"].to_numpy())[rt].reshape(-1, 4, 4)[:, :2, :2] if len(rt) else np.zeros((0, 2, 2))
+    nees = np.einsum("ni,ni->n", e, np.linalg.solve(cov, e[..., None])[..., 0]) if len(rt) else np.zeros(0)
+    conf = t[["frame", "track_id"]]
+    nis = diag[diag.name == "nis"].merge(conf, on=["frame", "track_id"])
+    gated = diag[(diag.name == "n_gated") & (diag.value > 0)][["frame", "track_id"]]
+    nis = nis.merge(gated, on=["frame", "track_id"]).value.to_numpy()
+    return dict(nees_mean=float(nees.mean()) if nees.size else float("nan"),
+                nees_in95=float((nees <= CHI2_2_95).mean()) if nees.size else float("nan"),
+                nis_mean=float(nis.mean()) if nis.size else float("nan"),
+                nis_in95=float((nis <= CHI2_2_95).mean()) if nis.size else float("nan"))
+
+
+def compare(scenarios, trackers, seeds, duration, out: Path, variants=("before", "after")) -> list[dict]:
+    """Run every (scenario, seed, tracker) in each variant (VARIANTS, module docstring); one diagnosed row per run."""
     from testbed import load_scenario, run
 
     rows = []
     for name in scenarios:
         for seed in seeds:
-            for variant, extra in (("before", BEFORE), ("after", {})):
+            for variant in variants:
+                extra = VARIANTS[variant]
                 over = {"seed": seed, **extra, **({"duration_s": duration} if duration else {})}
                 scn = load_scenario(name, over)
                 for trk in trackers:
@@ -120,7 +153,8 @@ def summary(rows: list[dict]) -> list[dict]:
     for r in rows:
         k = (r["scenario"], r["tracker"], r["variant"])
         a = out.setdefault(k, dict(scenario=k[0], tracker=k[1], variant=k[2], seeds=0, cars_seen=0, tp=0.0, fp=0.0,
-                                   breakups=0.0, largest_gate_m2=0.0, **{f"breakup_{c}": 0 for c in CAUSES}))
+                                   breakups=0.0, largest_gate_m2=0.0, **{f"breakup_{c}": 0 for c in CAUSES},
+                                   nees_mean=[], nees_in95=[], nis_mean=[], nis_in95=[], ms_tracking=[]))
         n = r["cars_seen"]
         a["seeds"] += 1
         a["cars_seen"] += n
@@ -130,7 +164,11 @@ def summary(rows: list[dict]) -> list[dict]:
         a["largest_gate_m2"] = max(a["largest_gate_m2"], r["largest_gate_m2"])
         for c in CAUSES:
             a[f"breakup_{c}"] += r[f"breakup_{c}"]
+        for c in ("nees_mean", "nees_in95", "nis_mean", "nis_in95", "ms_tracking"):
+            a[c].append(r[c])
     for a in out.values():
+        for c in ("nees_mean", "nees_in95", "nis_mean", "nis_in95", "ms_tracking"):
+            a[c] = float(np.nanmean(a[c]))  # mean over the seeds
         n = max(a["cars_seen"], 1)
         a["tp_pct"], a["fp_pct"], a["breakup_pct"] = (100 * a.pop(x) / n for x in ("tp", "fp", "breakups"))
     return list(out.values())
@@ -156,12 +194,15 @@ def main(argv: list[str]) -> int:
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     p.add_argument("--duration", type=float, default=None, help="seconds per run (default: each scenario's)")
     p.add_argument("--out", type=Path, default=Path("runs/bench_track_life"))
+    p.add_argument("--variants", nargs="+", default=["before", "after"], choices=list(VARIANTS),
+                   help="before: as before issue 29; after: the defaults; detection_R: the defaults with the "
+                        "detections' own covariances")
     a = p.parse_args(argv)
     if a.compare:
         from trackers.registry import PAPER_TRACKERS
 
         trackers = list(PAPER_TRACKERS) if a.trackers == ["named"] else a.trackers
-        rows = compare(a.scenarios, trackers, a.seeds, a.duration, a.out)
+        rows = compare(a.scenarios, trackers, a.seeds, a.duration, a.out, a.variants)
         print_table(summary(rows))
         return 0
     if not a.runs:

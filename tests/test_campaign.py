@@ -153,7 +153,7 @@ BASE = 'scenarios = ["cut_in_out"]\ntrackers = ["jpda-kf"]\nseeds = 2\n'
     (BASE + "[grid]\nconvoy.gap_m = [2.0, 5.0]\n", 'grid."convoy.gap_m": convoy is not set in this scenario'),
     (BASE + "[grid]\nvehicles.7.speed_mps = [20.0]\n", "grid.\"vehicles.7.speed_mps\": vehicles.7: no item '7'"),
     (BASE + "[grid]\ntracker.filter.sigma_q = [1.0]\n",
-     'grid."tracker.filter.sigma_q": no tracker of this campaign has filter parameter \'sigma_q\'; allowed: motion, '),
+     'grid."tracker.filter.sigma_q": no tracker of this campaign has filter parameter \'sigma_q\'; allowed: detection_R, motion, '),
     (BASE + "[grid]\ntracker.filter.sigma_v = [-1.0]\n",
      'grid."tracker.filter.sigma_v"[0]: tracker.filter.sigma_v: -1.0 is not allowed; must be >= 0'),
     (BASE + "[overrides]\nduration_s = -5.0\n", 'overrides."duration_s": duration_s: -5.0 is not allowed; must be > 0'),

@@ -60,7 +60,7 @@ def test_listings():
     (["run", "cut_in_out", "--tracker", ""], "error: --tracker: unknown tracker '': a combination"),  # not ignored
     (["run", "cut_in_out", "--set", "sensor.lidar.max_range_m=-3"],
      "error: sensor.lidar.max_range_m: expected a finite number > 0, got -3.0"),
-    (["run", "cut_in_out", "--set", "tracker.filter.sigma_q=1"], "error: tracker.filter.sigma_q: unknown key; allowed: motion, "),
+    (["run", "cut_in_out", "--set", "tracker.filter.sigma_q=1"], "error: tracker.filter.sigma_q: unknown key; allowed: detection_R, motion, "),
     (["run", "cut_in_out", "--set", "tracker.associator.pd=2"], "error: tracker.associator.pd: 2.0 is not allowed; must be in (0, 1]"),
     (["view", "no/such/run"], "error: no/such/run/run.rrd: no recording"),
 ])

@@ -395,3 +395,15 @@ def test_jpda_overflows_are_counted_once_per_run():
         counter.report()
     assert [str(w.message) for w in caught] == ["JPDA: 2 frames exceeded max_events (3 clusters, the largest 9 "
                                                 "tracks x 14 measurements); those clusters used per-track PDA"]
+
+
+def test_a_reader_that_leaves_early_is_not_an_error():
+    """`testbed trackers | head -1` (issue 31): the reader closes the pipe; the command stops quietly with exit
+    code 0 instead of 'error: broken pipe' and 1."""
+    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli", "trackers"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    first = proc.stdout.readline()
+    proc.stdout.close()  # the reader leaves after one line
+    rc = proc.wait(timeout=120)
+    err = proc.stderr.read().decode()
+    assert first.startswith(b"nn-kf") and rc == 0 and err == "", (rc, err)

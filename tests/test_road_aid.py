@@ -95,6 +95,45 @@ def test_a_car_hidden_for_5_s_at_constant_speed_keeps_its_id():
     assert before[-1] != before[35]  # today's main without the road: a new label after the occlusion
 
 
+def _follow_two(trk, cars, hidden, road):
+    """Two cars' truth positions cars (K, 2, 2); hidden (K,) bool: car 1 hidden (P_D 0 near it, no detection), the
+    other always detected. Returns the ids of the confirmed tracks nearest each car per scan (K, 2), -1 none."""
+    tracks, nid, ids = (), 1, []
+    rng = np.random.default_rng(1)
+    for k, (xy, hid) in enumerate(zip(cars, hidden)):
+        Z = xy[[0]] if hid else xy
+        Z = Z + 0.1 * rng.normal(size=Z.shape)
+        pd = (lambda z, c=xy[1], h=hid: np.where(h & (np.hypot(*(z - c).T) < 3.0), 0.0, 0.9))  # occlusion-aware P_D
+        res = trk.step(tracks, Z, DT if k else 0.0, nid, pd=pd, road=road)
+        tracks, nid = res.tracks, res.next_id
+        rep = [t for t in tracks if t.confirmed]
+        row = []
+        for c in xy:
+            d = [np.hypot(*(t.state.x[:2] - c)) for t in rep]
+            row.append(rep[int(np.argmin(d))].id if d and min(d) < 2.0 else -1)
+        ids.append(row)
+    return np.array(ids)
+
+
+def test_a_car_hidden_by_a_truck_in_the_next_lane_keeps_its_id():
+    """A truck in the near lane (y = 0) drives alongside a car in the next lane (y = 4 m) and hides it for 5 s; the
+    truck's detections pass 4 m beside the hidden car's prediction all the while. The car's track coasts in its
+    lane, is not drawn onto the truck and takes the car back when it re-appears; the truck keeps its own track.
+    Without the road map the hidden car's track is deleted (max_unseen_s)."""
+    k = np.arange(150)
+    x = 25.0 * k * DT
+    cars = np.stack([np.column_stack([x + 1.0, np.zeros(len(k))]), np.column_stack([x, np.full(len(k), 4.0)])],
+                    axis=1)
+    hidden = (k >= 40) & (k < 90)
+    trk = make_tracker("jpda-kf", sigma_w=0.5, sigma_v=4.0)
+    ids = _follow_two(trk, cars, hidden, straight_road)
+    car, truck = ids[:, 1], ids[:, 0]
+    assert car[35] > 0 and (car[35:40] == car[35]).all() and (car[90:] == car[35]).all(), car
+    assert truck[35] > 0 and (truck[35:] == truck[35]).all() and truck[35] != car[35], truck
+    before = _follow_two(trk, cars, hidden, None)[:, 1]
+    assert before[-1] != before[35]  # today's main without the road map: the car comes back with a new label
+
+
 def test_a_u_turn_at_radius_20_m_keeps_its_id_through_a_short_occlusion():
     """A car at 11 m/s on a 20 m circle, hidden for 0.8 s in the bend (P_D 0): the curvature input keeps its prediction
     on the lane (a CV track lags by 2.7 m/s in the bend and coasts off it)."""

@@ -4,7 +4,7 @@ The switches are read from the filters' parameter tables (trackers.filters.FILTE
 and every bool field, in their full cross product, so a new switch is covered without editing this file. Each
 buildable setting, and an IMM of two modes of that setting, runs a hand-made scenario of 5 tracks over 6 scans
 (hard and PDA weights, gated measurements left without weight, w0 = 1 rows, a scan without measurements (M = 0),
-first updates after missed scans, a manoeuvre) twice: once through the batched forms the tracker calls
+first updates after missed scans, a manoeuvre; with detection_R, every detection with its own covariance) twice: once through the batched forms the tracker calls
 (filters.base.batch_*), once through the per-track predict / predicted_measurement / update. Both chains are fed
 the same innovations each scan; every field of every state (x, P, e_post, F, the SVSF's z_prev / tau / e_vel, the
 GVBL's layer, the IMM's mode states and mu, the diagnostics) must agree to 1e-10, and a track the per-track
@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from trackers.filters import FILTERS, make_filter
-from trackers.filters.base import batch_predict, batch_predicted_measurements, batch_update
+from trackers.filters.base import batch_predict, batch_predicted_measurements, batch_update, takes_detection_R
 from trackers.filters.imm import IMMFilter
 from trackers.registry import WRAPPERS
 from state_fields import state_fields
@@ -124,6 +124,17 @@ def truth(t: int, time: float) -> np.ndarray:
     return p
 
 
+def detection_R(M: int) -> np.ndarray:
+    """(M, 2, 2) distinct per-detection covariances [m^2] (the detection_R switch): elongated, rotated, some wider
+    and some narrower than sigma_w^2 = 0.25 m^2."""
+    out = np.zeros((M, 2, 2))
+    for j in range(M):
+        c, s = np.cos(0.7 * j), np.sin(0.7 * j)
+        U = np.array([[c, -s], [s, c]])
+        out[j] = U @ np.diag([0.05 + 0.12 * j, 0.02 + 0.3 * (j % 3)]) @ U.T
+    return out
+
+
 def scan(k: int, z_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """nu (T, M, 2) = z_j - z_hat_t, W (T, M), w0 (T,) of scan k for the predicted measurements z_hat (T, 2)."""
     rows, time = ASSOC[k], sum(DTS[:k + 1])
@@ -169,12 +180,13 @@ def batched_run(flt) -> list[tuple]:
     """The scenario through the batched forms the tracker calls: per scan (predictions, z_hat (T, 2), S (T, 2, 2),
     the scan's (nu, W, w0), updated states)."""
     steps, states = [], [flt.initial_state(x, P0) for x in X0]
+    own_R = takes_detection_R(flt)  # read before the per-track methods are replaced
     with batched_only(flt):
         for k, dt in enumerate(DTS):
             pred = batch_predict(flt, states, dt)
             z_hat, S = batch_predicted_measurements(flt, pred)
             nu, W, w0 = scan(k, z_hat)
-            states = batch_update(flt, pred, nu, W, w0)
+            states = batch_update(flt, pred, nu, W, w0, detection_R(W.shape[1]) if own_R else None)
             steps.append((pred, z_hat, S, (nu, W, w0), states))
     return steps
 
@@ -190,7 +202,9 @@ def run_both(flt) -> None:
             z1, S1 = flt.predicted_measurement(v)
             np.testing.assert_allclose(z_hat[t], z1, rtol=1e-10, atol=1e-10, err_msg=f"scan {k} z_hat {t}")
             np.testing.assert_allclose(S[t], S1, rtol=1e-10, atol=1e-10, err_msg=f"scan {k} S {t}")
-        single = [flt.update(s, nu[t, W[t] > 0], W[t, W[t] > 0], w0[t]) for t, s in enumerate(ps)]
+        R = detection_R(W.shape[1])
+        single = [flt.update(s, nu[t, W[t] > 0], W[t, W[t] > 0], w0[t],
+                             **({"R": R[W[t] > 0]} if takes_detection_R(flt) else {})) for t, s in enumerate(ps)]
         for t, (u, v) in enumerate(zip(batch, single)):
             assert_same(u, v, f"scan {k} update, track {t}")
             assert (u is pb[t]) == (v is ps[t]), f"scan {k} track {t}: the prediction itself on one path only"
@@ -202,14 +216,15 @@ def test_batched_equals_per_track_for_every_switch(kind, table):
 
 
 def test_the_switch_tables_are_read_and_refusals_are_one_line_errors():
-    """The cross product has every switch of every kind (a GVBL alone has 96 combinations, 72 buildable), each kind
+    """The cross product has every switch of every kind (a GVBL alone has 192 combinations, 144 buildable), each kind
     builds in some combination, and a refused combination is a ValueError of one line (e.g. the 'ct' model for the
     standard SVSF, a second-order EKF without measurement Hessians)."""
     kinds = {k for k in FILTERS if k not in WRAPPERS}
     assert {k for k, _ in BUILT} == kinds | {"imm"}
     assert set(switches(FILTERS["gvbl-svsf"].params)) >= {"motion", "switch", "robust_lower", "ey_memory",
                                                           "apda_layer", "memory_after_miss"}
-    assert sum(k == "gvbl-svsf" for k, _ in BUILT) == 72 and len(cross_product(FILTERS["gvbl-svsf"].params)) == 96
+    assert sum(k == "gvbl-svsf" for k, _ in BUILT) == 144 and len(cross_product(FILTERS["gvbl-svsf"].params)) == 192
+    assert switches(FILTERS["kf"].params)["detection_R"] == (False, True)
     assert switches(FILTERS["ekf"].params)["second_order"] == (False, True)
     assert sum(k == "imm" for k, _ in BUILT) == sum(k != "imm" for k, _ in BUILT)
     for kind, combo, message in REFUSED:

@@ -177,7 +177,7 @@ def test_registry_names_and_errors():
         make_tracker("pda-kf", pd="0.9")
     with pytest.raises(ParamError, match="filter.sigma_v: -1.0 is not allowed; must be >= 0"):
         make_tracker("pda-kf", filter={"sigma_v": -1.0})
-    with pytest.raises(ParamError, match="filter.gate_alpha: unknown key; allowed: motion, "):
+    with pytest.raises(ParamError, match="filter.gate_alpha: unknown key; allowed: detection_R, motion, "):
         make_tracker("pda-kf", associator={"gate_alpha": 9.0, "kind": "pda"}, filter={"gate_alpha": 1.0})
     with pytest.raises(ParamError, match="filter.kind: is set by the tracker name 'pda-kf'"):
         make_tracker("pda-kf", filter={"kind": "ekf"})
@@ -249,7 +249,7 @@ def test_kind_sub_tables_apply_only_to_their_kind_and_reach_imm_modes():
     assert make_tracker("apda-gvbl-svsf", **tables).association.psi_max == 1.0
     imm = make_tracker("imm-pda-svsf", **tables)  # CV mode: svsf, CT mode: gvbl-svsf
     assert imm.filter.filters[0].psi == (0.2, 0.2) and imm.filter.filters[1].psi_max == 5.0
-    with pytest.raises(ParamError, match="filter.svsf.psy: unknown key; allowed: artificial_pda, covariance, gamma"):
+    with pytest.raises(ParamError, match="filter.svsf.psy: unknown key; allowed: artificial_pda, covariance, detection_R, gamma"):
         make_tracker("jpda-kf", filter={"svsf": {"psy": 0.2}})  # a typo in another kind's table still fails
     with pytest.raises(ParamError, match="filter.svsf.psi: -1.0 is not allowed"):
         make_tracker("jpda-svsf", filter={"svsf": {"psi": -1.0}})

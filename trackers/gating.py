@@ -33,16 +33,38 @@ def _cholesky_batch(S: np.ndarray) -> np.ndarray:
 
 
 def mahalanobis2_and_log_gaussian(nu: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Both d2 and log N(nu; 0, S) from one Cholesky factorisation: nu (T, M, m), S (T, m, m) -> 2 x (T, M)."""
+    """Both d2 and log N(nu; 0, S) from one Cholesky factorisation: nu (T, M, m), S (T, m, m) per track or
+    (T, M, m, m) per (track, measurement) pair (measurements with their own covariances) -> 2 x (T, M)."""
     T, M, m = nu.shape
+    if S.shape == (T, M, m, m):
+        return _pairs(nu, S)
     if S.shape != (T, m, m):
-        raise ValueError(f"S must be ({T}, {m}, {m}) for nu {nu.shape}, got {S.shape}")
+        raise ValueError(f"S must be ({T}, {m}, {m}) or ({T}, {M}, {m}, {m}) for nu {nu.shape}, got {S.shape}")
     L = _cholesky_batch(S)
     y = np.linalg.solve(L, np.swapaxes(nu, 1, 2))  # (T, m, M) whitened innovations L^-1 nu
     d2 = np.einsum("tim,tim->tm", y, y)  # (4.38) d2 = nu^T S^-1 nu (S^-1 for the printed S^T [R])
     log_det = 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
     log_n = -0.5 * d2 - 0.5 * (m * _LOG_2PI + log_det)[:, None]  # log N(nu; 0, S) of (4.10)
     return d2, log_n
+
+
+def _pairs(nu: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`mahalanobis2_and_log_gaussian` with one S per pair, S (T, M, m, m): closed form for m = 2 (the 2x2
+    inverse), else one Cholesky factor per pair."""
+    T, M, m = nu.shape
+    if m != 2:
+        d2, log_n = mahalanobis2_and_log_gaussian(nu.reshape(T * M, 1, m), S.reshape(T * M, m, m))
+        return d2.reshape(T, M), log_n.reshape(T, M)
+    a, b, c = S[..., 0, 0], 0.5 * (S[..., 0, 1] + S[..., 1, 0]), S[..., 1, 1]
+    det = a * c - b * b
+    bad = ~(np.isfinite(det) & (a > 0.0) & (det > 0.0))
+    if bad.any():
+        t = int(np.argwhere(bad)[0][0])
+        raise FilterError(f"innovation covariance S of track index {t} is not "
+                          f"{'finite' if not np.isfinite(S[t]).all() else 'positive definite'}")
+    x, y = nu[..., 0], nu[..., 1]
+    d2 = (c * x * x - 2.0 * b * x * y + a * y * y) / det  # (4.38) d2 = nu^T S^-1 nu, 2x2 inverse
+    return d2, -0.5 * d2 - 0.5 * (2.0 * _LOG_2PI + np.log(det))  # log N(nu; 0, S) of (4.10)
 
 
 def mahalanobis2(nu: np.ndarray, S: np.ndarray) -> np.ndarray:

@@ -256,10 +256,13 @@ def _scaled_eye(m: int, variance: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PositionMeasurement:
-    """z = H x + w: the motion model's position entries, R = sigma_w^2 I (thesis (4.77)-(4.79)). sigma_w [m]."""
+    """z = H x + w: the motion model's position entries, R = sigma_w^2 I (thesis (4.77)-(4.79)). sigma_w [m].
+    per_detection: a detection's own covariance R_j, when the caller gives one (`Tracker.step(R=...)`), replaces R
+    in the gate, the likelihood and the update; R = sigma_w^2 I is the fallback."""
 
     sigma_w: float
     dims: int = 2
+    per_detection: bool = False
     linear: bool = field(default=True, init=False)
 
     def __post_init__(self) -> None:

@@ -14,7 +14,8 @@ import numpy as np
 from scipy.special import gammaln
 
 from trackers.association.roles import AssociationInput, AssociatorKind, AssociatorParams
-from trackers.filters.base import Filter, batch_predict, batch_predicted_measurements, batch_update
+from trackers.filters.base import (Filter, batch_predict, batch_predicted_measurements, batch_update, check_detection_R,
+                                   pair_covariances, takes_detection_R, weighted_R)
 from trackers.gating import gate, mahalanobis2_and_log_gaussian
 from trackers.initiation import pair_candidates, single_point, two_point
 from trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
@@ -186,14 +187,20 @@ class Tracker:
         return self.association.gate_probability(self.filter.measurement.ndim)
 
     def step(self, tracks: tuple[Track, ...], Z: np.ndarray, dt: float, next_id: int,
-             pd: PdInput = None, road: RoadInput | None = None) -> StepResult:
+             pd: PdInput = None, road: RoadInput | None = None, R: np.ndarray | None = None) -> StepResult:
         """One scan. tracks: current tracks; Z (M, m) measurements; dt [s] since the last scan; next_id: label
         for the next new track; pd: detection probability per track, as an array (T,) over the non-candidate
         tracks in input order, or a function of their predicted measurements (T, m) -> (T,) (occlusion-aware
         P_D), or None for the associator's pd; road: the lane map as a function of positions (trackers.road) or
-        None (no road-map aid; the life bounds max_position_std_m and max_unseen_s). Raises ValueError on
-        non-finite Z or dt before any update."""
+        None (no road-map aid; the life bounds max_position_std_m and max_unseen_s); R (M, m, m): each
+        measurement's own covariance, used in the gate, the likelihood, the update and initiation when the filter's
+        measurement model asks for it (``per_detection``, e.g. the filter key detection_R) and its update takes it
+        (trackers.filters.base.takes_detection_R), else ignored (the model's fixed R). Raises ValueError on
+        non-finite Z or dt, or an R that is not finite, symmetric and positive definite, before any update."""
         Z = _check_measurements(Z, self.filter.measurement.ndim)
+        Rz = None
+        if R is not None and takes_detection_R(self.filter):
+            Rz = check_detection_R(R, len(Z), self.filter.measurement.ndim)
         dt = float(dt)
         if not math.isfinite(dt) or dt < 0:
             raise ValueError(f"dt must be finite and >= 0, got {dt}")
@@ -202,16 +209,16 @@ class Tracker:
         pred = self._predict(live, dt, road)
         pdt = self._pd(pd, pred)
         live, pred, pdt, too_wide = self._drop_wide(live, pred, pdt, road)
-        inp = self._gate(pred, Z, pdt)
+        inp = self._gate(pred, Z, pdt, Rz)
         W, w0, extra = self._associate(inp)
-        states = batch_update(self.filter, pred.states, inp.nu, W, w0)
+        states = batch_update(self.filter, pred.states, inp.nu, W, w0, Rz)
         if road is not None and self.management.road_lane_keeping:
             states = self._keep_lanes(live, states, W, road)
-        survivors, deleted, diag = self._manage(live, states, inp, W, w0, pred, dt, road)
+        survivors, deleted, diag = self._manage(live, states, inp, W, w0, pred, dt, road, Rz)
         deleted = too_wide + deleted
         for k, v in extra.items():
             diag[k] = np.asarray(v, dtype=np.float64)
-        births, next_id = self._initiate(candidates, live, Z, inp, dt, next_id, pred)
+        births, next_id = self._initiate(candidates, live, Z, inp, dt, next_id, pred, Rz)
         info = StepInfo(ids=np.array([tr.id for tr in live], dtype=np.int64).reshape(len(live)), z_hat=pred.z_hat,
                         S=pred.S, gated=inp.gated, W=W, w0=w0, layers=pred.layers, diagnostics=diag)
         return StepResult(tracks=tuple(survivors + births), next_id=int(next_id), deleted=tuple(deleted), info=info)
@@ -257,14 +264,17 @@ class Tracker:
             raise ValueError("per-track detection probabilities must lie in [0, 1]")
         return out
 
-    def _gate(self, pred: _Prediction, Z: np.ndarray, pdt: np.ndarray) -> AssociationInput:
+    def _gate(self, pred: _Prediction, Z: np.ndarray, pdt: np.ndarray, R: np.ndarray | None) -> AssociationInput:
+        """Innovations, distances and likelihoods of every (track, measurement) pair; with the measurements' own
+        covariances R (M, m, m), S_tj = S_t - R_fixed + R_j (`pair_covariances`)."""
         meas = self.filter.measurement
         nu = meas.residual(Z[None, :, :], pred.z_hat[:, None, :])  # §4.1 / (4.15) innovation z - h(x_pred)
-        d2, log_lik = mahalanobis2_and_log_gaussian(nu, pred.S)
+        S_pairs = None if R is None else pair_covariances(pred.S, R, meas.R)  # §4.1 S = H P H^T + R_j
+        d2, log_lik = mahalanobis2_and_log_gaussian(nu, pred.S if S_pairs is None else S_pairs)
         alpha = self.association.gate_alpha
         return AssociationInput(log_lik=log_lik, gated=gate(d2, alpha), d2=d2, nu=nu, S=pred.S, pd=pdt, pg=self.pg,
                                 gate_volume=gate_volume(pred.S, alpha) if len(pred.S) else np.zeros(0),
-                                layers=pred.layers)
+                                layers=pred.layers, S_pairs=S_pairs)
 
     def _associate(self, inp: AssociationInput) -> tuple[np.ndarray, np.ndarray, dict]:
         out = self.associator.run(inp, self.association)
@@ -310,7 +320,7 @@ class Tracker:
         return out
 
     def _manage(self, live, states, inp: AssociationInput, W, w0, pred: _Prediction, dt: float,
-                road: RoadInput | None = None):
+                road: RoadInput | None = None, R: np.ndarray | None = None):
         mp, T = self.management, len(live)
         hit = inp.gated.any(axis=1)
         score = self._score(live, inp, W)
@@ -318,7 +328,7 @@ class Tracker:
         was_confirmed = np.array([tr.confirmed for tr in live], dtype=bool)
         misses = np.array([0 if hit[t] else tr.misses_in_a_row + 1 for t, tr in enumerate(live)], dtype=np.int64)
         unseen = np.array([0.0 if hit[t] else tr.unseen_s + dt for t, tr in enumerate(live)], dtype=np.float64)
-        records, diag = self._records(states, inp, W, hit)
+        records, diag = self._records(states, inp, W, hit, R)
         if self.manager == "m_of_n":
             det, known = self._windows(live, hit)
             confirmed, delete = m_of_n_decide(det, misses, was_confirmed, mp, known)
@@ -430,13 +440,20 @@ class Tracker:
             known[t, n - len(flags):] = True
         return det, known
 
-    def _records(self, states, inp: AssociationInput, W, hit) -> tuple[list[ScanRecord], dict[str, np.ndarray]]:
+    def _records(self, states, inp: AssociationInput, W, hit, R: np.ndarray | None = None
+                 ) -> tuple[list[ScanRecord], dict[str, np.ndarray]]:
+        """Each track's ScanRecord and the per-track diagnostics. With the measurements' own covariances R (M, m, m),
+        a track's record S (and its NIS) uses the association-weighted R of its measurements (`weighted_R`)."""
         T = len(states)
         nu_c = np.einsum("tj,tjm->tm", W, inp.nu) if T else np.zeros((0, inp.nu.shape[-1]))
-        nis = np.einsum("tm,tm->t", nu_c, np.linalg.solve(inp.S, nu_c[..., None])[..., 0]) if T else np.zeros(0)
+        S = inp.S
+        if R is not None and T and len(R):
+            used = W.sum(axis=1) > 0.0
+            S = np.where(used[:, None, None], S - self.filter.measurement.R + weighted_R(R, W), S)
+        nis = np.einsum("tm,tm->t", nu_c, np.linalg.solve(S, nu_c[..., None])[..., 0]) if T else np.zeros(0)
         n_gated = inp.gated.sum(axis=1)
-        root_det = np.sqrt(np.linalg.det(inp.S)) if T else np.zeros(0)  # once per record, for the KS windows
-        records = [ScanRecord(nu_c=nu_c[t], S=inp.S[t], n_gated=int(n_gated[t]), gate_volume=float(inp.gate_volume[t]),
+        root_det = np.sqrt(np.linalg.det(S)) if T else np.zeros(0)  # once per record, for the KS windows
+        records = [ScanRecord(nu_c=nu_c[t], S=S[t], n_gated=int(n_gated[t]), gate_volume=float(inp.gate_volume[t]),
                               nis=float(nis[t]), detected=bool(hit[t]), pd=float(inp.pd[t]), d2=inp.d2[t],
                               root_det=float(root_det[t])) for t in range(T)]
         diag = {"nis": nis, "n_gated": n_gated.astype(np.float64), "gate_volume": inp.gate_volume.astype(np.float64),
@@ -447,11 +464,13 @@ class Tracker:
         return records, diag
 
     def _initiate(self, candidates, live, Z: np.ndarray, inp: AssociationInput, dt: float, next_id: int,
-                  pred: _Prediction):
+                  pred: _Prediction, R: np.ndarray | None = None):
         """New tentative tracks from measurements in no gate of a well-localised or young, just-detected live track
         (§7.2; `claim_std_m` [D]): at once ("single") or from a candidate of the previous scan paired within reach ("two_point",
-        [D]). A candidate keeps its position in x[:d]."""
+        [D]). A candidate keeps its position in x[:d]. With the measurements' own covariances R (M, m, m) a new
+        track's position covariance is its measurement's."""
         mp, flt, meas = self.management, self.filter, self.filter.measurement
+        Rj = (lambda j: None) if R is None else (lambda j: R[j])  # noqa: E731 - a detection's own covariance
         lam, pd = self.association.clutter_density, self.association.pd
         score0 = initial_score(mp, lam, pd)
         claims = inp.gated
@@ -472,10 +491,10 @@ class Tracker:
 
         if mp.initiation == "single":
             for j in free:
-                out.append(new(flt.initial_state(*single_point(Z[j], meas, mp.v_max)), score0, int(next_id), 1))
+                out.append(new(flt.initial_state(*single_point(Z[j], meas, mp.v_max, Rj(j))), score0, int(next_id), 1))
                 next_id += 1
             return out, next_id
-        positions = [meas.position_of(Z[j]) for j in free]
+        positions = [meas.position_of(Z[j]) if R is None else (Z[j], R[j]) for j in free]
         if dt > 0 and candidates and free.size:
             d = len(positions[0][0])
             sigma = math.sqrt(float(np.max(np.linalg.eigvalsh(positions[0][1]))))
@@ -485,7 +504,7 @@ class Tracker:
             C = np.array([c.state.x[:d] for c in candidates])
             for c, f in pair_candidates(C, np.array([p for p, _ in positions]), reach):
                 used.add(f)
-                x0, P0 = two_point(C[c], Z[free[f]], dt, meas)
+                x0, P0 = two_point(C[c], Z[free[f]], dt, meas, Rj(free[f]))
                 out.append(new(flt.initial_state(x0, P0), score0 + inc, int(next_id), 2))
                 next_id += 1
         for f, (p, Rp) in enumerate(positions):

@@ -135,5 +135,16 @@ def guarded(func: Callable[[Any], int], args: Any, debug: bool = False) -> int:
     with stop_signals_interrupt():
         try:
             return func(args)
+        except BrokenPipeError:  # the reader left (`testbed trackers | head`): nothing to report, as for `ls | head`
+            return quiet_stdout()
         except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - the last resort: one line, never a traceback
             return report(err, debug)
+
+
+def quiet_stdout() -> int:
+    """After a broken pipe on stdout: point stdout at /dev/null (so the interpreter's flush at exit cannot fail
+    again, as the Python documentation's 'Note on SIGPIPE' advises) and return exit code 0."""
+    with contextlib.suppress(OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    return 0

@@ -45,7 +45,7 @@ class BuiltinTracker:
             live = np.array([self._trucks.get(t.id, False) for t in self.tracks if not t.candidate], dtype=bool)
             nominal, occ = trk.association.pd, frame.pd
             pd = lambda z_hat: occ(z_hat[:, :2], nominal, live)  # noqa: E731 - the tracker calls it once
-        res = trk.step(self.tracks, frame.z, frame.dt, self.next_id, pd=pd, road=frame.road)
+        res = trk.step(self.tracks, frame.z, frame.dt, self.next_id, pd=pd, road=frame.road, R=frame.R)
         self.tracks, self.next_id = res.tracks, res.next_id
         if frame.pd is not None:
             alive = {t.id for t in res.tracks}

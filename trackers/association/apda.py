@@ -56,7 +56,7 @@ LAYER_MODES = ("filter", "saturated")
 
 
 def log_half_normal(C: np.ndarray, S: np.ndarray, form: str = "consistent") -> np.ndarray:
-    """log N_h(C; 0, S) (5.39)-(5.42): C (T, M, m) >= 0, S (T, m, m) -> (T, M). "consistent": the sum of
+    """log N_h(C; 0, S) (5.39)-(5.42): C (T, M, m) >= 0, S (T, m, m) or per pair (T, M, m, m) -> (T, M). "consistent": the sum of
     N(s o C; 0, S) over the 2^m sign patterns s (a density on the positive orthant); "thesis": 2^-m times it
     (the printed 1 / (4 pi sqrt|S|) for m = 2)."""
     T, M, m = C.shape
@@ -64,8 +64,13 @@ def log_half_normal(C: np.ndarray, S: np.ndarray, form: str = "consistent") -> n
     _, logdet = np.linalg.slogdet(S)
     signs = np.array(list(itertools.product((1.0, -1.0), repeat=m)))  # (2^m, m)
     x = signs[None, :, None, :] * C[:, None, :, :]  # (T, 2^m, M, m)
-    q = np.einsum("tsjm,tmn,tsjn->tsj", x, Sinv, x)
-    log_n = -0.5 * q - 0.5 * (m * math.log(2.0 * math.pi) + logdet)[:, None, None]  # log N(s o C; 0, S)
+    if S.ndim == 4:  # one S per (track, measurement) pair, (T, M, m, m): measurements with their own R
+        q = np.einsum("tsjm,tjmn,tsjn->tsj", x, Sinv, x)
+        logdet = logdet[:, None, :]
+    else:
+        q = np.einsum("tsjm,tmn,tsjn->tsj", x, Sinv, x)
+        logdet = logdet[:, None, None]
+    log_n = -0.5 * q - 0.5 * (m * math.log(2.0 * math.pi) + logdet)  # log N(s o C; 0, S)
     out = logsumexp(log_n, axis=1)  # (5.39) sum over sign patterns
     return out - m * math.log(2.0) if form == "thesis" else out  # (5.40)-(5.42) printed 1/(4 pi sqrt|S|)
 
@@ -73,11 +78,14 @@ def log_half_normal(C: np.ndarray, S: np.ndarray, form: str = "consistent") -> n
 def apda(nu: np.ndarray, S: np.ndarray, log_lik: np.ndarray, gated: np.ndarray, layers: np.ndarray,
          gate_volume: np.ndarray, pd: np.ndarray, pg: float, clutter_density: float, alpha: float, *,
          form: str = "consistent", psi_max: float = 2.0,
-         layer_mode: str = "filter") -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+         layer_mode: str = "filter", S_pairs: np.ndarray | None = None
+         ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """APDA weights (W (T, M), w0 (T,), diagnostics) from innovations nu (T, M, m), S (T, m, m), log N(nu; 0, S)
     (T, M), gate flags (T, M), boundary layers (T, m) (NaN rows: none, psi_max used), gate volumes V (T,),
     per-track P_D (T,), P_G, lambda [1/m^m] and the gate threshold alpha. layer_mode "saturated" uses
-    min(layer, psi_max) (§6.5 effective layer [D]). See module docstring."""
+    min(layer, psi_max) (§6.5 effective layer [D]). S_pairs (T, M, m, m): the per-detection S of measurements with
+    their own covariances (in the half-normal term; the gate extent stays the track's S), or None. See module
+    docstring."""
     if form not in FORMS:
         raise ValueError(f"APDA form must be one of {list(FORMS)}, got {form!r}")
     if layer_mode not in LAYER_MODES:
@@ -102,7 +110,8 @@ def apda(nu: np.ndarray, S: np.ndarray, log_lik: np.ndarray, gated: np.ndarray, 
     if not active.any():
         return W, w0, info
     t = np.flatnonzero(active)
-    log_f = np.where(gated[t], log_lik[t] + log_half_normal(C[t], S[t], form), -np.inf)  # (5.54) f_i
+    S_f = S[t] if S_pairs is None else S_pairs[t]
+    log_f = np.where(gated[t], log_lik[t] + log_half_normal(C[t], S_f, form), -np.inf)  # (5.54) f_i
     with np.errstate(divide="ignore"):
         log_a = (math.log(clutter_density) + math.log(pg) + np.log1p(-pd[t] * pg)
                  - np.log(v_c[t]))  # (5.54) a, printed form

@@ -25,7 +25,9 @@ class AssociationInput:
     log_lik (T, M) log N(nu; 0, S); gated (T, M) bool; d2 (T, M) squared Mahalanobis distances;
     nu (T, M, m) innovations; S (T, m, m); pd (T,) per-track detection probability; pg gate
     probability; gate_volume (T,) [m^m]; layers (T, m) boundary-layer half widths of SVSF-family
-    filters in measurement space (NaN rows for filters without one)."""
+    filters in measurement space (NaN rows for filters without one); S_pairs (T, M, m, m) the innovation covariance
+    of every (track, measurement) pair when measurements carry their own covariances (log_lik and d2 use it;
+    S and gate_volume are the tracks' with the filter's fixed R), else None."""
 
     log_lik: np.ndarray
     gated: np.ndarray
@@ -36,6 +38,7 @@ class AssociationInput:
     pg: float
     gate_volume: np.ndarray
     layers: np.ndarray
+    S_pairs: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -126,7 +129,8 @@ def _an(inp: AssociationInput, p: ANParams) -> tuple:
 
 def _apda(inp: AssociationInput, p: APDAParams) -> tuple:
     return apda(inp.nu, inp.S, inp.log_lik, inp.gated, inp.layers, inp.gate_volume, inp.pd, inp.pg,
-                p.clutter_density, p.gate_alpha, form=p.form, psi_max=p.psi_max, layer_mode=p.layer)
+                p.clutter_density, p.gate_alpha, form=p.form, psi_max=p.psi_max, layer_mode=p.layer,
+                S_pairs=inp.S_pairs)
 
 
 ASSOCIATORS: dict[str, AssociatorKind] = {

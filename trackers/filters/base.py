@@ -12,7 +12,9 @@ parameters, with stateless methods:
                                                     (SVSF family; read by APDA and drawn by the viewer)
 
 `update` takes the innovations nu (M, m) of the measurements a track may use, their association
-weights beta (M,) and the miss weight beta0, with beta0 + sum(beta) = 1. Hard association (NN, GNN)
+weights beta (M,) and the miss weight beta0, with beta0 + sum(beta) = 1; optionally `R` (M, m, m), the
+measurements' own covariances (the built-in filters take it; the tracker passes it when the measurement model
+says `per_detection` and the update has the keyword, `takes_detection_R`). Hard association (NN, GNN)
 is beta = [1], beta0 = 0; PDA and JPDA pass soft weights. M = 0 or beta0 = 1 returns the prediction.
 An SVSF-family filter sets e_{z,k|k-1} to the combined innovation (2.27), computes its own gain (reading
 dt and the partition of `s_pred.F`), combines the covariance with `pda_covariance` (4.16)-(4.17) and
@@ -24,6 +26,8 @@ carry the mode-matched states.
 
 from __future__ import annotations
 
+import functools
+import inspect
 import math
 from dataclasses import replace
 from typing import Protocol, runtime_checkable
@@ -138,12 +142,16 @@ class ModelFilter:
         return np.array([s.x for s in preds]) @ H.T, 0.5 * (S + np.swapaxes(S, 1, 2))
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
-                    w0: np.ndarray) -> list[FilterState]:
-        """PDA-form updates of T tracks: nu (T, M, m) innovations, W (T, M) weights, w0 (T,) miss weights."""
+                    w0: np.ndarray, R: np.ndarray | None = None) -> list[FilterState]:
+        """PDA-form updates of T tracks: nu (T, M, m) innovations, W (T, M) weights, w0 (T,) miss weights; R (M, m, m)
+        the detections' own covariances or None (the measurement model's R)."""
         out = []
         for t, s in enumerate(preds):
             use = W[t] > 0.0
-            out.append(self.update(s, nu[t, use], W[t, use], float(w0[t])))
+            if R is None:
+                out.append(self.update(s, nu[t, use], W[t, use], float(w0[t])))
+            else:
+                out.append(self.update(s, nu[t, use], W[t, use], float(w0[t]), R=R[use]))
         return out
 
 
@@ -192,9 +200,61 @@ def batch_predicted_measurements(filter_, preds: list[FilterState]) -> tuple[np.
     return ModelFilter.predicted_measurements(filter_, preds)
 
 
-def batch_update(filter_, preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray) -> list:
+def batch_update(filter_, preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray,
+                 R: np.ndarray | None = None) -> list:
+    """`update_many` of any filter (the per-track loop for filters without one); R (M, m, m): the detections' own
+    covariances, passed only when given (a filter that takes them: `takes_detection_R`)."""
     many = getattr(filter_, "update_many", None)
-    return many(preds, nu, W, w0) if many is not None else ModelFilter.update_many(filter_, preds, nu, W, w0)
+    if many is None:
+        many = lambda *a, **k: ModelFilter.update_many(filter_, *a, **k)  # noqa: E731
+    return many(preds, nu, W, w0) if R is None else many(preds, nu, W, w0, R=R)
+
+
+def takes_detection_R(filter_) -> bool:
+    """True if the filter's measurement model asks for the detections' own covariances (``per_detection``) and its
+    update takes them (an ``R`` keyword of ``update``, and of ``update_many`` when it has one)."""
+    if not getattr(getattr(filter_, "measurement", None), "per_detection", False):
+        return False
+    return _update_takes_R(type(filter_))
+
+
+@functools.lru_cache(maxsize=None)
+def _update_takes_R(cls: type) -> bool:
+    methods = [getattr(cls, "update", None), getattr(cls, "update_many", None)]
+    return methods[0] is not None and all(f is None or "R" in inspect.signature(f).parameters for f in methods)
+
+
+def pair_covariances(S: np.ndarray, R: np.ndarray, R0: np.ndarray) -> np.ndarray:
+    """Innovation covariances of every (track, detection) pair, S_tj = S_t - R0 + R_j (T, M, m, m): S (T, m, m)
+    computed with the fixed R0 (m, m), R (M, m, m) the detections' own (thesis §4.1: S = H P H^T + R, per
+    detection)."""
+    return S[:, None, :, :] + (R - R0)[None, :, :, :]
+
+
+def weighted_R(R: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """Association-weighted mean detection covariance sum_j W_tj R_j / sum_j W_tj (T, m, m) of R (M, m, m) and
+    weights W (T, M) >= 0 (a row of zeros gives the plain mean; a single weight gives that detection's R)."""
+    w = np.asarray(W, dtype=np.float64)
+    tot = w.sum(axis=1, keepdims=True)
+    w = np.where(tot > 0.0, w / np.where(tot > 0.0, tot, 1.0), 1.0 / max(w.shape[1], 1))
+    return np.einsum("tj,jab->tab", w, R)
+
+
+def check_detection_R(R, M: int, m: int) -> np.ndarray:
+    """R as float64 (M, m, m), or ValueError (one line) unless every R_j is finite, symmetric and positive
+    definite."""
+    R = np.asarray(R, dtype=np.float64)
+    if R.shape != (M, m, m):
+        raise ValueError(f"detection covariances R must be ({M}, {m}, {m}) for {M} detections, got {R.shape}")
+    if not np.isfinite(R).all():
+        j = int(np.flatnonzero(~np.isfinite(R).reshape(M, -1).all(axis=1))[0])
+        raise ValueError(f"detection {j}'s covariance R is not finite")
+    if M and np.abs(R - np.swapaxes(R, 1, 2)).max() > 1e-9 * max(1.0, float(np.abs(R).max())):
+        raise ValueError("detection covariances R must be symmetric")
+    if M and (np.linalg.eigvalsh(R)[:, 0] <= 0.0).any():
+        j = int(np.flatnonzero(np.linalg.eigvalsh(R)[:, 0] <= 0.0)[0])
+        raise ValueError(f"detection {j}'s covariance R is not positive definite")
+    return R
 
 
 def symmetrise(P: np.ndarray) -> np.ndarray:

@@ -60,7 +60,7 @@ import numpy as np
 
 from trackers.errors import FilterError
 from trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
-                                   combined_innovation, pda_covariance, symmetrise)
+                                   combined_innovation, pda_covariance, symmetrise, weighted_R)
 from trackers.filters.svsf import (EY_MEMORY, GAMMA, MEMORY_AFTER_MISS, MEMORY_AFTER_MISS_DOC, Partition,
                                    after_miss, apply_rows, check_memory_after_miss, generalised_covariance,
                                    lower_error, maps_many, promote_state, svsf_gain_factor)
@@ -147,13 +147,16 @@ class GVBLSVSF(ModelFilter):
             return None
         return np.full(self.measurement.ndim, self.psi_max)  # (5.37) psi_max: first scan, or apda_layer "psi_max"
 
-    def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState:
-        """PDA-form GVBL-SVSF update; nu (M, m), beta (M,), beta0 (see module docstring)."""
+    def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float,
+               R: np.ndarray | None = None) -> FilterState:
+        """PDA-form GVBL-SVSF update; nu (M, m), beta (M,), beta0 (see module docstring); R (M, m, m): the
+        detections' own covariances (their beta-weighted mean replaces the model's R, [D]) or None."""
         nu, beta, beta0 = check_weights(nu, beta, beta0, self.measurement.ndim)
         if nu.shape[0] == 0 or beta0 == 1.0:
             return after_miss(s_pred, self.memory_after_miss)  # (4.16) with beta0 = 1: no update
         s = promote_state(GVBLState, s_pred)
-        H, R, P = self.measurement_jacobian(s), self.measurement.R, s.P
+        H, P = self.measurement_jacobian(s), s.P
+        R = self.measurement.R if R is None else weighted_R(R, beta[None])[0]
         part = Partition.of(H)
         M, Phi12_pinv = part.maps(s.F)
         S = symmetrise(H @ P @ H.T + R)  # (5.10) S = H1 P11 H1^T + R
@@ -184,8 +187,8 @@ class GVBLSVSF(ModelFilter):
 
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
-                    w0: np.ndarray) -> list[FilterState]:
-        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,) (the per-track update is the reference,
+                    w0: np.ndarray, R: np.ndarray | None = None) -> list[FilterState]:
+        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,), R (M, m, m) or None (the per-track update is the reference,
         tests/test_trackers_svsf.py checks them equal to 1e-12). A linear measurement, else the per-track loop;
         the partition maps of one transition Jacobian shared by every track (NCV) are computed once, those of
         per-track Jacobians (CT) per track."""
@@ -196,9 +199,10 @@ class GVBLSVSF(ModelFilter):
             return out
         ss = [promote_state(GVBLState, preds[t]) for t in active]
         if not self.measurement.linear or any(s.F is None for s in ss):
-            return ModelFilter.update_many(self, preds, nu, W, w0)
+            return ModelFilter.update_many(self, preds, nu, W, w0, R)
         nua, Wa, b0 = batch_weights(nu, W, w0, active)  # (A, M, m), (A, M), (A,)
-        H, R = self.measurement.matrix(self.motion), self.measurement.R
+        H = self.measurement.matrix(self.motion)
+        R = self.measurement.R if R is None else weighted_R(R, Wa)  # (m, m) or (A, m, m) [D]
         part = Partition.of(H)
         Mm, Phi12_pinv, M_pinv = maps_many(part, [s.F for s in ss])
         X = np.array([s.x for s in ss])

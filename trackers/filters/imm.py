@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 
 from trackers.filters.base import (ModelFilter, batch_predict, batch_predicted_measurements, batch_update,
-                                   check_covariance, check_weights, symmetrise)
+                                   check_covariance, check_weights, pair_covariances, symmetrise)
 from trackers.gating import log_gaussian
 from trackers.models import MOTION_MODELS
 from trackers.params import NON_NEGATIVE, POSITIVE, ParamError, param
@@ -235,10 +235,12 @@ class IMMFilter:
         """Moment-matched combined prediction z_c (m,), S_c (m, m) with the predicted mode probabilities."""
         return self._combine_measurements(*self.mode_measurements(s_pred), s_pred.mu)
 
-    def update(self, s_pred: IMMState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> IMMState:
+    def update(self, s_pred: IMMState, nu: np.ndarray, beta: np.ndarray, beta0: float,
+               R: np.ndarray | None = None) -> IMMState:
         """nu (M, m): innovations z_j - z_c relative to the combined prediction; beta (M,), beta0: the
         association weights computed from N_c. Mode-matched updates with the same weights, mode likelihoods
-        Lambda_i ∝ beta0 + sum_j beta_j N_i(z_j) / N_c(z_j) (module docstring), (2.104), (1.17)-(1.18)."""
+        Lambda_i ∝ beta0 + sum_j beta_j N_i(z_j) / N_c(z_j) (module docstring), (2.104), (1.17)-(1.18).
+        R (M, m, m): the detections' own covariances (in N_i, N_c and every mode's update) or None."""
         meas = self.measurement
         nu, beta, beta0 = check_weights(nu, beta, beta0, meas.ndim)
         if nu.shape[0] == 0 or beta0 == 1.0:  # every Lambda_i equal: mu stays c
@@ -250,6 +252,8 @@ class IMMFilter:
         z_c, S_c = self._combine_measurements(zs, Ss, s_pred.mu)
         zero = np.zeros(meas.ndim)
         nus = np.array([meas.residual(nu + meas.residual(z_c, z), zero) for z in zs])  # (r, M, m): z_j - z_i
+        if R is not None:  # per-detection S_ij = S_i - R + R_j (thesis §4.1 S = H P H^T + R)
+            Ss, S_c = pair_covariances(Ss, R, meas.R), pair_covariances(S_c[None], R, meas.R)[0]
         log_ni = log_gaussian(nus, Ss)  # (r, M): log N_i(z_j), the modes' predicted densities
         log_nc = log_gaussian(nu[None], S_c[None])[0]  # (M,): log N_c(z_j), the density association used
         a = np.concatenate([np.zeros((len(zs), 1)), log_ni - log_nc[None, :]], axis=1)
@@ -258,7 +262,8 @@ class IMMFilter:
         with np.errstate(divide="ignore"):
             log_post = log_lam + np.log(s_pred.mu)
         mu = np.exp(log_post - logsumexp(log_post))  # (2.104) mu_i = Lambda_i c_i / sum_l Lambda_l c_l
-        modes = tuple(f.update(m, nus[i], beta, beta0) for i, (f, m) in enumerate(zip(self.filters, s_pred.modes)))
+        kw = {} if R is None else {"R": R}
+        modes = tuple(f.update(m, nus[i], beta, beta0, **kw) for i, (f, m) in enumerate(zip(self.filters, s_pred.modes)))
         return self._state(modes, mu)
 
     def output(self, s: IMMState) -> tuple[np.ndarray, np.ndarray]:
@@ -308,9 +313,10 @@ class IMMFilter:
         zs, Ss = self.mode_measurements_many(preds)
         return self._combine_many(zs, Ss, np.array([s.mu for s in preds]))
 
-    def update_many(self, preds: list[IMMState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray) -> list[IMMState]:
+    def update_many(self, preds: list[IMMState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray,
+                    R: np.ndarray | None = None) -> list[IMMState]:
         """`update` of T tracks: nu (T, M, m) innovations relative to each track's z_c, W (T, M) weights (0 = not
-        used), w0 (T,) miss weights. A track with no weight > 0 or w0 = 1 gets each mode's own miss handling
+        used), w0 (T,) miss weights, R (M, m, m) the detections' own covariances or None. A track with no weight > 0 or w0 = 1 gets each mode's own miss handling
         (`_missed_many`), as in `update`. Bad input (non-finite used innovations or weights, rows not summing to 1)
         goes to the per-track loop, which raises the reference's ValueError."""
         T, m = len(preds), self.measurement.ndim
@@ -318,13 +324,13 @@ class IMMFilter:
         nu = np.asarray(nu, dtype=np.float64)
         if nu.shape[:1] + nu.shape[2:] != (T, m) or W.shape != nu.shape[:2] or w0.shape != (T,) \
                 or not self._stackable(preds):
-            return ModelFilter.update_many(self, preds, nu, W, w0)
+            return ModelFilter.update_many(self, preds, nu, W, w0, R)
         use = W > 0.0
         nu_u, W_u = np.where(use[..., None], nu, 0.0), np.where(use, W, 0.0)  # what each per-track update is given
         ok = (np.isfinite(nu_u).all(axis=(1, 2)) & np.isfinite(W_u).all(axis=1) & np.isfinite(w0) & (w0 >= 0.0)
               & (w0 <= 1.0) & (np.abs(w0 + W_u.sum(axis=1) - 1.0) <= 1e-9))
         if not ok.all():
-            return ModelFilter.update_many(self, preds, nu, W, w0)  # raises as the per-track check_weights
+            return ModelFilter.update_many(self, preds, nu, W, w0, R)  # raises as the per-track check_weights
         updated = (w0 < 1.0) & use.any(axis=1)
         active = np.flatnonzero(updated)
         out = list(preds)
@@ -339,8 +345,12 @@ class IMMFilter:
         z_c, S_c = self._combine_many(zs, Ss, mu_c)
         meas = self.measurement
         nus = meas.residual(nua[:, None] + meas.residual(z_c[:, None], zs)[:, :, None], np.zeros(m))  # z_j - z_i
+        if R is not None:  # per-detection S_ij = S_i - R + R_j (thesis §4.1 S = H P H^T + R)
+            A, r = Ss.shape[:2]
+            Ss = pair_covariances(Ss.reshape(A * r, m, m), R, meas.R).reshape(A, r, len(R), m, m)
+            S_c = pair_covariances(S_c, R, meas.R)
         mu = self._mode_probabilities_many(nus, Ss, nua, S_c, Wa, b0, mu_c)
-        modes = [batch_update(f, [s.modes[i] for s in ps], nus[:, i], Wa, b0) for i, f in enumerate(self.filters)]
+        modes = [batch_update(f, [s.modes[i] for s in ps], nus[:, i], Wa, b0, R) for i, f in enumerate(self.filters)]
         for t, s in zip(active, self._states_many(ps, modes, mu)):
             out[t] = s
         return out
@@ -428,10 +438,11 @@ class IMMFilter:
 
     def _mode_probabilities_many(self, nus: np.ndarray, Ss: np.ndarray, nu: np.ndarray, S_c: np.ndarray,
                                  W: np.ndarray, w0: np.ndarray, mu: np.ndarray) -> np.ndarray:
-        """Updated mode probabilities (A, r) of A updated tracks: nus (A, r, M, m) = z_j - z_i, Ss (A, r, m, m),
-        nu (A, M, m) = z_j - z_c, S_c (A, m, m), weights W (A, M) (0 = not used) and w0 (A,), predicted mu (A, r)."""
+        """Updated mode probabilities (A, r) of A updated tracks: nus (A, r, M, m) = z_j - z_i, Ss (A, r, m, m)
+        (or per detection (A, r, M, m, m)), nu (A, M, m) = z_j - z_c, S_c (A, m, m) (or (A, M, m, m)), weights
+        W (A, M) (0 = not used) and w0 (A,), predicted mu (A, r)."""
         A, r, M, m = nus.shape
-        log_ni = log_gaussian(nus.reshape(A * r, M, m), Ss.reshape(A * r, m, m)).reshape(A, r, M)  # log N_i(z_j)
+        log_ni = log_gaussian(nus.reshape(A * r, M, m), Ss.reshape((A * r,) + Ss.shape[2:])).reshape(A, r, M)  # log N_i(z_j)
         log_nc = log_gaussian(nu, S_c)  # (A, M): log N_c(z_j), the density association used
         a = np.concatenate([np.zeros((A, r, 1)), log_ni - log_nc[:, None, :]], axis=2)
         b = np.concatenate([w0[:, None], W], axis=1)[:, None, :]
@@ -536,6 +547,8 @@ class IMMParams:
                                   "and does not set it", check=NON_NEGATIVE)
     sigma_w: float | None = param(None, "measurement noise std [m] for every mode table that has the key "
                                   "and does not set it", check=POSITIVE)
+    detection_R: bool | None = param(None, "each detection's own covariance in the gate, likelihood and update "
+                                     "(see the kf table) for every mode table that has the key and does not set it")
 
     def __post_init__(self) -> None:
         r = len(self.modes)
@@ -562,7 +575,7 @@ def build_imm(p: IMMParams, registry: dict, build_filter) -> IMMFilter:
         data = {k: v for k, v in table.items() if k != "kind"}
         if kind in registry:
             keys = {f.name for f in dataclasses.fields(registry[kind].params) if f.init}
-            for key in ("sigma_v", "sigma_w"):
+            for key in ("sigma_v", "sigma_w", "detection_R"):
                 if getattr(p, key) is not None and key in keys:
                     data.setdefault(key, getattr(p, key))  # shared scenario value; a mode's own value wins
         filters.append(build_filter(kind, data, path))

@@ -21,6 +21,9 @@ class ModelParams:
     sigma_omega: float = param(0.02, "ct: turn-rate noise std [rad/s^2] (thesis §1.3 [D])", check=NON_NEGATIVE)
     omega_std0: float = param(0.1, "ct: prior std of a new track's turn rate [rad/s]", check=POSITIVE)
     sigma_w: float = param(0.3, "position measurement noise std [m]", check=POSITIVE)
+    detection_R: bool = param(False, "use each detection's own covariance (perception's range-aware R, Frame.R) in "
+                              "the gate, the likelihood, the update and initiation when the frame gives one, "
+                              "sigma_w otherwise (off by default: docs/trackers.md, 'Per-detection covariances')")
 
     def motion_model(self):
         if self.motion == "ct":
@@ -28,7 +31,7 @@ class ModelParams:
         return ConstantVelocity(self.sigma_v)
 
     def measurement_model(self):
-        return PositionMeasurement(self.sigma_w)
+        return PositionMeasurement(self.sigma_w, per_detection=self.detection_R)
 
 
 @dataclass(frozen=True)

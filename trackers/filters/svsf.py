@@ -40,7 +40,7 @@ import numpy as np
 
 from trackers.errors import FilterError
 from trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
-                                   combined_innovation, pda_covariance, symmetrise)
+                                   combined_innovation, pda_covariance, symmetrise, weighted_R)
 from trackers.filters.params import ModelParams
 from trackers.params import POSITIVE, ParamError, param
 from trackers.state import FilterState, derive
@@ -300,12 +300,13 @@ class SVSF(ModelFilter):
         """The fixed position layer psi (m,) [m]."""
         return np.array(self.psi, dtype=np.float64)
 
-    def augmented(self, s: SVSFState, nu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                                  np.ndarray]:
+    def augmented(self, s: SVSFState, nu: np.ndarray, R: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(H_bar (2m, n), R_bar (2m, 2m), nu_bar (M, 2m), e_prev (2m,), psi (2m,)): the artificial velocity
-        measurement of [17] appended to the position measurement, for the innovations nu (M, m)."""
+        measurement of [17] appended to the position measurement, for the innovations nu (M, m); R (m, m) the
+        position noise (None: the measurement model's)."""
         m, tau = self.measurement.ndim, s.tau
-        H, R = self.measurement_jacobian(s), self.measurement.R
+        H, R = self.measurement_jacobian(s), (self.measurement.R if R is None else R)
         Hv = np.zeros((m, len(s.x)))
         Hv[range(m), self.motion.velocity] = 1.0
         z_hat = self.measurement.h(s.x, self.motion)
@@ -330,18 +331,20 @@ class SVSF(ModelFilter):
         e_v = (z_a - s.z_prev) / s.tau - s.x[list(self.motion.velocity)]  # (2.32) z^a differenced, [17]
         return np.concatenate([nu_c, e_v]), np.hstack([nu, nu / s.tau])  # (4.17) spread from the combined form [D]
 
-    def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState:
-        """PDA-form SVSF update; nu (M, m) innovations, beta (M,), beta0 (see module docstring)."""
+    def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float,
+               R: np.ndarray | None = None) -> FilterState:
+        """PDA-form SVSF update; nu (M, m) innovations, beta (M,), beta0 (see module docstring); R (M, m, m) the
+        detections' own covariances, whose beta-weighted mean replaces the model's R (`weighted_R`, [D]), or None."""
         m = self.measurement.ndim
         nu, beta, beta0 = check_weights(nu, beta, beta0, m)
         if nu.shape[0] == 0 or beta0 == 1.0:
             return after_miss(s_pred, self.memory_after_miss)  # (4.16) with beta0 = 1: no update
         s = promote_state(SVSFState, s_pred)
-        H0, R0 = self.measurement_jacobian(s), self.measurement.R
+        H0, R0 = self.measurement_jacobian(s), (self.measurement.R if R is None else weighted_R(R, beta[None])[0])
         z_a = self.measurement.h(s.x, self.motion) + combined_innovation(nu, beta)  # (2.32) projected measurement
         with_vel = (self.unmeasured == "artificial" and s.tau > 0.0 and s.z_prev is not None
                     and np.isfinite(s.z_prev).all())
-        H, R, nu_b, e_prev, psi = (self.augmented(s, nu) if with_vel
+        H, R, nu_b, e_prev, psi = (self.augmented(s, nu, R0) if with_vel
                                    else (H0, R0, nu, s.e_post, np.array(self.psi, dtype=np.float64)))
         nu_c = combined_innovation(nu_b, beta)  # (2.27) e_{z,k|k-1} := combined innovation
         if with_vel and self.artificial_pda == "combined":  # (2.32) one artificial measurement from z^a [D]
@@ -385,11 +388,11 @@ class SVSF(ModelFilter):
         return [derive(s, x=X[t], P=P[t], F=A, info={}, tau=s.tau + dt) for t, s in enumerate(states)]
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
-                    w0: np.ndarray) -> list[FilterState]:
-        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,); artificial velocity measurements (either
-        `artificial_pda`), "mse" covariance and a linear measurement, else the per-track loop."""
+                    w0: np.ndarray, R: np.ndarray | None = None) -> list[FilterState]:
+        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,), R (M, m, m) or None; artificial velocity
+        measurements (either `artificial_pda`), "mse" covariance and a linear measurement, else the per-track loop."""
         if self.unmeasured != "artificial" or self.covariance != "mse" or not self.measurement.linear:
-            return ModelFilter.update_many(self, preds, nu, W, w0)
+            return ModelFilter.update_many(self, preds, nu, W, w0, R)
         out = [after_miss(s, self.memory_after_miss) for s in preds]  # the active tracks are replaced below
         T = len(preds)
         active = np.flatnonzero((w0 < 1.0) & (W > 0.0).any(axis=1)) if T else np.zeros(0, dtype=np.int64)
@@ -404,14 +407,15 @@ class SVSF(ModelFilter):
         e_vel = np.array([s.e_vel if s.e_vel is not None else np.zeros(m) for s in ss])
         z_prev = np.array([s.z_prev if s.z_prev is not None else np.full(m, np.nan) for s in ss])
         tau = np.array([s.tau for s in ss])
-        H0, R0 = self.measurement.matrix(self.motion), self.measurement.R
+        H0 = self.measurement.matrix(self.motion)
+        R0 = self.measurement.R if R is None else weighted_R(R, Wa)  # (m, m) or (A, m, m) [D]
         Hv = np.zeros((m, X.shape[1]))
         Hv[range(m), self.motion.velocity] = 1.0
         z_a, vel, t_v, nu_c = _artificial_many(X, z_prev, tau, nua, Wa, H0, Hv, self.artificial_pda)
         e_prev = np.concatenate([e_post, e_vel], axis=1)
         psi_p = np.array(self.psi, dtype=np.float64)
         psi_v = (np.broadcast_to(float(self.psi_v), (len(ss), m)) if self.psi_v is not None
-                 else 3.0 * np.sqrt(2.0 * np.diag(R0)[None, :] / t_v[:, None] ** 2))  # §2.3 [D] 3 sigma of z_v
+                 else 3.0 * np.sqrt(2.0 * np.diagonal(R0, axis1=-2, axis2=-1) / t_v[:, None] ** 2))  # §2.3 [D] 3 sigma
         psi = np.concatenate([np.broadcast_to(psi_p, (len(ss), m)), psi_v], axis=1)
         E = np.abs(nu_c) + self.gamma * np.abs(e_prev)  # (2.10) |e_{k|k-1}| + gamma |e_{k-1|k-1}|
         g = svsf_gain_factor(E, nu_c, psi)
@@ -524,12 +528,15 @@ class GeneralisedSVSF(ModelFilter):
         """The fixed measured-partition layer psi_z (m,) [m]."""
         return np.array(self.psi_z, dtype=np.float64)
 
-    def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float) -> FilterState:
-        """PDA-form generalised SVSF update (see class docstring); nu (M, m), beta (M,), beta0."""
+    def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float,
+               R: np.ndarray | None = None) -> FilterState:
+        """PDA-form generalised SVSF update (see class docstring); nu (M, m), beta (M,), beta0; R (M, m, m): the
+        detections' own covariances (their beta-weighted mean replaces the model's R, [D]) or None."""
         nu, beta, beta0 = check_weights(nu, beta, beta0, self.measurement.ndim)
         if nu.shape[0] == 0 or beta0 == 1.0:
             return after_miss(s_pred, self.memory_after_miss)  # (4.16) with beta0 = 1: no update
-        H, R = self.measurement_jacobian(s_pred), self.measurement.R
+        H = self.measurement_jacobian(s_pred)
+        R = self.measurement.R if R is None else weighted_R(R, beta[None])[0]
         part = Partition.of(H)
         M, Phi12_pinv = part.maps(s_pred.F)
         S = symmetrise(H @ s_pred.P @ H.T + R)  # (4.37): S = H1 P11 H1^T + R
@@ -553,10 +560,10 @@ class GeneralisedSVSF(ModelFilter):
         return replace(s_pred, x=x, P=P, e_post=e - H @ (K @ e), F=None, info=info)  # (3.65)
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
-                    w0: np.ndarray) -> list[FilterState]:
-        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,), with a linear measurement and the
-        transition Jacobians of the last predict (else the per-track loop, the reference it is tested against).
-        The partition maps of one Jacobian shared by every track (NCV) are computed once."""
+                    w0: np.ndarray, R: np.ndarray | None = None) -> list[FilterState]:
+        """`update` of T tracks at once: nu (T, M, m), W (T, M), w0 (T,), R (M, m, m) or None, with a linear
+        measurement and the transition Jacobians of the last predict (else the per-track loop, the reference it is
+        tested against). The partition maps of one Jacobian shared by every track (NCV) are computed once."""
         out = [after_miss(s, self.memory_after_miss) for s in preds]  # the active tracks are replaced below
         T = len(preds)
         active = np.flatnonzero((w0 < 1.0) & (W > 0.0).any(axis=1)) if T else np.zeros(0, dtype=np.int64)
@@ -564,9 +571,10 @@ class GeneralisedSVSF(ModelFilter):
             return out
         ss = [preds[t] for t in active]
         if not self.measurement.linear or any(s.F is None for s in ss):
-            return ModelFilter.update_many(self, preds, nu, W, w0)
+            return ModelFilter.update_many(self, preds, nu, W, w0, R)
         nua, Wa, b0 = batch_weights(nu, W, w0, active)  # (A, M, m), (A, M), (A,)
-        H, R = self.measurement.matrix(self.motion), self.measurement.R
+        H = self.measurement.matrix(self.motion)
+        R = self.measurement.R if R is None else weighted_R(R, Wa)  # (m, m) or (A, m, m) [D]
         part = Partition.of(H)
         Mm, Phi12_pinv, _ = maps_many(part, [s.F for s in ss])
         X = np.array([s.x for s in ss])
