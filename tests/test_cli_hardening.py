@@ -4,6 +4,7 @@ its recording and port and never outlives `testbed view`, one JPDA overflow line
 from __future__ import annotations
 
 import errno
+import json
 import os
 import re
 import shutil
@@ -100,12 +101,16 @@ def test_unusable_out_is_refused_before_any_simulation(capsys, tmp_path, monkeyp
 
 def test_a_rerun_replaces_the_folder_and_a_failure_marks_it_incomplete(capsys, tmp_path):
     out = tmp_path / "r"
-    # 1. recorded run, JPDA clusters over max_events: one warning line for the whole run
+    # 1. recorded run, JPDA clusters over max_events, per-track PDA there: one warning line for the whole run,
+    # the fallbacks counted on the summary line and in scores.json
     code, stdout, err = _cli(capsys, *_run(out, *OVERFLOW, "--set", "tracker.associator.max_events=3",
-                                           duration=1.0))
+                                           "--set", "tracker.associator.on_overflow='pda'", duration=1.0))
     assert code == 0, err
     jpda = [line for line in err if "JPDA" in line]
     assert len(jpda) == 1 and jpda[0].startswith("warning: JPDA: ") and "frames exceeded max_events" in jpda[0], err
+    clusters = int(jpda[0].split("(")[1].split(" clusters")[0])
+    assert f", {clusters} association fallbacks" in stdout
+    assert json.loads((out / "scores.json").read_text())["association_fallbacks"] == clusters
     assert {"run.rrd", "scores.json", "truth.parquet"} <= {p.name for p in out.iterdir()}
     # 2. the same folder without a recording: the earlier run.rrd must not survive beside the new tables
     code, _, err = _cli(capsys, *_run(out, "--no-record"))

@@ -87,3 +87,62 @@ def test_a_campaign_compares_stone_soup_with_ours_on_traffic_sensed_once(tmp_pat
     ss = res[res.tracker == "stonesoup-jpda-kf"].sort_values("tracker.filter.sigma_v")
     assert ss["cars_seen"].tolist() == [3, 3] and (ss["cars_tracked"] >= 2).all()
     assert SensingCache(tmp_path / "out" / store.SENSING_DIR).size_bytes() > 0
+
+
+def ss_scene(n_tracks: int, spacing: float, std: float, seed: int = 0):
+    """Stone Soup tracks in a row along x, `spacing` [m] apart, position std `std` [m], and one detection
+    near each (N(0, 0.3^2)): a gate cluster when the spacing is small against std."""
+    import datetime
+
+    from stonesoup.types.state import GaussianState
+    from stonesoup.types.track import Track
+
+    from testbed.tracking.stonesoup import EPOCH, detections
+
+    rng = np.random.default_rng(seed)
+    scn = testbed.load_scenario("cut_in_out")
+    parts = components(scn, "jpda")
+    P = np.diag([std ** 2, 1.0, std ** 2, 1.0])
+    tracks = {Track([GaussianState(np.array([[k * spacing], [0.0], [0.0], [0.0]]), P, timestamp=EPOCH)])
+              for k in range(n_tracks)}
+    z = np.c_[np.arange(n_tracks) * spacing, np.zeros(n_tracks)] + 0.3 * rng.standard_normal((n_tracks, 2))
+    when = EPOCH + datetime.timedelta(seconds=0.1)
+    return parts, tracks, detections(0.1, z, parts["model"]), when
+
+
+def ss_probabilities(assoc) -> dict:
+    """{(track id, detection index or -1): probability} of a Stone Soup association."""
+    return {(t.id, h.measurement.metadata["index"] if h else -1): float(h.probability)
+            for t, hyps in assoc.items() for h in hyps}
+
+
+def test_stone_soup_jpda_is_ehm2_with_the_probabilities_of_its_plain_jpda():
+    from stonesoup.dataassociator.probability import JPDA
+
+    parts, tracks, dets, when = ss_scene(5, 3.0, 1.0)
+    guarded = parts["associator"]
+    assert type(guarded).__name__ == "GuardedJPDAwithEHM2"
+    ours = ss_probabilities(guarded.associate(tracks, dets, when))
+    plain = ss_probabilities(JPDA(guarded.hypothesiser).associate(tracks, dets, when))
+    assert guarded.fallbacks == 0 and ours.keys() == plain.keys() and len(ours) > 2 * 5
+    assert max(abs(ours[k] - plain[k]) for k in ours) < 1e-9
+
+
+def test_a_stone_soup_cluster_over_its_budget_falls_back_to_lbp_is_counted_or_raises():
+    import time
+
+    from stonesoup.dataassociator.probability import JPDAwithLBP
+
+    from testbed.tracking.stonesoup import SS_MAX_NODES
+    from trackers import JPDAOverflowError
+
+    parts, tracks, dets, when = ss_scene(30, 2.0, 4.0)  # 30 tracks, every one gating most detections
+    guarded = parts["associator"]
+    t0 = time.perf_counter()
+    ours = ss_probabilities(guarded.associate(tracks, dets, when))
+    assert time.perf_counter() - t0 < 60.0 and guarded.fallbacks == 1 and guarded.max_nodes == SS_MAX_NODES
+    lbp = ss_probabilities(JPDAwithLBP(guarded.hypothesiser).associate(tracks, dets, when))
+    assert ours.keys() == lbp.keys() and max(abs(ours[k] - lbp[k]) for k in ours) < 1e-12
+    guarded.on_overflow = "raise"
+    with pytest.raises(JPDAOverflowError, match=r"^Stone Soup JPDA \(EHM2\) cluster of 30 tracks and \d+ detections"):
+        guarded.associate(tracks, dets, when)

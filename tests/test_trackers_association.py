@@ -207,7 +207,7 @@ def test_jpda_overflow_raises_or_falls_back_to_pda_for_that_cluster_only():
     at_cap = jpda(log_lik, gated, AssociationParams(pd=P.pd, pg=P.pg, clutter_density=P.clutter_density, max_events=34),
                   method="enumerate")
     np.testing.assert_allclose(at_cap[0], exact[0], atol=1e-15)
-    small = AssociationParams(pd=P.pd, pg=P.pg, clutter_density=P.clutter_density, max_events=33)
+    small = AssociationParams(pd=P.pd, pg=P.pg, clutter_density=P.clutter_density, max_events=33, on_overflow="pda")
     with pytest.warns(JPDAOverflowWarning, match="3 tracks and 3 measurements"):
         W, w0 = jpda(log_lik, gated, small, method="enumerate")
     Wp, w0p = pda(log_lik[:3, :3], big, small)
@@ -305,7 +305,8 @@ def test_registry_jpda_methods_agree_with_the_plain_function(method):
     for _ in range(20):
         inp = scan_input(rng, 5, 7, 16.0, pd_choices=(0.7, 0.9))
         p = load(JPDAParams, {"method": method, "k": 5}, "associator")
-        W, w0 = ASSOCIATORS["jpda"].run(inp, p)
+        W, w0, info = ASSOCIATORS["jpda"].run(inp, p)
+        assert np.isnan(info["jpda_fallback"]).all()  # small clusters: no fallback
         Wr, w0r = jpda(inp.log_lik, inp.gated, p.problem(inp.pg), inp.pd, method=method, k=5)
         np.testing.assert_array_equal(W, Wr)
         np.testing.assert_array_equal(w0, w0r)

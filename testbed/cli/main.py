@@ -170,7 +170,8 @@ def _print_run(res, args: argparse.Namespace, out: str) -> None:
     _print_scores(f"{res.scenario.name}/{res.tracker}", res.scores, res.metrics)
     per_frame = sum(res.timings_ms.values())
     print(f"\n{res.n_frames} frames, {per_frame:.1f} ms/frame "
-          f"({', '.join(f'{k} {v:.1f}' for k, v in res.timings_ms.items())})")
+          f"({', '.join(f'{k} {v:.1f}' for k, v in res.timings_ms.items())}), "
+          f"{res.fallbacks} association fallback{'' if res.fallbacks == 1 else 's'}")
     written = ["scores.json", "truth.parquet", "detections.parquet", "tracks.parquet", "diagnostics.parquet"]
     if not args.no_record:
         written.insert(0, "run.rrd")

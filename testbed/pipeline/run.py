@@ -43,6 +43,7 @@ class RunResult:
     tables: dict = field(default_factory=dict)  # name -> TableLog
     metrics: dict[str, float] = field(default_factory=dict)  # standard MOT metrics (HOTA, MOTA, IDF1, GOSPA)
     tracker: str = ""  # the tracker's name in the outputs
+    fallbacks: int = 0  # association problems solved by a fallback over the run (TrackSet.fallbacks summed)
 
     def summary(self) -> dict[str, float]:
         """Flat dict of every scalar score of the run: thesis scores, MOT metrics, ms per frame per stage."""
@@ -102,7 +103,7 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
             closing.wait_compacted()
             watch.spent["recording"] += time.perf_counter() - t0
         timings = {k: 1000.0 * v / max(state.frames, 1) for k, v in watch.spent.items()}
-        res = RunResult(scn, scores, timings, state.frames, out, tables, metrics, name)
+        res = RunResult(scn, scores, timings, state.frames, out, tables, metrics, name, state.fallbacks)
         if out is not None:
             _write_tables(out, tables)
             state.tables_written = True
@@ -140,6 +141,7 @@ class _Progress:
     looping: bool = True
     tables_written: bool = False
     rows: dict[str, int] = field(default_factory=dict)  # each table's rows at the end of the last frame done
+    fallbacks: int = 0  # TrackSet.fallbacks summed over the frames done
 
 
 def tracker_frame(sensed: SensedFrame, dt: float) -> Frame:
@@ -180,6 +182,7 @@ def _frames(scn, tracker, frames, recorder, tables, watch, state: _Progress, ove
             recorder.frame(truth, sensed.scan if live else None, sensed.perception, sensed.detections, ts)
         watch.lap("recording")
         state.rows = {k: log.n_rows for k, log in tables.items()}
+        state.fallbacks += ts.fallbacks
         state.frames += 1
         if on_frame is not None:
             on_frame(state.frames, scn.n_frames)
@@ -370,11 +373,12 @@ def _write_tables(out: Path, tables: dict) -> None:
 
 
 def write_scores(res: RunResult, tracker_name: str) -> None:
-    """``scores.json`` of a run: scenario, seed, tracker, frames, scores, MOT metrics, timings, config."""
+    """``scores.json`` of a run: scenario, seed, tracker, frames, association fallbacks (TrackSet.fallbacks summed:
+    association problems over their exact budget, solved by a fallback), scores, MOT metrics, timings, config."""
     out = res.out_dir
     assert out is not None
     doc = dict(scenario=res.scenario.name, seed=res.scenario.seed, tracker=tracker_name,
-               frames=res.n_frames, scores=res.scores.to_dict(), mot_metrics=res.metrics,
+               frames=res.n_frames, association_fallbacks=res.fallbacks, scores=res.scores.to_dict(), mot_metrics=res.metrics,
                timings_ms_per_frame=res.timings_ms,
                config=to_dict(res.scenario))
     text = json_text(doc, indent=2, default=float) + "\n"  # a score with nothing to measure is null

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 import trackers
+from trackers.association.jpda import FALLBACK_DIAGNOSTIC, fallback_clusters
 
 from .protocol import Frame, TrackSet
 
@@ -62,4 +63,10 @@ class BuiltinTracker:
             score=np.array([t.score for t in reported], dtype=np.float64),
             regime=np.array([t.regime for t in reported], dtype=object),
             diagnostics=res.info.diagnostics, diagnostic_ids=res.info.ids, info=res.info,
-            gate_alpha=trk.association.gate_alpha)
+            gate_alpha=trk.association.gate_alpha, fallbacks=self.fallbacks(res.info))
+
+    @staticmethod
+    def fallbacks(info) -> int:
+        """Clusters of the step (StepInfo) that the associator solved by its fallback (its FALLBACK_DIAGNOSTIC)."""
+        flags = info.diagnostics.get(FALLBACK_DIAGNOSTIC)
+        return 0 if flags is None else fallback_clusters(info.gated, flags)

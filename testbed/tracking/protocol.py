@@ -63,6 +63,8 @@ class TrackSet:
     KS track-regime verdict). diagnostics: name -> (K,) float64 per-track quantities (NIS, gate volume, ...) for the
     diagnostics table and the viewer, of the tracks diagnostic_ids (K,) int64 (default: ids). info: the built-in trackers' StepInfo (gates, boundary layers) for the recording, else None.
     gate_alpha: the gate's chi-square threshold the recording draws ``info``'s gates at.
+    fallbacks: association problems of this scan solved by a fallback because the exact one was over its budget
+    (a JPDA cluster over max_nodes; the run sums them into scores.json's ``association_fallbacks``).
     """
 
     ids: np.ndarray
@@ -76,6 +78,7 @@ class TrackSet:
     diagnostic_ids: np.ndarray | None = None
     info: object | None = None
     gate_alpha: float = 9.21
+    fallbacks: int = 0
 
     def __post_init__(self) -> None:
         ids = np.asarray(self.ids)
@@ -102,6 +105,8 @@ class TrackSet:
         regime = np.full(t, "", dtype=object) if self.regime is None else np.asarray(self.regime, dtype=object)
         if regime.shape != (t,):
             raise ValueError(f"TrackSet.regime: expected shape ({t},), got {regime.shape}")
+        if isinstance(self.fallbacks, bool) or not isinstance(self.fallbacks, (int, np.integer)) or self.fallbacks < 0:
+            raise ValueError(f"TrackSet.fallbacks: expected an int >= 0, got {self.fallbacks!r}")
         diag_ids = ids if self.diagnostic_ids is None else np.asarray(self.diagnostic_ids, dtype=np.int64).reshape(-1)
         diag = {}
         for name, values in self.diagnostics.items():

@@ -31,7 +31,7 @@ STONESOUP = {
                                      "Stone Soup 1.9: GNN (2-D assignment) of Kalman filters, Mahalanobis gate",
                                      "roadtrack[stonesoup]"),
     "stonesoup-jpda-kf": NamedTracker("stonesoup-jpda-kf", "testbed.tracking.stonesoup:jpda_kf",
-                                      "Stone Soup 1.9: JPDA of Kalman filters (PDA hypotheses: P_D, P_G, clutter)",
+                                      "Stone Soup 1.9: JPDA (exact by EHM2; LBP for a cluster over budget) of Kalman filters",
                                       "roadtrack[stonesoup]"),
 }
 

@@ -11,15 +11,21 @@
 Methods for a cluster of two or more tracks (`method=`):
 * "ehm" (default): exact marginals from the efficient-hypothesis-management net (`ehm.py`), without
   listing the joint events. Bounded by the net's frontier width w (<= min(T, M) of the cluster): at
-  most 2^w nodes per layer. Guard: `max_nodes` edges in one layer, above which JPDAOverflowError
-  (one line, naming the cluster size); max_events / on_overflow do not apply.
+  most 2^w nodes per layer. Budget: `max_nodes` edges in one layer (checked before the layer is
+  allocated); max_events does not apply.
 * "enumerate": every feasible joint event listed, measurement by measurement, with a 'used tracks'
   set per partial event (the depth-first tree of thesis §4.4 step 3, one vectorised level at a time).
-  Exponential; kept as the test oracle. Guard: above `p.max_events` feasible events of a cluster,
-  `p.on_overflow == "raise"` raises JPDAOverflowError and "pda" (default) gives that cluster's tracks
-  per-track PDA weights with a JPDAOverflowWarning. The check is made before each level is allocated.
+  Exponential; kept as the test oracle. Budget: `p.max_events` feasible events of a cluster, checked
+  before each level is allocated.
 * "k_best": the k most probable events by Murty's ranked assignment (`kbest.py`), renormalised:
-  approximate, exact when k >= the number of feasible events; measured errors in `kbest.py`.
+  approximate, exact when k >= the number of feasible events; measured errors in `kbest.py`. Its cost
+  is bounded by k (no budget).
+
+A cluster over its method's budget (a dense motorway: 33 tracks x 29 measurements, frontier 18) is a
+fallback for that cluster only, by `p.on_overflow`: "k_best" (default) gives its k-best marginals,
+"pda" per-track PDA weights (with a JPDAOverflowWarning), "raise" a JPDAOverflowError (one line, naming
+the cluster size). Every other cluster stays exact. `jpda_fallbacks` also returns which tracks fell back
+(the tracker reports them as the diagnostic FALLBACK_DIAGNOSTIC, and the testbed counts the clusters).
 """
 
 from __future__ import annotations
@@ -36,6 +42,9 @@ from trackers.association.pda import pda
 from trackers.errors import JPDAOverflowError, JPDAOverflowWarning
 
 METHODS = ("ehm", "enumerate", "k_best")
+FALLBACK_DIAGNOSTIC = "jpda_fallback"
+"""Per-track diagnostic of the jpda associator: 1 where the track's cluster was over budget and fell back
+(p.on_overflow), NaN where it was associated exactly (so the diagnostics table holds rows only for fallbacks)."""
 DEFAULT_K = 100
 DEFAULT_MAX_NODES = 1 << 20
 
@@ -51,6 +60,17 @@ def components(gated: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if np.array_equal(new, lab):
             return lab, mlab
         lab = new
+
+
+def fallback_clusters(gated: np.ndarray, fell_back: np.ndarray) -> int:
+    """Number of clusters associated by a fallback in one scan: the gate graph's components (gated (T, M) bool)
+    holding a track flagged in fell_back (T,) (bool, or the FALLBACK_DIAGNOSTIC values: 1 or NaN)."""
+    flag = np.asarray(fell_back)
+    flag = flag == 1 if flag.dtype != np.bool_ else flag
+    if flag.shape != (gated.shape[0],):
+        raise ValueError(f"fallback_clusters needs one flag per track ({gated.shape[0]},), got {flag.shape}")
+    lab, _ = components(gated)
+    return int(np.unique(lab[flag]).size)
 
 
 def clusters(gated: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -118,32 +138,53 @@ def _ehm(a: np.ndarray, b: np.ndarray, g: np.ndarray, max_nodes: int) -> tuple[n
 
 
 def _cluster(ts, ms, log_lik, gated, p, pdt, method, k, max_nodes):
+    """(W, w0) of cluster (tracks ts, measurements ms) or None (no event of positive probability), and whether
+    it fell back (over its method's budget, p.on_overflow)."""
     g = gated[np.ix_(ts, ms)]
     a, b = joint_event_terms(log_lik[np.ix_(ts, ms)], p, pdt[ts])
-    if method == "ehm":
-        return _ehm(a, b, g, max_nodes)
     if method == "k_best":
-        return k_best_marginals(a, b, g, k)
-    events = enumerate_events(g, p.max_events)
-    if events is not None:
-        return _cluster_marginals(a, b, *events)
-    if p.on_overflow == "raise":
-        raise JPDAOverflowError(f"JPDA cluster of {ts.size} tracks and {ms.size} measurements has more than "
-                                f"max_events={p.max_events} feasible joint events")
+        return k_best_marginals(a, b, g, k), False
+    if method == "ehm":
+        try:
+            return _ehm(a, b, g, max_nodes), False
+        except JPDAOverflowError:
+            if p.on_overflow == "raise":
+                raise
+            why = f"max_nodes={max_nodes}"
+    else:
+        events = enumerate_events(g, p.max_events)
+        if events is not None:
+            return _cluster_marginals(a, b, *events), False
+        if p.on_overflow == "raise":
+            raise JPDAOverflowError(f"JPDA cluster of {ts.size} tracks and {ms.size} measurements has more than "
+                                    f"max_events={p.max_events} feasible joint events")
+        why = f"max_events={p.max_events}"
+    if p.on_overflow == "k_best":
+        return k_best_marginals(a, b, g, k), True
     warning = JPDAOverflowWarning(f"JPDA cluster of {ts.size} tracks and {ms.size} measurements exceeds "
-                                  f"max_events={p.max_events}; using per-track PDA for it")
+                                  f"{why}; using per-track PDA for it")
     warning.tracks, warning.measurements = int(ts.size), int(ms.size)  # for a caller's once-per-run summary
-    warnings.warn(warning, stacklevel=3)
-    return pda(log_lik[np.ix_(ts, ms)], g, p, pdt[ts])
+    warnings.warn(warning, stacklevel=4)
+    return pda(log_lik[np.ix_(ts, ms)], g, p, pdt[ts]), True
 
 
 def jpda(log_lik: np.ndarray, gated: np.ndarray, p: AssociationParams, pd: np.ndarray | float | None = None, *,
          method: str = "ehm", k: int = DEFAULT_K,
          max_nodes: int = DEFAULT_MAX_NODES) -> tuple[np.ndarray, np.ndarray]:
     """JPDA marginal association probabilities (T, M) and miss probabilities (T,). pd: per-track P_D (T,) or
-    None for p.pd; method: "ehm" | "enumerate" | "k_best"; k: events kept by "k_best"; max_nodes: guard of
-    "ehm". See module docstring. A cluster in which no event has positive probability (only possible with
-    P_D = 1) is left unassociated (w0 = 1)."""
+    None for p.pd; method: "ehm" | "enumerate" | "k_best"; k: events kept by "k_best" (and by the k_best
+    fallback); max_nodes: budget of "ehm". See module docstring. A cluster in which no event has positive
+    probability (only possible with P_D = 1) is left unassociated (w0 = 1)."""
+    W, w0, _ = jpda_fallbacks(log_lik, gated, p, pd, method=method, k=k, max_nodes=max_nodes)
+    return W, w0
+
+
+def jpda_fallbacks(log_lik: np.ndarray, gated: np.ndarray, p: AssociationParams,
+                   pd: np.ndarray | float | None = None, *, method: str = "ehm", k: int = DEFAULT_K,
+                   max_nodes: int = DEFAULT_MAX_NODES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`jpda`, also returning fell_back (T,) bool: the tracks whose cluster was over its method's budget and was
+    associated by the p.on_overflow fallback instead (the fallback clusters are the gate graph's components,
+    `components`, holding such tracks)."""
     if method not in METHODS:
         raise ValueError(f"jpda method must be one of {list(METHODS)}, got {method!r}")
     log_lik, gated = check_inputs(log_lik, gated)
@@ -151,6 +192,7 @@ def jpda(log_lik: np.ndarray, gated: np.ndarray, p: AssociationParams, pd: np.nd
     pdt = track_pd(p, T, pd)
     W = np.zeros((T, M))
     w0 = np.ones(T)
+    fell_back = np.zeros(T, dtype=bool)
     lab, _ = components(gated)
     size = np.bincount(lab, minlength=T + 1)[:T]
     single = np.flatnonzero((lab < T) & (size[np.minimum(lab, T - 1)] == 1))
@@ -164,9 +206,9 @@ def jpda(log_lik: np.ndarray, gated: np.ndarray, p: AssociationParams, pd: np.nd
     for c in np.flatnonzero(size > 1):
         ts = np.flatnonzero(lab == c)
         ms = np.flatnonzero(gated[ts].any(axis=0))
-        res = _cluster(ts, ms, log_lik, gated, p, pdt, method, k, max_nodes)
+        res, fell_back[ts] = _cluster(ts, ms, log_lik, gated, p, pdt, method, k, max_nodes)
         if res is None:  # no event has positive probability (only possible with P_D = 1): no update
             continue
         W[np.ix_(ts, ms)] = np.clip(res[0], 0.0, 1.0)  # sums of probabilities may exceed 1 by an ulp
         w0[ts] = np.clip(res[1], 0.0, 1.0)
-    return W, w0
+    return W, w0, fell_back

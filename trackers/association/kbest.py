@@ -48,30 +48,44 @@ def _solve(C: np.ndarray) -> tuple[float, np.ndarray] | None:
     return (cost, c) if np.isfinite(cost) else None
 
 
+def _constrained(Cm: np.ndarray, sol: np.ndarray, start: int, i: int) -> np.ndarray:
+    """Murty's subproblem i of a popped node (matrix Cm, its solution sol, its first free row start): rows
+    start..i-1 forced to sol, (i, sol[i]) forbidden."""
+    child = Cm.copy()
+    rows, cols = np.arange(start, i), sol[start:i]
+    keep = child[rows, cols]
+    child[rows, :] = np.inf
+    child[:, cols] = np.inf
+    child[rows, cols] = keep
+    child[i, sol[i]] = np.inf
+    return child
+
+
 def murty(C: np.ndarray, k: int) -> list[tuple[float, np.ndarray]]:
     """The (up to) k lowest-cost assignments of every row of C (R, K >= R) to a distinct column, in
-    increasing cost: list of (cost, column of each row). Infinite entries are forbidden."""
+    increasing cost: list of (cost, column of each row). Infinite entries are forbidden.
+
+    The heap keeps each subproblem as (its parent's matrix, the parent's solution and first free row, its row
+    i), rebuilt when popped: memory is k matrices, not k R (a 60-track fallback cluster: 6 MB, not 350 MB)."""
     R = C.shape[0]
     first = _solve(C)
     if first is None:
         return []
-    heap = [(first[0], 0, C, first[1], 0)]  # cost, tie-break, constrained matrix, solution, first free row
+    heap = [(first[0], 0, C, first[1], 0, None)]  # cost, tie-break, parent matrix, solution, start, row i
     out, count = [], 1
     while heap and len(out) < k:
-        cost, _, Cm, sol, start = heapq.heappop(heap)
+        cost, _, Pm, sol, start, i = heapq.heappop(heap)
+        if i is None:
+            Cm, start = Pm, 0
+        else:  # rebuild the subproblem from its parent: rows < i forced to the parent's solution
+            Cm = _constrained(Pm, *start, i)
+            start = i
         out.append((cost, sol))
-        fixed = Cm.copy()
         for i in range(start, R):  # Murty's partition: rows < i forced to sol, (i, sol[i]) forbidden
-            child = fixed.copy()
-            child[i, sol[i]] = np.inf
-            s = _solve(child)
+            s = _solve(_constrained(Cm, sol, start, i))
             if s is not None:
-                heapq.heappush(heap, (s[0], count, child, s[1], i))
+                heapq.heappush(heap, (s[0], count, Cm, s[1], (sol, start), i))
                 count += 1
-            keep = fixed[i, sol[i]]
-            fixed[i, :] = np.inf
-            fixed[:, sol[i]] = np.inf
-            fixed[i, sol[i]] = keep
     return out
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-OVERFLOW_MODES = ("pda", "raise")
+OVERFLOW_MODES = ("k_best", "pda", "raise")
 
 
 @dataclass(frozen=True)
@@ -22,16 +22,18 @@ class AssociationParams:
     """pd: detection probability; pg: gate probability (see `gating.gate_probability`);
     clutter_density: Poisson clutter spatial density lambda [m^-2];
     use_pg: JPDA (and GNN) in the P_D P_G form (thesis §4.4 note [R]) instead of the thesis form (no P_G);
-    max_events: cap on the feasible joint events of one JPDA cluster;
-    on_overflow: what JPDA does above the cap: "pda" (per-track PDA for that cluster, with a
-    JPDAOverflowWarning) or "raise" (JPDAOverflowError)."""
+    max_events: cap on the feasible joint events of one JPDA cluster (method "enumerate");
+    on_overflow: what JPDA does with a cluster over its method's budget (max_events, or the "ehm" net's
+    max_nodes): "k_best" (that cluster's marginals from its k best joint events, counted as a fallback),
+    "pda" (per-track PDA for that cluster, counted, with a JPDAOverflowWarning) or "raise"
+    (JPDAOverflowError)."""
 
     pd: float
     pg: float
     clutter_density: float
     use_pg: bool = False
     max_events: int = 50_000
-    on_overflow: str = "pda"
+    on_overflow: str = "k_best"
 
     def __post_init__(self) -> None:
         for name in ("pd", "pg", "clutter_density"):

@@ -10,7 +10,7 @@ import numpy as np
 from trackers.association.an import DISTANCES, all_neighbours, an_distances
 from trackers.association.apda import FORMS, LAYER_MODES, apda
 from trackers.association.gnn import global_nearest_neighbour
-from trackers.association.jpda import DEFAULT_K, DEFAULT_MAX_NODES, METHODS, jpda
+from trackers.association.jpda import DEFAULT_K, DEFAULT_MAX_NODES, FALLBACK_DIAGNOSTIC, METHODS, jpda_fallbacks
 from trackers.association.nn import nearest_neighbour
 from trackers.association.params import OVERFLOW_MODES, AssociationParams
 from trackers.association.pda import pda
@@ -73,13 +73,15 @@ class JPDAParams(AssociatorParams):
 
     method: str = param("ehm", "exact 'ehm' (hypothesis net), exact 'enumerate' (joint events; the test oracle) "
                         "or approximate 'k_best' (Murty)", choices=METHODS)
-    k: int = param(DEFAULT_K, "k_best: joint events kept per cluster", check=POSITIVE, bounds=(1, 10_000))
-    max_nodes: int = param(DEFAULT_MAX_NODES, "ehm: cap on the edges of one net layer (above it an error)",
+    k: int = param(DEFAULT_K, "k_best (and the k_best fallback): joint events kept per cluster", check=POSITIVE,
+                   bounds=(1, 10_000))
+    max_nodes: int = param(DEFAULT_MAX_NODES, "ehm: budget of edges in one net layer (above it on_overflow)",
                            check=POSITIVE, bounds=(1, 2**24))  # 2^24 edges: about 1 GB of net arrays
     max_events: int = param(50_000, "enumerate: cap on the feasible joint events of one cluster", check=POSITIVE,
                             bounds=(1, 10_000_000))  # 10^7 events x the cluster's measurements, int64
-    on_overflow: str = param("pda", "enumerate, above the cap: per-track PDA for that cluster (with a warning) or "
-                             "an error", choices=OVERFLOW_MODES)
+    on_overflow: str = param("k_best", "a cluster over its budget (max_nodes, max_events): that cluster's k best "
+                             "events, per-track PDA (with a warning) or an error; fallbacks are counted",
+                             choices=OVERFLOW_MODES)
 
 
 @dataclass(frozen=True)
@@ -119,8 +121,10 @@ def _plain(fn: Callable) -> Callable[[AssociationInput, AssociatorParams], tuple
 
 
 def _jpda(inp: AssociationInput, p: JPDAParams) -> tuple:
-    return jpda(inp.log_lik, inp.gated, p.problem(inp.pg, max_events=p.max_events, on_overflow=p.on_overflow),
-                inp.pd, method=p.method, k=p.k, max_nodes=p.max_nodes)
+    W, w0, fell_back = jpda_fallbacks(inp.log_lik, inp.gated, p.problem(inp.pg, max_events=p.max_events,
+                                                                         on_overflow=p.on_overflow),
+                                      inp.pd, method=p.method, k=p.k, max_nodes=p.max_nodes)
+    return W, w0, {FALLBACK_DIAGNOSTIC: np.where(fell_back, 1.0, np.nan)}
 
 
 def _an(inp: AssociationInput, p: ANParams) -> tuple:
