@@ -53,9 +53,17 @@ def derive(s: FilterState, **arrays: np.ndarray) -> FilterState:
     """A copy of `s` with fields replaced by arrays the caller has just computed and will not touch again
     (made read-only here, not copied or re-validated): the fast path of the batched filters."""
     new = object.__new__(type(s))
-    new.__dict__.update(s.__dict__)
+    d = new.__dict__
+    d.update(s.__dict__)
     for name, a in arrays.items():
-        if isinstance(a, np.ndarray):
+        if isinstance(a, np.ndarray) and a.flags.writeable:  # a view of a frozen batch is read-only already
             a.setflags(write=False)
-        object.__setattr__(new, name, a)
+        d[name] = a
     return new
+
+
+def freeze(*arrays: np.ndarray) -> None:
+    """Make batched arrays read-only at once, so that `derive` given their rows (read-only views) has nothing to
+    freeze per row."""
+    for a in arrays:
+        a.setflags(write=False)

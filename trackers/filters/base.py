@@ -35,7 +35,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from trackers.errors import FilterError
-from trackers.state import FilterState, derive
+from trackers.state import FilterState, derive, freeze
 
 
 @runtime_checkable
@@ -111,6 +111,7 @@ class ModelFilter:
         P = A @ np.array([s.P for s in states]) @ A.T + Q  # (4.26) P = A P A^T + Q
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
+        freeze(X, P, A)
         return [derive(s, x=X[t], P=P[t], F=A, info={}) for t, s in enumerate(states)]
 
     def nonlinear_predict_many(self, states: list[FilterState], dt: float) -> list[FilterState]:
@@ -121,6 +122,7 @@ class ModelFilter:
         P = F @ np.array([s.P for s in states]) @ np.swapaxes(F, 1, 2) + self.motion.process_noise(dt)  # (4.26)
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
+        freeze(Xn, P, F)
         return [derive(s, x=Xn[t], P=P[t], F=F[t], info={}) for t, s in enumerate(states)]
 
     def predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:

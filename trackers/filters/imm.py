@@ -59,7 +59,7 @@ from trackers.filters.base import (ModelFilter, batch_predict, batch_predicted_m
 from trackers.gating import log_gaussian
 from trackers.models import MOTION_MODELS
 from trackers.params import NON_NEGATIVE, POSITIVE, ParamError, param
-from trackers.state import FilterState, derive
+from trackers.state import FilterState, derive, freeze
 
 
 # --------------------------------------------------------------------------------------------- state
@@ -423,6 +423,7 @@ class IMMFilter:
             xs, Ps = zip(*(layout_many(X[j], P[j], f.motion) for j in range(r)))
             x0, P0 = moments_many(np.stack(xs, axis=1), np.stack(Ps, axis=1), w)  # (2.102) mixed initial condition
             e0 = np.einsum("tj,tjm->tm", w, E)  # §5 [D] mixed memories
+            freeze(x0, P0, e0)
             out.append([derive(s.modes[i], x=x0[t], P=P0[t], e_post=e0[t]) if reach[t] else s.modes[i]
                         for t, s in enumerate(states)])
         return out
@@ -462,6 +463,8 @@ class IMMFilter:
         x, P = moments_many(np.stack(xs, axis=1), np.stack(Ps, axis=1), mu)  # (1.17)-(1.18) output combination
         check_covariance(P, "IMM combined covariance P")
         e = np.einsum("tj,tjm->tm", mu, np.stack(Es, axis=1))
+        mu = np.array(mu, dtype=np.float64)  # the states' own copy
+        freeze(x, P, e, mu)
         out = []
         for t, (s, mt) in enumerate(zip(like, mts)):
             info: dict[str, Any] = {"mu": np.array(mu[t], dtype=np.float64)}

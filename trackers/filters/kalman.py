@@ -15,7 +15,7 @@ import numpy as np
 from trackers.errors import FilterError
 from trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
                                    combined_innovation, pda_covariance, symmetrise)
-from trackers.state import FilterState, derive
+from trackers.state import FilterState, derive, freeze
 
 
 def gain_update(s_pred: FilterState, H: np.ndarray, R: np.ndarray, S: np.ndarray, K: np.ndarray,
@@ -90,6 +90,7 @@ class KalmanFilter(ModelFilter):
         P = A @ np.array([s.P for s in states]) @ A.T + Q  # P = A P A^T + G Qv G^T (§1.1 [R])
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
+        freeze(X, P, A)
         return [derive(s, x=X[t], P=P[t], F=A, info={}) for t, s in enumerate(states)]
 
     def predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
@@ -125,6 +126,7 @@ def gain_update_many(preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0
     P = np.array([preds[t].P for t in active])
     if R_det is not None:
         Xn, Pn, e_post = detection_update(X, P, H, np.asarray(R_det, dtype=np.float64), nua, Wa, b0)
+        freeze(Xn, Pn, e_post)
         for i, t in enumerate(active):
             out[t] = derive(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
         return out
@@ -147,6 +149,7 @@ def gain_update_many(preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0
     if not (np.isfinite(Xn).all() and np.isfinite(Pn).all()):
         raise FilterError("updated state is not finite")
     e_post = nu_c - np.einsum("im,am->ai", H, np.einsum("anm,am->an", K, nu_c))  # (3.65)
+    freeze(Xn, Pn, e_post)
     for i, t in enumerate(active):
         out[t] = derive(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
     return out

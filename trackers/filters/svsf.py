@@ -43,7 +43,7 @@ from trackers.filters.base import (ModelFilter, batch_weights, check_covariance,
                                    combined_innovation, pda_covariance, symmetrise, weighted_R)
 from trackers.filters.params import ModelParams
 from trackers.params import POSITIVE, ParamError, param
-from trackers.state import FilterState, derive
+from trackers.state import FilterState, derive, freeze
 
 EY_MEMORY = ("a_priori", "a_posteriori")
 COVARIANCES = ("mse", "joseph", "short")
@@ -385,6 +385,7 @@ class SVSF(ModelFilter):
         P = A @ np.array([s.P for s in states]) @ A.T + Q  # (2.8) P = A P A^T + Q
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
+        freeze(X, P, A)
         return [derive(s, x=X[t], P=P[t], F=A, info={}, tau=s.tau + dt) for t, s in enumerate(states)]
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,

@@ -298,10 +298,18 @@ def advance(state: RegimeState, test: RegimeTest | None, cfg: RegimeConfig) -> R
     (both and neither alternating, or a bound of n reached) -> the next CI of cfg.alphas [D]; a unique verdict
     held for n scans -> back one CI level [D]."""
     if test is None:
-        return replace(state, label="unknown")
+        return state if state.label == "unknown" else _with(state, label="unknown")
     previous = state.last.verdict if state.last is not None else None
-    state = replace(state, label=test.label, last=test)
+    state = _with(state, label=test.label, last=test)
     return _adapt(state, test.verdict, previous, cfg) if cfg.adaptive else state
+
+
+def _with(state: RegimeState, **fields) -> RegimeState:
+    """`dataclasses.replace` of a RegimeState without re-running __init__ (once per track and scan)."""
+    new = object.__new__(RegimeState)
+    new.__dict__.update(state.__dict__)
+    new.__dict__.update(fields)
+    return new
 
 
 def _adapt(state: RegimeState, verdict: str, previous: str | None, cfg: RegimeConfig) -> RegimeState:
