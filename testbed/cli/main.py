@@ -20,7 +20,7 @@ from ..config import ConfigError, parse_sets
 from .check import cmd_check
 from ..common.errors import (describe_os_error, exit_code, guarded, interruption, interruption_behind,
                              interruption_cause, one_line, signum_of)
-from ..recording.view import WEB_VIEWER_PORT, at_arg, cmd_view, port_arg
+from ..recording.view import WEB_VIEWER_PORT, at_arg, cmd_view, event_arg, port_arg
 
 
 class _Parser(argparse.ArgumentParser):
@@ -167,11 +167,16 @@ def _print_scores(label: str, scores, m: dict) -> None:
 
 
 def _print_run(res, args: argparse.Namespace, out: str) -> None:
+    from ..scoring.events import format_events
+
     _print_scores(f"{res.scenario.name}/{res.tracker}", res.scores, res.metrics)
+    if res.events is not None:
+        print("\n" + format_events(res.events))
     per_frame = sum(res.timings_ms.values())
     print(f"\n{res.n_frames} frames, {per_frame:.1f} ms/frame "
           f"({', '.join(f'{k} {v:.1f}' for k, v in res.timings_ms.items())})")
-    written = ["scores.json", "truth.parquet", "detections.parquet", "tracks.parquet", "diagnostics.parquet"]
+    written = ["scores.json", "events.parquet", "truth.parquet", "detections.parquet", "tracks.parquet",
+               "diagnostics.parquet"]
     if not args.no_record:
         written.insert(0, "run.rrd")
     if not args.no_plot:
@@ -185,7 +190,8 @@ def _print_run(res, args: argparse.Namespace, out: str) -> None:
         if step > rec.lidar_every:
             print(f"run.rrd holds the point cloud of every {_ordinal(step)} frame: a {res.scenario.n_frames}-frame "
                   f"run, record.max_lidar_frames = {rec.max_lidar_frames} (0: every frame)")
-        print(f"view it: testbed view {out}")
+        first = " (--event N: at event N)" if res.events is not None and len(res.events) else ""
+        print(f"view it: testbed view {out}{first}")
 
 
 def _ordinal(n: int) -> str:
@@ -397,6 +403,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "native viewer's server (default: rerun's, 9876); refused if in use")
     v.add_argument("--at", type=at_arg, metavar="SECONDS", help="open the recording at this simulated time, "
                    "paused (0 .. the recording's end)")
+    v.add_argument("--event", type=event_arg, metavar="N", help="open the recording at the run's event N "
+                   "(numbered as `testbed run` lists them, from events.parquet), paused")
     v.set_defaults(func=cmd_view)
     ch = sub.add_parser("check", help="validate a scenario or campaign file fully without running it (one line)")
     ch.add_argument("file", help="scenario or campaign file, or the name of a shipped one")

@@ -39,6 +39,9 @@ Entity paths (all in the world frame, z up, metres):
                                    :data:`SERIES_FLUSH_FRAMES` frames
 ``diagnostics/slots/track_id/<k>`` the track id holding slot k
 ``legend``                         the colour key (static EncodedImage, PNG; testbed/recording/legend.py)
+``world/events``                   rings around the cars of the run's events (relabel, false track, missed car),
+                                   labelled with their number and cause, for 3 s (testbed/recording/events.py)
+``events``                         the events as a text log, one line each at its time (TextLog)
 ``metrics/<name>``                 per-frame counts: tracks, detections, clutter, points; and the measured
                                    perception statistics: ground precision / recall, P_D of the vehicles in
                                    range, merged / split detections, rejected objects (Scalars)
@@ -69,6 +72,7 @@ from .diagnostics import SLOT_IDS, series_label, series_path
 from .layout import blueprint
 from .legend import legend_png
 from .levels import content
+from .events import log_events
 from . import rrd
 from .slots import Slots, colours
 from .scene import (GROUND_LABEL, Trails, boxes, log_detections, log_lidar, log_track_extras,
@@ -109,6 +113,7 @@ class Recorder:
                  write_footer: bool = True, occlusion: sensors.OcclusionConfig | None = None,
                  max_range_m: float = 70.0, level: str = "default", rate_hz: float = 10.0, compact: bool = False):
         self.content = content(level)  # an unknown level fails before any file is made
+        self.rate_hz = rate_hz
         self.path = Path(path)
         self.occlusion = occlusion  # draw the occluders' shadows with it (None: no shadows)
         self.max_range_m = max_range_m
@@ -177,6 +182,12 @@ class Recorder:
         self.series_frames += 1
         if self.series_frames >= SERIES_FLUSH_FRAMES:
             self._flush_series()
+
+    def events(self, events, truth, tracks) -> None:
+        """Mark the run's ``events`` (testbed.scoring.events.run_events; ``truth``, ``tracks``: its tables as
+        DataFrames) in the recording: the ``events`` text log and rings on ``world/events``
+        (testbed/recording/events.py). Call after the last frame, before :meth:`close`."""
+        log_events(self.rec, events, truth, tracks, self.rate_hz)
 
     def _truth(self, truth) -> None:
         """The sensor car's pose (world/ego: the views' frame), its box and the other vehicles' boxes."""
