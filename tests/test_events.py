@@ -2,12 +2,7 @@
 in events.parquet, printed after the score table, marked in the recording, and `testbed view --event N`."""
 from __future__ import annotations
 
-import argparse
 import collections
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -17,7 +12,7 @@ from testbed.config import ConfigError
 from testbed.recording.view import event_time
 from testbed.scoring.events import COLUMNS, format_events, run_events
 
-REPO = Path(__file__).resolve().parent.parent
+from conftest import cli as _cli
 
 
 def _tables():
@@ -74,21 +69,6 @@ def test_a_false_track_on_a_tracked_car_is_a_duplicate_and_on_two_cars_a_swap():
     ev = run_events(truth, pd.concat([tracks, pd.DataFrame(swap)]), dt=0.1)
     assert ev[ev["new_track"] == 8]["cause"].tolist() == ["swap"]
     assert ev[(ev["kind"] == "missed car") & (ev["car"] == 4)]["cause"].tolist() == ["wrong track"]
-
-
-def _cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "testbed.cli", *args], capture_output=True, text=True, cwd=REPO,
-                          timeout=timeout, env=dict(os.environ, RERUN_ANALYTICS="0"))
-
-
-@pytest.fixture(scope="module")
-def short_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
-    """cut_in_out with nn-kf for 8 s: the cutting-in car's track T2 loses the car to T3 at 7.1 s and takes it back
-    at 7.2 s (two relabels, cause merge); recorded, with timeline.png."""
-    out = tmp_path_factory.mktemp("events") / "run"
-    proc = _cli("run", "cut_in_out", "--tracker", "nn-kf", "--set", "duration_s=8", "--out", str(out), "--quiet")
-    assert proc.returncode == 0, proc.stderr
-    return out, proc
 
 
 def test_a_real_run_lists_its_events_in_a_table_the_terminal_and_the_recording(short_run):

@@ -424,6 +424,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .reproduce import add_reproduce_parser
 
     add_reproduce_parser(sub)
+    from .export import add_export_parser
+
+    add_export_parser(sub)
     _debug_everywhere(p)
     return p
 
