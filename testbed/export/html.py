@@ -5,7 +5,7 @@ carries the run's data inline as JSON, so it opens from disk in any browser, wit
 network, in well under a second for a 60 s motorway run (the rerun viewer needs WebGL and, with software
 rendering, minutes). It draws, per frame: the lanes, the true vehicle boxes (the sensor car solid vermilion),
 the detections (green from a vehicle, red clutter), the tentative tracks (grey), the confirmed tracks in their
-viewer colours (testbed/recording/slots.py) with their labels, 0.5 s velocity ticks and 2 s trails, and a ring
+viewer colours (testbed/recording/slots.py) with their labels (tags that never overlap), 0.5 s velocity arrows and 2 s trails of fading dots, and a ring
 on each event for 3 s (testbed/scoring/events.py). ``replay.html#t=12.5`` or ``#event=3`` opens at a time or
 an event.
 
