@@ -26,12 +26,12 @@ Entity paths (all in the world frame, z up, metres):
 ``world/tracks/confirmed``         confirmed track estimates, labelled T<id> (Points3D)
 ``world/tracks/tentative``         tentative track estimates (Points3D)
 ``world/tracks/static``            confirmed tracks not seen to move (moving-object test), not reported (Points3D)
-``world/tracks/velocity``          confirmed track velocity over 1 s (Arrows3D)
+``world/tracks/velocity``          confirmed track velocity over 0.5 s (Arrows3D)
 ``world/tracks/covariance``        2-sigma position covariance ellipses (LineStrips3D)
 ``world/tracks/gates``             validation gates of the predicted tracks (LineStrips3D)
-``world/tracks/layers``            SVSF boundary layers around the updated estimates (Boxes3D)
-``world/tracks/trajectories``      trails: one segment per confirmed track and frame (previous estimate to this
-                                   one, LineStrips3D); the blueprint shows the last 30 s of them
+``world/tracks/layers``            SVSF boundary layers around the updated estimates, drawn 20x (Boxes3D)
+``world/tracks/trajectories``      trails: a dot per confirmed track every 0.5 s (Points3D); the blueprint shows the
+                                   last 5 s of them
 ``diagnostics/<group>/<name>/<k>`` per-track diagnostic series of confirmed tracks, grouped by quantity (score,
                                    NIS, gate volume, layers, mode probabilities, ...; testbed/recording/diagnostics.py):
                                    one series per slot k (testbed/recording/slots.py), a NaN (a gap) when the slot's
@@ -82,6 +82,11 @@ APP_ID = "roadtrack"
 METRICS = ("tracks_confirmed", "tracks_tentative", "tracks_static", "detections", "clutter_detections",
            "lidar_points", "ground_precision", "ground_recall", "pd_in_range", "merged_detections",
            "split_detections", "rejected_objects")
+METRIC_COLOURS = {"detections": pal.DETECTION, "clutter_detections": pal.CLUTTER,
+                  "tracks_confirmed": tuple(int(v) for v in pal.SLOTS[0]), "tracks_tentative": pal.UNSLOTTED,
+                  "tracks_static": pal.REJECTED}
+"""The count plots' lines in the scene's colours (rerun's own picks gave detections and clutter two near-identical
+greens; clutter is red in the scene)."""
 TRUTH_CLASSES = ((0, "road", (90, 90, 90)), (1, "vehicle", (40, 200, 90)), (2, "static object", (160, 110, 60)))
 CLOSE_STALL_S = 30.0
 """Seconds :meth:`Recorder.close` waits for rerun to flush and release the file while the file does not grow.
@@ -130,9 +135,10 @@ class Recorder:
         self.rec.log("world/lidar", rr.AnnotationContext(
             [rr.AnnotationInfo(id=i, label=name, color=c) for i, name, c in TRUTH_CLASSES]), static=True)
         for name in METRICS:
-            self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " ")), static=True)
+            style = dict(colors=[METRIC_COLOURS[name]]) if name in METRIC_COLOURS else {}
+            self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " "), **style), static=True)
         self.rec.log("legend", rr.EncodedImage(contents=legend_png(), media_type="image/png"), static=True)
-        self.trails = Trails()
+        self.trails = Trails(rate_hz)
         self.slots = Slots()
         self.series: dict[tuple[str, int], tuple[list[int], list[float], list[float]]] = {}
         self.metrics: dict[str, tuple[list[int], list[float], list[float]]] = {}
