@@ -22,4 +22,5 @@ def write_run_plots(folder: str | Path) -> list[Path]:
     rate = scn.rate_hz if scn is not None else 10.0
     tl = car_timeline(run.truth, run.tracks, scn.scoring if scn is not None else None)
     title = f"{run.scores.get('scenario', Path(folder).name)}, {run.scores.get('tracker', '?')}"
-    return [draw_timeline(tl, Path(folder) / TIMELINE, rate, title, colours=track_colours(run.tracks))]
+    return [draw_timeline(tl, Path(folder) / TIMELINE, rate, title, colours=track_colours(run.tracks),
+                          events=run.events)]

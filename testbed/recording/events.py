@@ -1,8 +1,8 @@
 """A run's events (testbed/scoring/events.py: relabels, false tracks, missed cars) marked in its recording.
 
 Each event is a line of the ``events`` text log at its time ("#3 relabel of car 1: T3 -> T4 (occlusion)"), and
-a ring of :data:`RING_M` around its car (a false track: around the track) on ``world/events``, labelled with its
-number and following the car for :data:`MARK_S` seconds, so ``testbed view RUN --event N`` opens on it.
+a ring of :data:`RING_M` around its car (a false track: around the track) on ``world/events``, with a dot beside
+it labelled with its number, kind and cause (``world/events/labels``), following the car for :data:`MARK_S` seconds, so ``testbed view RUN --event N`` opens on it.
 
     log_events(rec, events, truth, tracks, rate_hz)
 """
@@ -38,7 +38,7 @@ def log_events(rec: rr.RecordingStream, events, truth, tracks, rate_hz: float) -
     span = int(round(MARK_S * rate_hz))
     last = min(max(int(r["frame"]) for r in rows) + span, int(truth["frame"].max()))  # never past the run's end
     for f in range(min(int(r["frame"]) for r in rows), last + 1):
-        rings, labels = [], []
+        rings, tags, labels = [], [], []
         for r in rows:
             if not int(r["frame"]) <= f < int(r["frame"]) + span:
                 continue
@@ -46,10 +46,12 @@ def log_events(rec: rr.RecordingStream, events, truth, tracks, rate_hz: float) -
             xy = (trk_at if r["kind"] == "false track" else car_at).get(key)
             if xy is not None:
                 rings.append(_ring(np.asarray(xy, dtype=np.float64)))
+                tags.append([xy[0], xy[1] + RING_M + 2.0, 2.5])  # beside the ring, clear of the track's label
                 labels.append(f"#{int(r['event'])} {r['kind']}: {r['cause']}")
         _at(rec, f, rate_hz)
-        rec.log("world/events", rr.LineStrips3D(np.array(rings).reshape(-1, 41, 3), labels=labels,
-                                                colors=[pal.EVENT], radii=0.15))
+        rec.log("world/events", rr.LineStrips3D(np.array(rings).reshape(-1, 41, 3), colors=[pal.EVENT], radii=0.15))
+        rec.log("world/events/labels", rr.Points3D(np.array(tags).reshape(-1, 3), labels=labels, colors=[pal.EVENT],
+                                                   radii=0.3, show_labels=True))
 
 
 def _at(rec: rr.RecordingStream, frame: int, rate_hz: float) -> None:

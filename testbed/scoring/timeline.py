@@ -1,7 +1,7 @@
 """A run's tracks against its cars over time: the thesis's break-ups at a glance (``timeline.png``).
 
     car_timeline(truth, tracks, scoring=None) -> Timeline       from a run's truth and tracks tables
-    draw_timeline(tl, path, rate_hz, title="", colours=None) -> Path   the figure
+    draw_timeline(tl, path, rate_hz, title="", colours=None, events=None) -> Path   the figure
 
 Per car seen (the scores' denominator, testbed/scoring/rates.py): a bar over the frames it was visible (hit by
 a beam), coloured by the confirmed track assigned to it in that frame (the scores' per-frame assignment), grey
@@ -108,9 +108,11 @@ def shown_cars(tl: Timeline, max_rows: int = MAX_ROWS) -> list[int]:
 
 
 def draw_timeline(tl: Timeline, path: str | Path, rate_hz: float, title: str = "",
-                  colours: dict[int, np.ndarray] | None = None) -> Path:
+                  colours: dict[int, np.ndarray] | None = None, events=None) -> Path:
     """Draw ``tl`` into ``path`` (PNG): car bars (upper panel, time [s] across) and position errors (lower).
-    ``colours``: {track id: (3,) uint8} the tracks' colours (the viewer's); else a colour by track id."""
+    ``colours``: {track id: (3,) uint8} the tracks' colours (the viewer's); else a colour by track id.
+    ``events``: the run's events table (testbed.scoring.events.run_events): each relabel tick is labelled with
+    its number and cause ("#3 occlusion", as `testbed run` lists them)."""
     import matplotlib
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
@@ -122,6 +124,9 @@ def draw_timeline(tl: Timeline, path: str | Path, rate_hz: float, title: str = "
         return matplotlib.colormaps["tab20"](_TRACK_COLOURS[int(track_id) % len(_TRACK_COLOURS)])
 
     dt = 1.0 / rate_hz
+    numbered = None if events is None else {
+        (int(r["frame"]), int(r["car"])): f"#{int(r['event'])} {r['cause']}"
+        for r in events[events["kind"] == "relabel"].to_dict("records")}
     shown = shown_cars(tl)
     n_false = len(tl.false_tracks)
     false_shown = sorted(tl.false_tracks, key=lambda t: -len(tl.false_tracks[t]))[:MAX_FALSE_ROWS]
@@ -146,6 +151,10 @@ def draw_timeline(tl: Timeline, path: str | Path, rate_hz: float, title: str = "
                     ax.text(s * dt, y, f" T{int(tid)}", va="center", ha="left", fontsize=7)
         for fr in tl.relabels(c):
             ax.plot([fr * dt, fr * dt], [y - 0.5, y + 0.5], color="k", lw=1.4)
+            if numbered is not None and (int(fr), int(tl.cars[c])) in numbered:
+                ax.text(fr * dt, y + 0.42, numbered[(int(fr), int(tl.cars[c]))], fontsize=7, ha="left",
+                        va="bottom", color="k", bbox=dict(boxstyle="square,pad=0.1", fc="white", ec="none",
+                                                          alpha=0.8))
         labels.append(f"car {int(tl.cars[c])}")
         for tid in np.unique(a[a >= 0]):  # one line per stretch of one track on this car
             for s, e in _runs(a == tid, f):
