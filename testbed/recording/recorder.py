@@ -202,7 +202,8 @@ class Recorder:
         self.rec.log("world/ego", rr.Transform3D(translation=[truth.xy[0, 0], truth.xy[0, 1], 0.0],
                                                  quaternion=[0.0, 0.0, np.sin(half), np.cos(half)]))
         self.rec.log("world/truth/ego", rr.Boxes3D(**boxes(truth.xy[:1], truth.size[:1], truth.heading[:1]),
-                                                   labels=["sensor car"], colors=[pal.EGO], fill_mode="solid"))
+                                                   labels=["sensor car"], show_labels=False,  # the legend's solid box
+                                                   colors=[pal.EGO], fill_mode="solid"))
         self.rec.log("world/truth/vehicles", rr.Boxes3D(**boxes(truth.xy[1:], truth.size[1:], truth.heading[1:]),
                                                         labels=labels[1:], class_ids=truth.ids[1:],
                                                         show_labels=False))
