@@ -207,7 +207,7 @@ def _print_run(res, args: argparse.Namespace, out: str) -> None:
             print(f"run.rrd holds the point cloud of every {_ordinal(step)} frame: a {res.scenario.n_frames}-frame "
                   f"run, record.max_lidar_frames = {rec.max_lidar_frames} (0: every frame)")
         first = " (--event N: at event N)" if res.events is not None and len(res.events) else ""
-        print(f"view it: testbed view {out}{first}")
+        print(f"view it: testbed view {out}{first}; without a GPU: testbed export {out} --format html")
 
 
 def _ordinal(n: int) -> str:
