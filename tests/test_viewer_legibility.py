@@ -12,7 +12,7 @@ from testbed.pipeline.run import run_scenario
 from testbed.recording import diagnostics as dg, palette as pal, slots
 from testbed.recording.legend import BACKGROUND, ENTRIES, ROW_PX, legend_image
 from testbed.recording.recorder import Recorder
-from testbed.recording.scene import LAYER_SCALE, track_label
+from testbed.recording.scene import LAYER_MIN_HALF_M, track_label
 from testbed.scenario.spec import load_scenario
 
 SOLID = 3  # rerun 0.41 FillMode.Solid
@@ -77,8 +77,8 @@ def test_recording_has_the_legend_diagnostics_per_quantity_and_compact_labels(tm
     """4 s of cut_in_out with imm-jpda-gvbl-svsf: the legend image is static; each diagnostic name has one series
     per slot, diagnostics/<its group>/<name>/<k>, named "<name>, slot <k>" and in the slot's colour, whatever
     the number of tracks; the confirmed tracks' labels carry no "tracking" nor "warming up" (issue 34.4), and
-    their points have their slot's colour; the ego box is solid; the SVSF layers are drawn 20x, big enough to
-    see; the count plots draw detections green and clutter red, as the scene; the blueprint has one time-series
+    their points have their slot's colour; the ego box is solid; the SVSF layers are drawn at least 0.6 m wide,
+    else at true size; the count plots draw detections green and clutter red, as the scene; the blueprint has one time-series
     tab per group."""
     scn = load_scenario("cut_in_out", {"duration_s": 4.0, "record.lidar_every": 0})
     run_scenario(scn, out_dir=tmp_path, record=True, tracker="imm-jpda-gvbl-svsf")
@@ -130,7 +130,8 @@ def test_recording_has_the_legend_diagnostics_per_quantity_and_compact_labels(tm
     assert layers and layers[0].column("Boxes3D:fill_mode").to_pylist()[0] == [SOLID]
     half = np.array([h for rb in rows["/world/tracks/layers"] if "Boxes3D:half_sizes" in rb.schema.names
                      for row in rb.column("Boxes3D:half_sizes").to_pylist() if row for h in row])[:, :2]
-    assert np.median(half) > 0.2 and np.median(half / LAYER_SCALE) < 0.1  # cm-wide layers, drawn visible
+    assert half.min() >= LAYER_MIN_HALF_M - 1e-6  # cm-wide layers drawn visible (issue 34.4) ...
+    assert (half > LAYER_MIN_HALF_M + 0.1).any()  # ... and wider ones at their true size
     for name, colour in (("detections", pal.DETECTION), ("clutter_detections", pal.CLUTTER)):
         (style,) = [rb for rb in rows[f"/metrics/{name}"] if "SeriesLines:colors" in rb.schema.names]
         assert style.column("SeriesLines:colors").to_pylist()[0] == [int.from_bytes(bytes([*colour, 255]), "big")]

@@ -33,7 +33,7 @@ ENTRIES: tuple[tuple[str, str, tuple], ...] = (
     ("track velocity (0.5 s)", "arrow", _SLOTS[:1]),
     ("2-sigma ellipse and gate", "ring", _SLOTS[:2]),
     ("track trail (a dot per 0.5 s, last 5 s)", "dot", _SLOTS[1:3]),
-    ("SVSF boundary layer (drawn 20x)", "fill", pal.LAYER),
+    ("SVSF layer (true size, >= 0.6 m, above car)", "fill", pal.LAYER),
     ("occlusion shadow (full level)", "line", pal.SHADOW),
     ("ground error (full level)", "dot", (pal.OBJECT_AS_ROAD, pal.ROAD_AS_OBJECT)),
 )

@@ -29,7 +29,7 @@ Entity paths (all in the world frame, z up, metres):
 ``world/tracks/velocity``          confirmed track velocity over 0.5 s (Arrows3D)
 ``world/tracks/covariance``        2-sigma position covariance ellipses (LineStrips3D)
 ``world/tracks/gates``             validation gates of the predicted tracks (LineStrips3D)
-``world/tracks/layers``            SVSF boundary layers around the updated estimates, drawn 20x (Boxes3D)
+``world/tracks/layers``            SVSF boundary layers around the updated estimates, at least 0.6 m (Boxes3D)
 ``world/tracks/trajectories``      trails: a dot per confirmed track every 0.5 s (Points3D); the blueprint shows the
                                    last 5 s of them
 ``diagnostics/<group>/<name>/<k>`` per-track diagnostic series of confirmed tracks, grouped by quantity (score,

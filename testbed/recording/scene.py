@@ -23,9 +23,12 @@ window not yet full: every new track for its first seconds) and "tracking" are l
 VELOCITY_S = 0.5
 """The velocity arrows show the distance covered in this many seconds (1 s arrows joined the trails into lines
 that looked like lane markings)."""
-LAYER_SCALE = 20.0
-"""SVSF boundary layers are drawn this many times their half widths (a few centimetres: invisible inside the car
-at true size); the legend says so."""
+LAYER_MIN_HALF_M = 0.3
+"""SVSF boundary layers are drawn at true size but at least this half width [m], above the car's roof
+(:data:`LAYER_Z_M`): a smooth-variable layer of a few centimetres was invisible inside the car. Their values are in
+the diagnostics plots (layer tabs); the legend says so. (A fixed magnification does not fit: the layers of one run
+span 1 cm to 3 m.)"""
+LAYER_Z_M = 2.2  # height [m] the layers are drawn at: above a car's roof and the track's point (1 m)
 
 
 def track_label(track_id: int, regime: str) -> str:
@@ -137,8 +140,8 @@ def log_track_points(rec: rr.RecordingStream, ts, colour: np.ndarray) -> None:
 
 def log_track_extras(rec: rr.RecordingStream, ts, layers_before: bool, colour: np.ndarray) -> bool:
     """2-sigma covariance ellipses, the validation gates (in each track's ``colour`` (N, 3)) and the SVSF
-    boundary layers (a box of :data:`LAYER_SCALE` times the layer's half widths around each updated estimate,
-    thesis §2.1, §3.4, above the track's point; logged once any track has had one, so they clear). Returns whether layers have been logged."""
+    boundary layers (a box of the layer's half widths, at least :data:`LAYER_MIN_HALF_M`, around each updated
+    estimate, thesis §2.1, §3.4, above the car; logged once any track has had one, so they clear). Returns whether layers have been logged."""
     info, pos, ids = ts.info, ts.xy, ts.ids
     ppos = ts.cov[:, :2, :2]
     given = np.isfinite(ppos).all(axis=(1, 2))
@@ -157,9 +160,9 @@ def log_track_extras(rec: rr.RecordingStream, ts, layers_before: bool, colour: n
         return False
     lk = np.array([r[0] for r in rows], dtype=np.int64)
     tk = np.array([r[1] for r in rows], dtype=np.int64)
-    half = LAYER_SCALE * info.layers[lk][:, :2] if rows else np.zeros((0, 2))
+    half = np.maximum(info.layers[lk][:, :2], LAYER_MIN_HALF_M) if rows else np.zeros((0, 2))
     rec.log("world/tracks/layers", rr.Boxes3D(
-        centers=np.column_stack([pos[tk], np.full(len(tk), 1.6)]) if rows else np.zeros((0, 3)),
+        centers=np.column_stack([pos[tk], np.full(len(tk), LAYER_Z_M)]) if rows else np.zeros((0, 3)),
         half_sizes=np.column_stack([half, np.full(len(tk), 0.05)]), class_ids=ids[tk] if rows else [],
         colors=[pal.LAYER], fill_mode="solid"))  # the only translucent filled boxes of the scene
     return True
