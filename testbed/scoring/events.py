@@ -55,8 +55,12 @@ def breakup_events(truth, tracks, scoring: ScoringSpec | None = None, dt: float 
     """The relabel events of a run's truth and tracks tables (testbed.scoring.evaluate's schemas), one row each,
     by frame: frame, car, old_track, new_track, cause (module docstring); dt: the frame period [s]."""
     sc = scoring or ScoringSpec()
-    tl = car_timeline(truth, tracks, sc)
-    g, t = scoring_rows(truth, tracks, sc)
+    _, t = scoring_rows(truth, tracks, sc)
+    return _breakups(car_timeline(truth, tracks, sc), t, truth, dt)
+
+
+def _breakups(tl, t: dict, truth, dt: float) -> pd.DataFrame:
+    """:func:`breakup_events` from the run's Timeline ``tl`` and its scoring track rows ``t``."""
     conf = t["confirmed"]
     last = pd.Series(t["frame"][conf]).groupby(t["track_id"][conf]).max()
     on_car = {}  # (frame, track) -> car of the frame's assignment
@@ -86,7 +90,7 @@ def run_events(truth, tracks, scoring: ScoringSpec | None = None, dt: float = 0.
     tl = car_timeline(truth, tracks, sc)
     g, t = scoring_rows(truth, tracks, sc)
     pos = {(int(f), int(v)): xy for f, v, xy in zip(g["frame"], g["vehicle_id"], g["xy"])}
-    rows = [dict(kind="relabel", **r) for r in breakup_events(truth, tracks, sc, dt).to_dict("records")]
+    rows = [dict(kind="relabel", **r) for r in _breakups(tl, t, truth, dt).to_dict("records")]
     for r in rows:
         r["x"], r["y"] = pos.get((r["frame"], r["car"]), (np.nan, np.nan))
     conf = t["confirmed"]
