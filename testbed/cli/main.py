@@ -191,8 +191,8 @@ def _print_run(res, args: argparse.Namespace, out: str) -> None:
     per_frame = sum(res.timings_ms.values())
     print(f"\n{res.n_frames} frames, {per_frame:.1f} ms/frame "
           f"({', '.join(f'{k} {v:.1f}' for k, v in res.timings_ms.items())})")
-    written = ["scores.json", "events.parquet", "truth.parquet", "detections.parquet", "tracks.parquet",
-               "diagnostics.parquet"]
+    written = ["scores.json", "truth.parquet", "detections.parquet", "tracks.parquet", "diagnostics.parquet",
+               "events.parquet"]
     if not args.no_record:
         written.insert(0, "run.rrd")
     if not args.no_plot:
