@@ -125,3 +125,15 @@ def test_a_track_and_the_track_replacing_it_have_different_colours_in_the_viewer
                 for i, c in zip(ids or [], cs or []):
                     seen[int(i)] = tuple((int(c) >> s) & 255 for s in (24, 16, 8))  # packed RGBA
     assert seen and seen == {t: col[t] for t in seen}
+
+
+def test_score_lists_the_events_of_any_tracks_table(short_run, tmp_path):
+    """`testbed score RUN --tracks FILE` (another program's tracks) lists that table's events: here the run's
+    tracks with T3 renamed T30."""
+    out, _ = short_run
+    tracks = pd.read_parquet(out / "tracks.parquet")
+    tracks["track_id"] = tracks["track_id"].replace(3, 30)
+    tracks[["frame", "track_id", "x", "y", "status"]].to_csv(tmp_path / "theirs.csv", index=False)
+    proc = _cli("score", str(out), "--tracks", str(tmp_path / "theirs.csv"), timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "relabel of car 2: T2 -> T30 (merge)" in proc.stdout and "relabel of car 2: T30 -> T2 (merge)" in proc.stdout

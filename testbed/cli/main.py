@@ -232,7 +232,11 @@ def _cmd_score(args: argparse.Namespace) -> int:
         print(json_text(dict(run=str(args.run), tracks=args.tracks, scores=ev.scores.to_dict(), mot_metrics=ev.metrics),
                         indent=2, default=float))
     else:
+        from ..scoring.events import format_events, run_events
+
         _print_scores(label, ev.scores, ev.metrics)
+        dt = run.scenario.dt if run.scenario is not None else 0.1
+        print("\n" + format_events(run_events(run.truth, tracks, scoring, dt)))
     return 0
 
 
