@@ -11,7 +11,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 LAYERS = ("config", "common", "scenario", "world", "sensing", "tracking", "scoring", "recording", "pipeline",
-          "perception", "campaign", "reproduce", "cli")
+          "export", "perception", "campaign", "reproduce", "cli")
 """testbed's stage packages, lowest first: a package imports only those before it (and itself)."""
 
 

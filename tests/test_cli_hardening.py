@@ -115,8 +115,8 @@ def test_a_rerun_replaces_the_folder_and_a_failure_marks_it_incomplete(capsys, t
     # 2. the same folder without a recording: the earlier run.rrd must not survive beside the new tables
     code, _, err = _cli(capsys, *_run(out, "--no-record"))
     assert code == 0, err
-    assert sorted(p.name for p in out.iterdir()) == ["detections.parquet", "diagnostics.parquet", "scores.json",
-                                                    "timeline.png", "tracks.parquet", "truth.parquet"]
+    assert sorted(p.name for p in out.iterdir()) == ["detections.parquet", "diagnostics.parquet", "events.parquet",
+                                                    "scores.json", "timeline.png", "tracks.parquet", "truth.parquet"]
     # 3. a run that fails at frame 2: its tables (frames 0, 1) replace the folder, marked INCOMPLETE
     code, _, err = _cli(capsys, *_run(out, *OVERFLOW, "--set", "tracker.associator.max_events=1", "--set",
                                       "tracker.associator.on_overflow='raise'", duration=1.0))

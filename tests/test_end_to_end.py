@@ -59,11 +59,12 @@ def test_recording_holds_every_entity_every_frame(recorded):
     n = recorded.n_frames
     per_frame = ["world/truth/vehicles", "world/truth/ego", "world/lidar/ground", "world/lidar/objects",
                  "world/detections", "world/tracks/confirmed", "world/tracks/tentative", "world/tracks/velocity",
-                 "world/tracks/covariance", "world/tracks/gates", "world/tracks/trajectories", "world/tracks/static",
+                 "world/tracks/covariance", "world/tracks/gates", "world/tracks/static",
                  "world/lidar/truth", "world/lidar/ground_errors", "world/lidar/shadows", "world/detections/boxes",
                  "world/detections/rejected"]
     for path in per_frame:
         assert rows.get("/" + path) == n, (path, rows.get("/" + path))
+    assert rows.get("/world/tracks/trajectories") == -(-n // 5)  # a trail dot every 0.5 s (issue 34.4)
     for name in METRICS:
         assert rows.get(f"/metrics/{name}") == n + 1  # + the static series style
     assert rows.get("/world/road/lanes") == 1 and rows.get("/world/roadside") == 1

@@ -14,6 +14,7 @@ from testbed.cli.main import main
 from testbed.config import ConfigError
 from testbed.pipeline.run import run_scenario
 from testbed.recording.levels import OBJECT_POINTS, OTHER_EVERY, content, lidar_step, thinned
+from testbed.recording.scene import TRAIL_EVERY_S
 from testbed.scenario.spec import RECORD_LEVELS, load_scenario
 
 DURATION = 3.0
@@ -58,7 +59,8 @@ def test_the_default_recording_is_at_most_a_tenth_of_a_megabyte_per_frame(record
 def test_each_level_holds_what_it_promises(recordings):
     n = recordings["full"][1].n_frames
     always = ["/world/truth/vehicles", "/world/truth/ego", "/world/ego", "/world/tracks/confirmed",
-              "/world/tracks/velocity", "/world/tracks/trajectories", "/metrics/tracks_confirmed"]
+              "/world/tracks/velocity", "/metrics/tracks_confirmed"]
+    trail_every = round(TRAIL_EVERY_S * 10.0)  # trails: a dot every 0.5 s at 10 Hz (issue 34.4)
     lidar = ["/world/lidar/ground", "/world/lidar/objects", "/world/lidar/ground_errors"]
     truth_copy = ["/world/lidar/truth", "/world/lidar/shadows"]
     dets = ["/world/detections", "/world/detections/boxes", "/world/detections/rejected"]
@@ -71,6 +73,7 @@ def test_each_level_holds_what_it_promises(recordings):
         for path in want[level]:
             expected = n + 1 if path.startswith("/metrics") else n  # + the static series style
             assert rows.get(path) == expected, (level, path, rows.get(path))
+        assert rows.get("/world/tracks/trajectories") == -(-n // trail_every), (level, rows.get("/world/tracks/trajectories"))
         for path in every - set(want[level]):
             assert path not in rows, (level, path)
         assert rows["/world/road/lanes"] == 1 and rows["/world/roadside"] == 1  # static, once

@@ -12,15 +12,15 @@ from testbed.pipeline.run import run_scenario
 from testbed.recording import diagnostics as dg, palette as pal, slots
 from testbed.recording.legend import BACKGROUND, ENTRIES, ROW_PX, legend_image
 from testbed.recording.recorder import Recorder
-from testbed.recording.scene import track_label
+from testbed.recording.scene import LAYER_MIN_HALF_M, track_label
 from testbed.scenario.spec import load_scenario
 
 SOLID = 3  # rerun 0.41 FillMode.Solid
 
 
-def test_track_labels_are_compact_and_name_the_warm_up():
+def test_track_labels_are_compact_and_name_only_a_regime_that_says_something_is_wrong():
     assert track_label(3, "tracking") == "T3"
-    assert track_label(3, "unknown") == "T3 warming up"  # the KS window is not full yet
+    assert track_label(3, "unknown") == "T3"  # the KS window is not full yet: every new track (issue 34.4)
     assert track_label(12, "track-lost") == "T12 track-lost"
     assert track_label(4, "ambiguous") == "T4 ambiguous"
 
@@ -76,9 +76,10 @@ def _rows(rrd) -> dict[str, list]:
 def test_recording_has_the_legend_diagnostics_per_quantity_and_compact_labels(tmp_path):
     """4 s of cut_in_out with imm-jpda-gvbl-svsf: the legend image is static; each diagnostic name has one series
     per slot, diagnostics/<its group>/<name>/<k>, named "<name>, slot <k>" and in the slot's colour, whatever
-    the number of tracks; the confirmed tracks' labels carry no "tracking" and say "warming up" before
-    the KS window is full, and their points have their slot's colour; the ego box is solid; the blueprint has
-    one time-series tab per group."""
+    the number of tracks; the confirmed tracks' labels carry no "tracking" nor "warming up" (issue 34.4), and
+    their points have their slot's colour; the ego box is solid; the SVSF layers are drawn at least 0.6 m wide,
+    else at true size; the count plots draw detections green and clutter red, as the scene; the blueprint has one time-series
+    tab per group."""
     scn = load_scenario("cut_in_out", {"duration_s": 4.0, "record.lidar_every": 0})
     run_scenario(scn, out_dir=tmp_path, record=True, tracker="imm-jpda-gvbl-svsf")
     rows = _rows(tmp_path / "run.rrd")
@@ -111,7 +112,7 @@ def test_recording_has_the_legend_diagnostics_per_quantity_and_compact_labels(tm
     labels = [v for rb in rows["/world/tracks/confirmed"] if "Points3D:labels" in rb.schema.names
               for row in rb.column("Points3D:labels").to_pylist() if row for v in row]
     assert labels and not any("tracking" in v or "unknown" in v for v in labels)
-    assert any(v.endswith("warming up") for v in labels) and any(v.startswith("T") and " " not in v for v in labels)
+    assert not any("warming up" in v for v in labels) and any(v.startswith("T") and " " not in v for v in labels)
     checked = 0
     for rb in rows["/world/tracks/confirmed"]:
         if "Points3D:colors" not in rb.schema.names:
@@ -127,6 +128,13 @@ def test_recording_has_the_legend_diagnostics_per_quantity_and_compact_labels(tm
     assert ego.column("Boxes3D:fill_mode").to_pylist()[0] == [SOLID]  # FillMode.Solid
     layers = [rb for rb in rows["/world/tracks/layers"] if "Boxes3D:fill_mode" in rb.schema.names]
     assert layers and layers[0].column("Boxes3D:fill_mode").to_pylist()[0] == [SOLID]
+    half = np.array([h for rb in rows["/world/tracks/layers"] if "Boxes3D:half_sizes" in rb.schema.names
+                     for row in rb.column("Boxes3D:half_sizes").to_pylist() if row for h in row])[:, :2]
+    assert half.min() >= LAYER_MIN_HALF_M - 1e-6  # cm-wide layers drawn visible (issue 34.4) ...
+    assert (half > LAYER_MIN_HALF_M + 0.1).any()  # ... and wider ones at their true size
+    for name, colour in (("detections", pal.DETECTION), ("clutter_detections", pal.CLUTTER)):
+        (style,) = [rb for rb in rows[f"/metrics/{name}"] if "SeriesLines:colors" in rb.schema.names]
+        assert style.column("SeriesLines:colors").to_pylist()[0] == [int.from_bytes(bytes([*colour, 255]), "big")]
 
 
 def test_blueprint_has_one_diagnostics_tab_per_quantity_and_the_legend(tmp_path):

@@ -42,7 +42,7 @@ MAIN_SCORES = ("tp_pct", "fp_pct", "breakup_pct", "coverage_pct", "pos_rmse_m", 
                "idf1", "gospa")
 LABELS = {"tp_pct": "TP [%]", "fp_pct": "FP [%]", "breakup_pct": "break-ups [%]", "coverage_pct": "coverage [%]",
           "pos_rmse_m": "position RMSE [m]", "vel_rmse_mps": "velocity RMSE [m/s]", "hota": "HOTA", "mota": "MOTA",
-          "idf1": "IDF1", "gospa": "GOSPA"}
+          "idf1": "IDF1", "gospa": "GOSPA [m]"}
 # Thesis (Attari) Tables 4.3 and 5.4: real HDL-32E data on the QEW, 58 cars (Table 4.3) and 4275 frames
 # (Table 5.4: FP 14.79 is printed; 12 of 76 cars would be 15.79). TP, FP, break-ups [%].
 THESIS_TABLES = (("Table 4.3", "JPDA-KF", 58, 49, 9, 84.48, 15.52, 8.0),

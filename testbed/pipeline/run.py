@@ -22,6 +22,7 @@ from ..common.jsonio import json_text
 from ..tracking.moving import MovingTest
 from .outdir import write_atomic
 from ..scenario.spec import Scenario
+from ..scoring.events import run_events
 from ..scoring.rates import Scores
 from ..sensing import SensedFrame, rng_streams, sense_simulation, sensing_setup
 from ..common.errors import interruption_behind
@@ -44,6 +45,7 @@ class RunResult:
     metrics: dict[str, float] = field(default_factory=dict)  # standard MOT metrics (HOTA, MOTA, IDF1, GOSPA)
     tracker: str = ""  # the tracker's name in the outputs
     fallbacks: int = 0  # association problems solved by a fallback over the run (TrackSet.fallbacks summed)
+    events: pd.DataFrame | None = None  # relabels, false tracks, missed cars (testbed.scoring.events.run_events)
 
     def summary(self) -> dict[str, float]:
         """Flat dict of every scalar score of the run: thesis scores, MOT metrics, ms per frame per stage."""
@@ -92,7 +94,12 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
             frames = sense_simulation(scn, *setup(), rngs, watch)
         _frames(scn, trk, frames, recorder, tables, watch, state, overflows, on_frame)
         state.looping = False
+        events = None  # a campaign's runs without a folder skip them
+        if out is not None or recorder is not None:
+            truth_df, tracks_df = event_frames(tables["truth"], tables["tracks"])
+            events = run_events(truth_df, tracks_df, scn.scoring, scn.dt)
         if recorder is not None:
+            recorder.events(events, truth_df, tracks_df)  # marked in the recording before it is closed
             t0 = time.perf_counter()
             closing, recorder = recorder, None  # closed once, even if closing fails
             _close_recording(closing)  # and its compaction started, in its own process
@@ -103,9 +110,10 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
             closing.wait_compacted()
             watch.spent["recording"] += time.perf_counter() - t0
         timings = {k: 1000.0 * v / max(state.frames, 1) for k, v in watch.spent.items()}
-        res = RunResult(scn, scores, timings, state.frames, out, tables, metrics, name, state.fallbacks)
+        res = RunResult(scn, scores, timings, state.frames, out, tables, metrics, name, state.fallbacks, events)
         if out is not None:
             _write_tables(out, tables)
+            write_atomic(out / EVENTS_FILE, lambda tmp: events.to_parquet(tmp, index=False))
             state.tables_written = True
             write_scores(res, name)
     except BaseException as err:  # keep what was computed: the tables of the frames before the failure
@@ -320,6 +328,18 @@ def _recorder(scn: Scenario, path: Path, tracker_name: str, sim, static: np.ndar
                    level=scn.record.level, rate_hz=scn.rate_hz, compact=True)
     rec.static(lane_polylines(sim.network), static)
     return rec
+
+
+EVENTS_FILE = "events.parquet"
+
+
+def event_frames(truth_t, trk_t) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The truth and tracks columns the events need (testbed.scoring.events.run_events), as DataFrames, from a
+    run's tables (testbed.pipeline.tables TableLog)."""
+    cols = ("frame", "vehicle_id", "x", "y", "vx", "vy", "n_points", "is_ego", "heading")
+    truth = pd.DataFrame({c: truth_t.array(c) for c in cols})
+    tracks = pd.DataFrame({c: trk_t.array(c) for c in ("frame", "track_id", "x", "y", "vx", "vy", "status")})
+    return truth, tracks
 
 
 def score_tables(scn: Scenario, truth_t, trk_t, n_frames: int) -> tuple[Scores, dict[str, float]]:

@@ -20,7 +20,8 @@ class RunData:
     """folder: the run folder. truth, detections, tracks, diagnostics: its tables (README, "Output files").
     scores: scores.json as a dict (scenario, seed, tracker, frames, scores, mot_metrics, timings, config), or {}
     when the run stopped before it. scenario: the Scenario it ran (from scores.json's config), or None.
-    incomplete: the run was cut short (INCOMPLETE holds why)."""
+    incomplete: the run was cut short (INCOMPLETE holds why). events: events.parquet (testbed.scoring.events), or
+    None for a run without one (cut short, or written before it existed)."""
 
     folder: Path
     truth: pd.DataFrame
@@ -30,6 +31,7 @@ class RunData:
     scores: dict = field(default_factory=dict)
     scenario: Scenario | None = None
     incomplete: str | None = None
+    events: pd.DataFrame | None = None
 
     @property
     def n_frames(self) -> int:
@@ -62,4 +64,11 @@ def read_run(folder: str | Path) -> RunData:
             scenario = parse_scenario(scores["config"])
     inc = path / INCOMPLETE
     incomplete = inc.read_text(encoding="utf-8", errors="replace").strip() if inc.is_file() else None
-    return RunData(path, **tables, scores=scores, scenario=scenario, incomplete=incomplete)
+    events = None
+    ev = path / "events.parquet"
+    if ev.is_file():
+        try:
+            events = pd.read_parquet(ev)
+        except Exception as err:  # noqa: BLE001 - a damaged file is the folder's error
+            raise ConfigError(str(ev), f"cannot be read ({type(err).__name__})") from None
+    return RunData(path, **tables, scores=scores, scenario=scenario, incomplete=incomplete, events=events)

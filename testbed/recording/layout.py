@@ -22,7 +22,7 @@ CHASE_EYE = dict(position=[-45.0, -30.0, 35.0], look_target=[15.0, 0.0, 0.0], ey
 TOP_DOWN_EYE = dict(position=[15.0, 0.0, 160.0], look_target=[15.0, 0.0, 0.0], eye_up=[1.0, 0.0, 0.0])
 """160 m straight above a point 15 m ahead of the car, its heading up: about +-80 m along the road in view
 (the LiDAR reaches 70 m)."""
-TRAIL_S = 30.0  # the track trails show the last 30 s
+TRAIL_S = 5.0  # the track trails (a dot every 0.5 s, testbed/recording/scene.py) show the last 5 s
 
 
 def blueprint(rate_hz: float = 10.0) -> rrb.Blueprint:
@@ -40,7 +40,8 @@ def blueprint(rate_hz: float = 10.0) -> rrb.Blueprint:
                                   eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, **TOP_DOWN_EYE),
                                   line_grid=rrb.LineGrid3D(visible=False), overrides={**hidden, **trails}),
                 rrb.Spatial2DView(name="legend", origin="/legend"),
-                row_shares=[1.4, 1]),
+                rrb.TextLogView(name="events (relabels, false tracks, missed cars)", origin="/events"),
+                row_shares=[1.4, 1, 0.45]),
             _plots(),
             column_shares=[3, 1.4, 1.2],
         ),

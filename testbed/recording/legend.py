@@ -30,10 +30,10 @@ ENTRIES: tuple[tuple[str, str, tuple], ...] = (
     ("box: merged / split / completed", "box", (pal.MERGED, pal.SPLIT, pal.COMPLETED)),
     ("rejected object", "dot", pal.REJECTED),
     ("track (colour: as in the plots) / tentative", "dot", (*_SLOTS, pal.UNSLOTTED)),
-    ("track velocity (1 s)", "arrow", _SLOTS[:1]),
+    ("track velocity (0.5 s)", "arrow", _SLOTS[:1]),
     ("2-sigma ellipse and gate", "ring", _SLOTS[:2]),
-    ("track trail (last 30 s)", "line", _SLOTS[1:3]),
-    ("SVSF boundary layer", "fill", pal.LAYER),
+    ("track trail (a dot per 0.5 s, last 5 s)", "dot", _SLOTS[1:3]),
+    ("SVSF layer (true size, >= 0.6 m, above car)", "fill", pal.LAYER),
     ("occlusion shadow (full level)", "line", pal.SHADOW),
     ("ground error (full level)", "dot", (pal.OBJECT_AS_ROAD, pal.ROAD_AS_OBJECT)),
 )

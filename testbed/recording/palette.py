@@ -23,6 +23,7 @@ COMPLETED = (240, 210, 40)  # fitted box completed beyond its points
 REJECTED = (150, 110, 70)  # objects the selection removed
 LAYER = (150, 60, 255, 80)  # SVSF boundary layers: translucent violet fill
 SHADOW = (90, 90, 140, 110)  # occlusion shadows: faint, thin
+EVENT = (255, 0, 150)  # rings marking a run's events (relabel, false track, missed car): hot pink
 OBJECT_AS_ROAD = (230, 30, 30)  # ground-segmentation error: an object point called road
 ROAD_AS_OBJECT = (230, 0, 230)  # ground-segmentation error: a road point called object
 SLOTS = np.array([[0, 114, 178], [230, 159, 0], [0, 158, 115], [204, 121, 167], [86, 180, 233], [240, 228, 66],

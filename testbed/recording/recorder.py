@@ -26,12 +26,12 @@ Entity paths (all in the world frame, z up, metres):
 ``world/tracks/confirmed``         confirmed track estimates, labelled T<id> (Points3D)
 ``world/tracks/tentative``         tentative track estimates (Points3D)
 ``world/tracks/static``            confirmed tracks not seen to move (moving-object test), not reported (Points3D)
-``world/tracks/velocity``          confirmed track velocity over 1 s (Arrows3D)
+``world/tracks/velocity``          confirmed track velocity over 0.5 s (Arrows3D)
 ``world/tracks/covariance``        2-sigma position covariance ellipses (LineStrips3D)
 ``world/tracks/gates``             validation gates of the predicted tracks (LineStrips3D)
-``world/tracks/layers``            SVSF boundary layers around the updated estimates (Boxes3D)
-``world/tracks/trajectories``      trails: one segment per confirmed track and frame (previous estimate to this
-                                   one, LineStrips3D); the blueprint shows the last 30 s of them
+``world/tracks/layers``            SVSF boundary layers around the updated estimates, at least 0.6 m (Boxes3D)
+``world/tracks/trajectories``      trails: a dot per confirmed track every 0.5 s (Points3D); the blueprint shows the
+                                   last 5 s of them
 ``diagnostics/<group>/<name>/<k>`` per-track diagnostic series of confirmed tracks, grouped by quantity (score,
                                    NIS, gate volume, layers, mode probabilities, ...; testbed/recording/diagnostics.py):
                                    one series per slot k (testbed/recording/slots.py), a NaN (a gap) when the slot's
@@ -39,6 +39,9 @@ Entity paths (all in the world frame, z up, metres):
                                    :data:`SERIES_FLUSH_FRAMES` frames
 ``diagnostics/slots/track_id/<k>`` the track id holding slot k
 ``legend``                         the colour key (static EncodedImage, PNG; testbed/recording/legend.py)
+``world/events``                   rings around the cars of the run's events (relabel, false track, missed car),
+                                   labelled with their number and cause, for 3 s (testbed/recording/events.py)
+``events``                         the events as a text log, one line each at its time (TextLog)
 ``metrics/<name>``                 per-frame counts: tracks, detections, clutter, points; and the measured
                                    perception statistics: ground precision / recall, P_D of the vehicles in
                                    range, merged / split detections, rejected objects (Scalars)
@@ -69,6 +72,7 @@ from .diagnostics import SLOT_IDS, series_label, series_path
 from .layout import blueprint
 from .legend import legend_png
 from .levels import content
+from .events import log_events
 from . import rrd
 from .slots import Slots, colours
 from .scene import (GROUND_LABEL, Trails, boxes, log_detections, log_lidar, log_track_extras,
@@ -78,6 +82,11 @@ APP_ID = "roadtrack"
 METRICS = ("tracks_confirmed", "tracks_tentative", "tracks_static", "detections", "clutter_detections",
            "lidar_points", "ground_precision", "ground_recall", "pd_in_range", "merged_detections",
            "split_detections", "rejected_objects")
+METRIC_COLOURS = {"detections": pal.DETECTION, "clutter_detections": pal.CLUTTER,
+                  "tracks_confirmed": tuple(int(v) for v in pal.SLOTS[0]), "tracks_tentative": pal.UNSLOTTED,
+                  "tracks_static": pal.REJECTED}
+"""The count plots' lines in the scene's colours (rerun's own picks gave detections and clutter two near-identical
+greens; clutter is red in the scene)."""
 TRUTH_CLASSES = ((0, "road", (90, 90, 90)), (1, "vehicle", (40, 200, 90)), (2, "static object", (160, 110, 60)))
 CLOSE_STALL_S = 30.0
 """Seconds :meth:`Recorder.close` waits for rerun to flush and release the file while the file does not grow.
@@ -109,6 +118,7 @@ class Recorder:
                  write_footer: bool = True, occlusion: sensors.OcclusionConfig | None = None,
                  max_range_m: float = 70.0, level: str = "default", rate_hz: float = 10.0, compact: bool = False):
         self.content = content(level)  # an unknown level fails before any file is made
+        self.rate_hz = rate_hz
         self.path = Path(path)
         self.occlusion = occlusion  # draw the occluders' shadows with it (None: no shadows)
         self.max_range_m = max_range_m
@@ -125,9 +135,10 @@ class Recorder:
         self.rec.log("world/lidar", rr.AnnotationContext(
             [rr.AnnotationInfo(id=i, label=name, color=c) for i, name, c in TRUTH_CLASSES]), static=True)
         for name in METRICS:
-            self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " ")), static=True)
+            style = dict(colors=[METRIC_COLOURS[name]]) if name in METRIC_COLOURS else {}
+            self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " "), **style), static=True)
         self.rec.log("legend", rr.EncodedImage(contents=legend_png(), media_type="image/png"), static=True)
-        self.trails = Trails()
+        self.trails = Trails(rate_hz)
         self.slots = Slots()
         self.series: dict[tuple[str, int], tuple[list[int], list[float], list[float]]] = {}
         self.metrics: dict[str, tuple[list[int], list[float], list[float]]] = {}
@@ -178,6 +189,12 @@ class Recorder:
         if self.series_frames >= SERIES_FLUSH_FRAMES:
             self._flush_series()
 
+    def events(self, events, truth, tracks) -> None:
+        """Mark the run's ``events`` (testbed.scoring.events.run_events; ``truth``, ``tracks``: its tables as
+        DataFrames) in the recording: the ``events`` text log and rings on ``world/events``
+        (testbed/recording/events.py). Call after the last frame, before :meth:`close`."""
+        log_events(self.rec, events, truth, tracks, self.rate_hz)
+
     def _truth(self, truth) -> None:
         """The sensor car's pose (world/ego: the views' frame), its box and the other vehicles' boxes."""
         labels = [f"{n} ({i})" for n, i in zip(truth.names, truth.ids)]
@@ -185,7 +202,8 @@ class Recorder:
         self.rec.log("world/ego", rr.Transform3D(translation=[truth.xy[0, 0], truth.xy[0, 1], 0.0],
                                                  quaternion=[0.0, 0.0, np.sin(half), np.cos(half)]))
         self.rec.log("world/truth/ego", rr.Boxes3D(**boxes(truth.xy[:1], truth.size[:1], truth.heading[:1]),
-                                                   labels=["sensor car"], colors=[pal.EGO], fill_mode="solid"))
+                                                   labels=["sensor car"], show_labels=False,  # the legend's solid box
+                                                   colors=[pal.EGO], fill_mode="solid"))
         self.rec.log("world/truth/vehicles", rr.Boxes3D(**boxes(truth.xy[1:], truth.size[1:], truth.heading[1:]),
                                                         labels=labels[1:], class_ids=truth.ids[1:],
                                                         show_labels=False))

@@ -17,16 +17,25 @@ from .levels import thinned
 GROUND_LABEL = sensors.GROUND
 CLUSTER_PALETTE = pal.CLUSTERS
 GREEN, RED, GREY = (np.array(c, np.uint8) for c in (pal.DETECTION, pal.CLUTTER, pal.UNLABELLED))
-REGIME_NAMES = {"unknown": "warming up"}
-"""How a track's KS regime (paper 002) is named in its label: "unknown" is the regime before the test's window
-is full, which read like an unknown object class."""
+LABELLED_REGIMES = ("track-lost", "ambiguous")
+"""The KS regimes (paper 002) a track's label names: the ones that say something is wrong. "unknown" (the test's
+window not yet full: every new track for its first seconds) and "tracking" are left out, so labels stay short."""
+VELOCITY_S = 0.5
+"""The velocity arrows show the distance covered in this many seconds (1 s arrows joined the trails into lines
+that looked like lane markings)."""
+LAYER_MIN_HALF_M = 0.3
+"""SVSF boundary layers are drawn at true size but at least this half width [m], above the car's roof
+(:data:`LAYER_Z_M`): a smooth-variable layer of a few centimetres was invisible inside the car. Their values are in
+the diagnostics plots (layer tabs); the legend says so. (A fixed magnification does not fit: the layers of one run
+span 1 cm to 3 m.)"""
+LAYER_Z_M = 2.2  # height [m] the layers are drawn at: above a car's roof and the track's point (1 m)
 
 
 def track_label(track_id: int, regime: str) -> str:
-    """A track's compact label: ``T<id>``, plus the KS regime when it is not "tracking" (e.g. "T3 warming up",
+    """A track's compact label: ``T<id>``, plus the KS regime when it is one of :data:`LABELLED_REGIMES` (e.g.
     "T5 track-lost")."""
     r = str(regime)
-    return f"T{int(track_id)}" if r in ("tracking", "") else f"T{int(track_id)} {REGIME_NAMES.get(r, r)}"
+    return f"T{int(track_id)} {r}" if r in LABELLED_REGIMES else f"T{int(track_id)}"
 
 
 def ellipses(centers: np.ndarray, covs: np.ndarray, scale: float, z: float, n: int = 36) -> np.ndarray:
@@ -114,7 +123,7 @@ def log_detections(rec: rr.RecordingStream, detections, perception) -> None:
 
 def log_track_points(rec: rr.RecordingStream, ts, colour: np.ndarray) -> None:
     """Track estimates (confirmed labelled compactly, :func:`track_label`; tentative, static) and the confirmed
-    tracks' velocity over 1 s; ``colour`` (N, 3) uint8 per track (its slot's, testbed/recording/slots.py)."""
+    tracks' velocity over :data:`VELOCITY_S`; ``colour`` (N, 3) uint8 per track (its slot's, testbed/recording/slots.py)."""
     status, pos, ids, regime = ts.status, ts.xy, ts.ids, ts.regime
     for name, sel, radius in (("confirmed", status == "confirmed", 0.5), ("tentative", status == "tentative", 0.25),
                               ("static", status == "static", 0.35)):
@@ -124,14 +133,15 @@ def log_track_points(rec: rr.RecordingStream, ts, colour: np.ndarray) -> None:
             show_labels=name == "confirmed"))
     conf = status == "confirmed"
     rec.log("world/tracks/velocity", rr.Arrows3D(origins=np.column_stack([pos[conf], np.ones(int(conf.sum()))]),
-                                                 vectors=np.column_stack([ts.v[conf], np.zeros(int(conf.sum()))]),
+                                                 vectors=np.column_stack([VELOCITY_S * ts.v[conf],
+                                                                          np.zeros(int(conf.sum()))]),
                                                  colors=colour[conf], class_ids=ids[conf]))
 
 
 def log_track_extras(rec: rr.RecordingStream, ts, layers_before: bool, colour: np.ndarray) -> bool:
     """2-sigma covariance ellipses, the validation gates (in each track's ``colour`` (N, 3)) and the SVSF
-    boundary layers (a box of the layer's half widths around each updated estimate, thesis §2.1, §3.4; logged
-    once any track has had one, so they clear). Returns whether layers have been logged."""
+    boundary layers (a box of the layer's half widths, at least :data:`LAYER_MIN_HALF_M`, around each updated
+    estimate, thesis §2.1, §3.4, above the car; logged once any track has had one, so they clear). Returns whether layers have been logged."""
     info, pos, ids = ts.info, ts.xy, ts.ids
     ppos = ts.cov[:, :2, :2]
     given = np.isfinite(ppos).all(axis=(1, 2))
@@ -150,29 +160,34 @@ def log_track_extras(rec: rr.RecordingStream, ts, layers_before: bool, colour: n
         return False
     lk = np.array([r[0] for r in rows], dtype=np.int64)
     tk = np.array([r[1] for r in rows], dtype=np.int64)
-    half = info.layers[lk][:, :2] if rows else np.zeros((0, 2))
+    half = np.maximum(info.layers[lk][:, :2], LAYER_MIN_HALF_M) if rows else np.zeros((0, 2))
     rec.log("world/tracks/layers", rr.Boxes3D(
-        centers=np.column_stack([pos[tk], np.full(len(tk), 1.0)]) if rows else np.zeros((0, 3)),
+        centers=np.column_stack([pos[tk], np.full(len(tk), LAYER_Z_M)]) if rows else np.zeros((0, 3)),
         half_sizes=np.column_stack([half, np.full(len(tk), 0.05)]), class_ids=ids[tk] if rows else [],
         colors=[pal.LAYER], fill_mode="solid"))  # the only translucent filled boxes of the scene
     return True
 
 
-class Trails:
-    """The confirmed tracks' trails: each frame logs one segment per track confirmed in this frame and the
-    one before (previous estimate -> this one, in the track's colour) to ``world/tracks/trajectories``; the
-    blueprint shows that entity over the last 30 s (testbed/recording/layout.py), which draws each track's
-    path."""
+TRAIL_EVERY_S = 0.5
+"""A trail is a dot per track every this many seconds (a line per frame joined into long lines that looked like
+lane markings at motorway speed)."""
 
-    def __init__(self):
-        self.last: dict[int, np.ndarray] = {}
+
+class Trails:
+    """The confirmed tracks' trails: every :data:`TRAIL_EVERY_S` each confirmed track's position is logged as a
+    dot in its colour to ``world/tracks/trajectories``; the blueprint shows that entity over the last
+    ``layout.TRAIL_S`` seconds (testbed/recording/layout.py), a trail of breadcrumbs behind each track."""
+
+    def __init__(self, rate_hz: float = 10.0):
+        self.every = max(1, int(round(TRAIL_EVERY_S * rate_hz)))
+        self.frames = 0
 
     def log(self, rec: rr.RecordingStream, ts, colour: np.ndarray) -> None:
+        k = self.frames
+        self.frames += 1
+        if k % self.every:
+            return
         conf = np.flatnonzero(ts.status == "confirmed")
-        now = {int(ts.ids[k]): ts.xy[k] for k in conf}
-        row = {int(ts.ids[k]): k for k in conf}
-        both = [i for i in now if i in self.last]
-        segs = np.array([[[*self.last[i], 1.0], [*now[i], 1.0]] for i in both]).reshape(-1, 2, 3)
-        rec.log("world/tracks/trajectories", rr.LineStrips3D(
-            segs, colors=colour[[row[i] for i in both]].reshape(-1, 3), class_ids=both, radii=0.08))
-        self.last = now
+        rec.log("world/tracks/trajectories", rr.Points3D(
+            np.column_stack([ts.xy[conf], np.full(len(conf), 1.0)]), colors=colour[conf].reshape(-1, 3),
+            class_ids=ts.ids[conf], radii=0.25))

@@ -7,20 +7,28 @@ track of the whole run. Instead each diagnostic quantity has one series per *slo
 until it is deleted. The number of slots is the largest number of such tracks alive at once (15-25 on the
 motorway), not the number of tracks of the run.
 
-- A slot freed in one frame is reused in a later frame only (its series gets a NaN, a gap in the plot),
-  the slot freed longest ago first, so two tracks never share a line without a break.
+- A slot freed in one frame is reused in a later frame only (its series gets a NaN, a gap in the plot).
+  A new slot is opened while fewer than :data:`POOL` (the palette's size) exist; after that the slot freed
+  longest ago is reused first. So a track never takes the colour of the track it replaces (the one just
+  deleted) unless :data:`POOL` - 1 tracks are alive at once, and two tracks never share a line without a
+  break.
 - A track's slot gives its colour (``palette.SLOTS``): in the scene (point, label, velocity, trail, ellipse,
   gate) and in every diagnostics plot, so the line in T57's colour is T57's; the ``track id per slot`` plot
   (``diagnostics/slots/track_id/<k>``) says exactly which track held which slot when.
 
     Slots().update(ids, confirmed) -> (N,) int64    each track's slot, -1 for tracks that never were confirmed
     colours(slots) -> (N, 3) uint8
+    track_colours(tracks) -> {track id: (3,) uint8}  the same colours replayed from a run's tracks table (for the
+                                                      timeline, the plots and the exports)
 """
 from __future__ import annotations
 
 import numpy as np
 
 from . import palette as pal
+
+POOL = len(pal.SLOTS)
+"""Slots opened before any is reused: one per colour of the palette."""
 
 
 class Slots:
@@ -39,7 +47,7 @@ class Slots:
         for t in np.asarray(ids)[np.asarray(confirmed, dtype=bool)]:
             t = int(t)
             if t not in self.of:
-                if self.free:
+                if self.free and self.count >= POOL:
                     self.of[t] = self.free.pop(0)
                 else:
                     self.of[t] = self.count
@@ -61,4 +69,22 @@ def colours(slots: np.ndarray) -> np.ndarray:
     out = np.tile(np.array(pal.UNSLOTTED, np.uint8), (len(slots), 1))
     has = slots >= 0
     out[has] = pal.SLOTS[slots[has] % len(pal.SLOTS)]
+    return out
+
+
+def track_colours(tracks) -> dict[int, np.ndarray]:
+    """{track id: (3,) uint8 colour} of every track ever confirmed in a run's tracks table (pandas: frame,
+    track_id, status), replayed frame by frame as the recorder assigns them: the viewer's colours."""
+    df = tracks[["frame", "track_id", "status"]]
+    frame = df["frame"].to_numpy(dtype=np.int64)
+    ids = df["track_id"].to_numpy(dtype=np.int64)
+    conf = df["status"].astype(str).to_numpy() == "confirmed"
+    order = np.argsort(frame, kind="stable")  # each frame's rows in table order
+    frame, ids, conf = frame[order], ids[order], conf[order]
+    cut = np.searchsorted(frame, np.arange(1, int(frame.max()) + 1 if len(frame) else 0))  # every frame, empty too
+    s, out = Slots(), {}
+    for fi, fc in zip(np.split(ids, cut), np.split(conf, cut)):
+        slot = s.update(fi, fc)
+        for t, k in zip(fi[slot >= 0], slot[slot >= 0]):
+            out.setdefault(int(t), pal.SLOTS[int(k) % len(pal.SLOTS)])
     return out

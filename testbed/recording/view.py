@@ -1,10 +1,10 @@
-"""``testbed view RUN [--web] [--port N] [--at SECONDS]``: the rerun viewer on a run's recording.
+"""``testbed view RUN [--web] [--port N] [--at SECONDS | --event N]``: the rerun viewer on a run's recording.
 
 The recording is read back first (a corrupt or truncated file is one line, exit 2); the port is checked free;
 the viewer process dies with testbed (PR_SET_PDEATHSIG) and SIGTERM / SIGINT / SIGHUP are passed on to it.
 rerun's own INFO lines are off (``RUST_LOG=warn`` unless set): testbed prints the one line that matters, the
 web viewer's address. ``--at`` opens the recording at that simulated time, paused (testbed/recording/
-timecursor.py). On a machine's first use, rerun's analytics are switched off (``rerun analytics disable``) so
+timecursor.py); ``--event N`` at the time of the run's event N (events.parquet). On a machine's first use, rerun's analytics are switched off (``rerun analytics disable``) so
 its banner does not appear; an existing choice is left alone.
 """
 from __future__ import annotations
@@ -30,8 +30,12 @@ def cmd_view(args: argparse.Namespace) -> int:
     rrd = path if path.suffix == ".rrd" else path / "run.rrd"
     if not rrd.is_file():
         raise ConfigError("", f"{rrd}: no recording (run `testbed run SCENARIO --out {path}` first)")
+    event = getattr(args, "event", None)
+    if event is not None and getattr(args, "at", None) is not None:
+        raise ConfigError("--event", "give --at or --event, not both")
+    at_event = event_time(rrd.parent, event) if event is not None else None  # before the file is read
     end_s = _check_recording(rrd)
-    at = getattr(args, "at", None)
+    at = getattr(args, "at", None) if at_event is None else at_event
     if at is not None and at > end_s + 1e-9:
         raise ConfigError("--at", f"{at:g} s is past the end of the recording ({rrd} ends at {end_s:g} s); "
                                   f"allowed: 0..{end_s:g}")
@@ -102,6 +106,39 @@ def at_arg(text: str) -> float:
     if not math.isfinite(value) or value < 0:
         raise argparse.ArgumentTypeError(f"expected seconds >= 0, got {text}")
     return value
+
+
+def event_arg(text: str) -> int:
+    """``--event N``: an event number >= 1 (checked against the run's events.parquet)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an event number >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an event number >= 1, got {value}")
+    return value
+
+
+def event_time(folder: Path, n: int) -> float:
+    """The time [s] of event ``n`` (1-based, testbed.scoring.events) of the run in ``folder``, after printing it;
+    ConfigError (one line) without an events.parquet or when there is no event ``n``."""
+    import pandas as pd
+
+    from ..scoring.events import describe_event
+
+    path = Path(folder) / "events.parquet"
+    if not path.is_file():
+        raise ConfigError("--event", f"{path}: no events table (run the scenario again with this version)")
+    try:
+        ev = pd.read_parquet(path)
+    except Exception as err:  # noqa: BLE001 - a damaged file is the option's error
+        raise ConfigError("--event", f"{path}: cannot be read ({type(err).__name__})") from None
+    if not 1 <= n <= len(ev):
+        allowed = f"1..{len(ev)}" if len(ev) else "none: the run has no event"
+        raise ConfigError("--event", f"{n}: no such event in {path}; allowed: {allowed}")
+    row = ev.iloc[n - 1]
+    print(f"event {n} at {float(row['time']):.1f} s: {describe_event(row)}", file=sys.stderr)
+    return float(row["time"])
 
 
 WEB_VIEWER_PORT = 9090  # rerun's default web viewer port

@@ -1,14 +1,16 @@
 """A run's tracks against its cars over time: the thesis's break-ups at a glance (``timeline.png``).
 
     car_timeline(truth, tracks, scoring=None) -> Timeline       from a run's truth and tracks tables
-    draw_timeline(tl, path, rate_hz, title="") -> Path          the figure
+    draw_timeline(tl, path, rate_hz, title="", colours=None, events=None) -> Path   the figure
 
 Per car seen (the scores' denominator, testbed/scoring/rates.py): a bar over the frames it was visible (hit by
 a beam), coloured by the confirmed track assigned to it in that frame (the scores' per-frame assignment), grey
 where no confirmed track covered it; a relabel (the assigned label changes: a break-up) is a black tick; a
 frame whose track is not the car's correct track is hatched. Below, one row per false confirmed track (a
 track no car claims as correct), red over its confirmed life. The lower panel: each car's position error to
-its assigned track [m] against time, coloured as the bars.
+its assigned track [m] against time, coloured as the bars. Track colours are the viewer's when given
+(testbed/recording/slots.py ``track_colours``: a track's colour differs from the one that replaces it). At most
+:data:`MAX_ROWS` cars are drawn: those with a relabel or never correctly tracked first, then those seen longest.
 """
 from __future__ import annotations
 
@@ -22,8 +24,11 @@ from ..scenario.spec import ScoringSpec
 from .evaluate import scoring_rows
 from .rates import assign_frames, track_cars
 
-MAX_ROWS = 160
-"""At most this many car rows are drawn (the cars seen longest); the title says how many were left out."""
+MAX_ROWS = 40
+"""At most this many car rows are drawn (the cars with events first, then the cars seen longest); the title says
+how many were left out."""
+MAX_FALSE_ROWS = 10
+"""At most this many false-track rows are drawn (the longest-lived)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,26 +94,43 @@ def _runs(mask: np.ndarray, frames: np.ndarray) -> list[tuple[int, int]]:
 
 
 _TRACK_COLOURS = (0, 1, 2, 3, 4, 5, 8, 9, 10, 11, 12, 13, 16, 17, 18, 19)
-"""tab20 without its reds (false tracks) and greys (uncovered frames)."""
+"""tab20 without its reds (false tracks) and greys (uncovered frames): a track's colour without given ones."""
 
 
-def _colour(track_id: int):
+def shown_cars(tl: Timeline, max_rows: int = MAX_ROWS) -> list[int]:
+    """Indices into ``tl.cars`` of the cars drawn, in first-seen order: those with a relabel or without a correct
+    track first, then the cars seen longest, at most ``max_rows``."""
+    tracked = set(tl.correct.values())
+    key = [(not (len(tl.relabels(c)) or int(v) not in tracked), -int(tl.visible[c].sum()))
+           for c, v in enumerate(tl.cars)]
+    order = sorted(range(len(tl.cars)), key=lambda c: key[c])[:max_rows]
+    return sorted(order)
+
+
+def draw_timeline(tl: Timeline, path: str | Path, rate_hz: float, title: str = "",
+                  colours: dict[int, np.ndarray] | None = None, events=None) -> Path:
+    """Draw ``tl`` into ``path`` (PNG): car bars (upper panel, time [s] across) and position errors (lower).
+    ``colours``: {track id: (3,) uint8} the tracks' colours (the viewer's); else a colour by track id.
+    ``events``: the run's events table (testbed.scoring.events.run_events): each relabel tick is labelled with
+    its number and cause ("#3 occlusion", as `testbed run` lists them)."""
     import matplotlib
-
-    return matplotlib.colormaps["tab20"](_TRACK_COLOURS[int(track_id) % len(_TRACK_COLOURS)])
-
-
-def draw_timeline(tl: Timeline, path: str | Path, rate_hz: float, title: str = "") -> Path:
-    """Draw ``tl`` into ``path`` (PNG): car bars (upper panel, time [s] across) and position errors (lower)."""
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
     from matplotlib.lines import Line2D
 
+    def _colour(track_id: int):
+        if colours is not None and int(track_id) in colours:
+            return tuple(np.asarray(colours[int(track_id)], dtype=np.float64) / 255.0)
+        return matplotlib.colormaps["tab20"](_TRACK_COLOURS[int(track_id) % len(_TRACK_COLOURS)])
+
     dt = 1.0 / rate_hz
-    order = np.argsort([-int(v.sum()) for v in tl.visible], kind="stable")[:MAX_ROWS] if len(tl.cars) else []
-    shown = sorted(int(c) for c in order)  # keep first-seen order among the cars drawn
+    numbered = None if events is None else {
+        (int(r["frame"]), int(r["car"])): f"#{int(r['event'])} {r['cause']}"
+        for r in events[events["kind"] == "relabel"].to_dict("records")}
+    shown = shown_cars(tl)
     n_false = len(tl.false_tracks)
-    rows = len(shown) + min(n_false, MAX_ROWS // 4)
+    false_shown = sorted(tl.false_tracks, key=lambda t: -len(tl.false_tracks[t]))[:MAX_FALSE_ROWS]
+    rows = len(shown) + len(false_shown)
     h_bars = max(2.0, min(0.16 * rows + 1.0, 30.0))
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(13, h_bars + 3.2), sharex=True,
                                   gridspec_kw=dict(height_ratios=[h_bars, 3.0]))
@@ -129,12 +151,16 @@ def draw_timeline(tl: Timeline, path: str | Path, rate_hz: float, title: str = "
                     ax.text(s * dt, y, f" T{int(tid)}", va="center", ha="left", fontsize=7)
         for fr in tl.relabels(c):
             ax.plot([fr * dt, fr * dt], [y - 0.5, y + 0.5], color="k", lw=1.4)
+            if numbered is not None and (int(fr), int(tl.cars[c])) in numbered:
+                ax.text(fr * dt, y + 0.42, numbered[(int(fr), int(tl.cars[c]))], fontsize=7, ha="left",
+                        va="bottom", color="k", bbox=dict(boxstyle="square,pad=0.1", fc="white", ec="none",
+                                                          alpha=0.8))
         labels.append(f"car {int(tl.cars[c])}")
         for tid in np.unique(a[a >= 0]):  # one line per stretch of one track on this car
             for s, e in _runs(a == tid, f):
                 sel = (f >= s) & (f < e)
                 ax2.plot(f[sel] * dt, tl.err[c][sel], "-", lw=0.9, color=_colour(tid))
-    for k, (tid, fr) in enumerate(list(tl.false_tracks.items())[:MAX_ROWS // 4]):
+    for k, (tid, fr) in enumerate((t, tl.false_tracks[t]) for t in sorted(false_shown)):
         y = -(len(shown) + k)
         for s, e in _runs(np.ones(len(fr), bool), fr):
             ax.broken_barh([(s * dt, (e - s) * dt)], (y - 0.35, 0.7), color="tab:red", lw=0)
@@ -142,9 +168,12 @@ def draw_timeline(tl: Timeline, path: str | Path, rate_hz: float, title: str = "
     ax.set_yticks(-np.arange(len(labels)))
     ax.set_yticklabels(labels, fontsize=6 if len(labels) > 40 else 8)
     ax.set_ylim(-len(labels) + 0.4, 0.6)
-    left = len(tl.cars) - len(shown)
+    left, left_false = len(tl.cars) - len(shown), n_false - len(false_shown)
+    omitted = [f"{left} cars without events seen least" if left > 0 else "",
+               f"{left_false} shortest false tracks" if left_false > 0 else ""]
+    omitted = [o for o in omitted if o]
     head = title + (" - " if title else "") + f"{len(tl.cars)} cars seen, {len(tl.correct)} correct tracks, " \
-        f"{n_false} false tracks" + (f" ({left} cars seen least are not drawn)" if left > 0 else "")
+        f"{n_false} false tracks" + (f"\n(not drawn: {'; '.join(omitted)})" if omitted else "")
     ax.set_title(head, fontsize=10, loc="left")
     ax.legend(handles=[Patch(color="0.85", label="visible, no confirmed track"),
                        Patch(facecolor="tab:blue", label="covered by a track (colour: its id)"),
