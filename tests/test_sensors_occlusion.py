@@ -289,3 +289,19 @@ def test_bad_input_is_one_line_value_error():
     with pytest.raises(TypeError, match=r"^lidar:"):
         OcclusionConfig.from_lidar(OCC)
     assert OcclusionConfig.from_lidar(replace(LIDAR, max_range_m=120.0)).max_range_m == 120.0
+
+
+def test_few_rays_give_a_partial_pd_with_full_points():
+    """full_points (the testbed passes 11, measured): below it P_D rises linearly from min_points - 1 clear rays
+    (a car with min_points rays gets 1 / (full_points - min_points + 1) of the step's P_D); at or above it the
+    step's P_D; 0 keeps the step at min_points."""
+    s = cast([box(65.0, 0.0), box(20.0, 3.5)], [1, 2])
+    far, near = visibility(s, [[65.0, 0.0], [20.0, 3.5]], OCC).clear_rays
+    assert MIN_POINTS <= far <= 11 <= near
+    full = int(far) + 3  # the far car below it
+    step = detection_probability(s, [[65.0, 0.0], [20.0, 3.5]], OCC)
+    ramp = detection_probability(s, [[65.0, 0.0], [20.0, 3.5]], replace(OCC, full_points=full))
+    assert step[0] > 0 and ramp[1] == pytest.approx(step[1])
+    assert ramp[0] == pytest.approx(step[0] * (far - MIN_POINTS + 1) / (full - MIN_POINTS + 1))
+    with pytest.raises(ValueError, match="full_points"):
+        replace(OCC, full_points=-1)

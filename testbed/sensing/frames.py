@@ -146,7 +146,8 @@ def occlusion_pd(scn: Scenario, road: sensors.RoadMap):
             cfg = configs.get(nominal)
             if cfg is None:
                 cfg = configs[nominal] = sensors.OcclusionConfig.from_lidar(
-                    lidar, pd_nominal=nominal, min_points=scn.sensor.perception.cluster.min_points)
+                    lidar, pd_nominal=nominal, min_points=scn.sensor.perception.cluster.min_points,
+                    full_points=scn.sensor.occlusion_pd_full_points)
             xy = np.asarray(xy, dtype=np.float64)[:, :2]
             heading = road.heading_at(xy) if len(xy) else None
             occ = sensors.detection_probability(scan, xy, cfg, heading=heading)
