@@ -72,7 +72,7 @@ class OcclusionConfig:
     full_points: int = 0  # clear rays at which P_D reaches pd_nominal, rising linearly from min_points - 1;
     # 0 (or <= min_points): a step at min_points. Perception misses most cars of 5-8 points (ground removal,
     # the vehicle screen): measured P_D 0.05 / 0.54-0.61 / 0.83-0.91 / 0.93-0.97 at 5-6 / 7-8 / 9-10 / 11-12
-    # points on dense_motorway (2 seeds, 180 s), so the testbed passes 11 (sensor.occlusion_pd_full_points)
+    # points on dense_motorway (2 seeds, 180 s), which 11 fits (scenario key sensor.occlusion_pd_full_points)
     attitude_tol_deg: float = 0.0  # elevation error of the true rays (uncorrected ego pitch/roll); 0 = level
     max_columns: int = 32  # azimuth columns sampled per target
     shadow_max_height_m: float = 4.0  # shadows: returns above this (bridges, tree crowns) cast none

@@ -292,7 +292,7 @@ def test_bad_input_is_one_line_value_error():
 
 
 def test_few_rays_give_a_partial_pd_with_full_points():
-    """full_points (the testbed passes 11, measured): below it P_D rises linearly from min_points - 1 clear rays
+    """full_points (11 fits perception's measured P_D, sensor.occlusion_pd_full_points): below it P_D rises linearly from min_points - 1 clear rays
     (a car with min_points rays gets 1 / (full_points - min_points + 1) of the step's P_D); at or above it the
     step's P_D; 0 keeps the step at min_points."""
     s = cast([box(65.0, 0.0), box(20.0, 3.5)], [1, 2])
