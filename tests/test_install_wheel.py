@@ -99,6 +99,20 @@ def test_the_wheel_carries_every_shipped_scenario_and_campaign(wheel):
                 assert z.read(f"{prefix}{name}.toml") == (REPO / kind / f"{name}.toml").read_bytes(), name
 
 
+def test_the_wheel_carries_every_file_of_the_packages(wheel):
+    """Every file of testbed/, sensors/ and trackers/ (through the _shipped links; the HTML replay's template, ...)
+    is in the wheel: a data file left out of pyproject.toml's package-data fails here, not after an install."""
+    ours = set()
+    for top in ("testbed", "sensors", "trackers"):
+        for folder, dirs, files in os.walk(REPO / top, followlinks=True):
+            dirs[:] = [d for d in dirs if d != "__pycache__"]
+            rel = Path(folder).relative_to(REPO)
+            ours |= {(rel / f).as_posix() for f in files if not f.endswith((".pyc", ".nbi", ".nbc"))}
+    with zipfile.ZipFile(wheel) as z:
+        missing = sorted(ours - set(z.namelist()))
+    assert not missing and len(ours) > 100, missing
+
+
 def test_the_installed_package_is_what_runs(venv, tmp_path):
     code = "import testbed, sensors, trackers; print('\\n'.join(m.__file__ for m in (testbed, sensors, trackers)))"
     out = subprocess.run([str(venv / "python"), "-c", code], capture_output=True, text=True, cwd=tmp_path,
