@@ -1,4 +1,4 @@
-"""``testbed`` command line: run scenarios, view recordings, check files, list scenarios and trackers.
+"""``testbed`` command line: run scenarios, view recordings, check files, list scenarios and trackers, warm up.
 
 Exit codes (every command): 0 success; 1 run-time failure (what was finished is kept); 2 bad input
 (malformed file or option, unusable output folder), nothing run; 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (what
@@ -357,6 +357,12 @@ def _cmd_trackers(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_warmup(args: argparse.Namespace) -> int:
+    from ..pipeline.warmup import main as warm
+
+    return warm()
+
+
 def _cmd_keys(args: argparse.Namespace) -> int:
     from .keys import keys_markdown
 
@@ -446,6 +452,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_scenarios)
     k = sub.add_parser("keys", help="print every scenario key with its default and meaning (markdown)")
     k.set_defaults(func=_cmd_keys)
+    warm_help = ("compile the sensors' numba kernels into their cache now, not in the first run after an install "
+                 "or an update (about a minute; a few seconds when the cache is warm)")
+    w = sub.add_parser("warmup", help=warm_help, description=warm_help[0].upper() + warm_help[1:] + ".")
+    w.set_defaults(func=_cmd_warmup)
     t = sub.add_parser("trackers", help="list the tracker names, one line each")
     t.add_argument("--all", action="store_true", help="every associator x filter (x wrapper) combination, "
                    "not only the papers' named trackers")
@@ -513,7 +523,11 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as stop:  # --help, or a usage error already printed as one line
         return stop.code if isinstance(stop.code, int) else (0 if stop.code is None else 2)
     debug = bool(getattr(args, "debug", False))
-    with _one_line_warnings(debug):
+    from ..pipeline.warmup import first_compile_note
+
+    # a command that compiles numba kernels (the first run after an install, without `testbed warmup`) says so once
+    note = contextlib.nullcontext() if args.command == "warmup" else first_compile_note()
+    with _one_line_warnings(debug), note:
         return guarded(args.func, args, debug)
 
 
