@@ -12,7 +12,7 @@ def add_export_parser(sub) -> None:
     e.add_argument("run", help="a run folder (testbed run ... --out RUN)")
     e.add_argument("--format", required=True, metavar="FORMAT",
                    help=f"one of: {', '.join(sorted(FORMATS))}")
-    e.add_argument("--out", help="file to write (default: the format's file in the run folder, e.g. replay.html)")
+    e.add_argument("--out", help="file (folder, for kitti) to write (default: the format's file or folder in the run folder, e.g. replay.html, kitti/)")
     e.set_defaults(func=cmd_export)
 
 
@@ -20,7 +20,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from ..export import export_run
 
     path = export_run(args.run, args.format, args.out)
-    size = path.stat().st_size
+    size = sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else path.stat().st_size
     print(f"wrote {path} ({size / 1e6:.1f} MB)")
     if args.format == "html":
         print(f"open it in any browser (no GPU, no network needed): file://{path.resolve()}; "

@@ -4,7 +4,8 @@
     export_run(folder, fmt, out=None) -> Path  write run ``folder`` as ``fmt`` (default file: in the folder)
 
 Adding a format (kitti, mot, csv, ...) = one module with a ``write(run, path) -> Path`` function taking a
-testbed.pipeline.runfolder.RunData, and one line in :data:`FORMATS`.
+testbed.pipeline.runfolder.RunData, and one line in :data:`FORMATS`. A format that writes a folder (kitti) says
+so with ``folder=True``: its ``path`` is then a folder (created if missing).
 """
 from __future__ import annotations
 
@@ -14,21 +15,26 @@ from typing import Callable
 
 from ..config import ConfigError
 from ..pipeline.runfolder import RunData, read_run
-from . import html
+from . import html, kitti
 
 
 @dataclass(frozen=True)
 class Format:
-    """write(run, path) -> Path; default_name: the file written in the run folder without ``out``; doc: one line."""
+    """write(run, path) -> Path; default_name: the file (or folder) written in the run folder without ``out``;
+    doc: one line; folder: the format writes a folder, not a file."""
 
     write: Callable[[RunData, Path], Path]
     default_name: str
     doc: str
+    folder: bool = False
 
 
 FORMATS: dict[str, Format] = {
     "html": Format(html.write, "replay.html", "a light top-down replay with a time slider, one self-contained "
                                               "file that opens in any browser without a GPU or a network"),
+    "kitti": Format(kitti.write, "kitti", "a KITTI-tracking sequence (velodyne scans, labels, calib, oxts; "
+                                          "docs/formats.md) for the 3-D MOT tools; `testbed replay` reads it",
+                    folder=True),
 }
 
 
@@ -40,6 +46,8 @@ def export_run(folder: str | Path, fmt: str, out: str | Path | None = None) -> P
     f = FORMATS[fmt]
     run = read_run(folder)
     path = Path(out) if out is not None else Path(folder) / f.default_name
-    if path.is_dir():
+    if f.folder:
+        kitti.check_target(path)
+    elif path.is_dir():
         raise ConfigError("--out", f"{path} is a folder; give a file name")
     return f.write(run, path)
