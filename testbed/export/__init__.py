@@ -16,7 +16,7 @@ from typing import Callable
 from ..config import ConfigError
 from ..pipeline.runfolder import RunData, read_run
 from ..common.safe_io import refuse_link
-from . import csv_tables, html
+from . import csv_tables, html, mot
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,8 @@ FORMATS: dict[str, Format] = {
                                               "file that opens in any browser without a GPU or a network"),
     "csv": Format(csv_tables.write, "csv", "the truth, detections (with their covariance R), tracks and events as "
                                            "CSV files for a program in any language (docs/formats.md)", folder=True),
+    "mot": Format(mot.write, "mot", "a MOTChallenge sequence (gt, det, the tracks; bird's-eye boxes in metres, "
+                                    "docs/formats.md) that TrackEval's MotChallenge2DBox reads", folder=True),
 }
 
 
