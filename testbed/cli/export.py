@@ -29,6 +29,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.format == "html":
         print(f"open it in any browser (no GPU, no network needed): file://{path.resolve()}; "
               "#t=SECONDS or #event=N opens at a time or an event")
+    elif args.format == "csv":
+        print(f"a tracker in any language reads {path / 'detections.csv'}; `testbed score {args.run} --tracks FILE` "
+              "scores its tracks (examples/nn_tracker.awk; columns: docs/formats.md)")
+    elif args.format == "mot":
+        print(f"TrackEval's MotChallenge2DBox reads it: GT_FOLDER {path / 'gt'}, TRACKERS_FOLDER {path / 'trackers'}, "
+              "BENCHMARK ROADTRACK, SPLIT_TO_EVAL all, SKIP_SPLIT_FOL True (boxes, frames, classes: docs/formats.md)")
     return 0
 
 
