@@ -25,7 +25,7 @@ import sensors
 from sensors.occlusion import visibility as lidar_visibility
 
 from ..common.jsonio import json_text
-from ..common.safe_io import make_folder, refuse_link, write_bytes, write_text
+from ..common.safe_io import make_folder, write_bytes, write_text
 from ..config import ConfigError, to_dict
 from ..sensing import frame_scan, pd_scan, rng_streams, sensing_setup
 from ..sensing import kitti as k
@@ -154,11 +154,4 @@ def oxts_text(ego: pd.DataFrame, dt: float) -> str:
                af[i], al[i], 0.0, af[i], al[i], 0.0, 0.0, 0.0, wz[i], 0.0, 0.0, wz[i], 0.0, 0.0)
         lines.append(" ".join(repr(float(x)) for x in row) + " 4 0 0 0 0\n")
     return "".join(lines)
-
-
-def check_target(path: Path) -> None:
-    """A folder to write into: not a file, not a symbolic link (one line)."""
-    refuse_link(path, "--out")
-    if path.exists() and not path.is_dir():
-        raise ConfigError("--out", f"{path} is a file; the KITTI format writes a folder")
 

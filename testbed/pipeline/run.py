@@ -389,7 +389,8 @@ def log_tables(truth, vis, dets, ts: TrackSet, truth_t, det_t, trk_t) -> None:
     m = len(dets.z)
     det_t.append(frame=np.full(m, truth.frame), time=np.full(m, truth.time), x=dets.z[:, 0], y=dets.z[:, 1],
                  provenance=dets.provenance, n_points=dets.n_points, length=dets.extent[:, 0],
-                 width=dets.extent[:, 1], height=dets.extent[:, 2])
+                 width=dets.extent[:, 1], height=dets.extent[:, 2], r_xx=dets.R[:, 0, 0], r_xy=dets.R[:, 0, 1],
+                 r_yy=dets.R[:, 1, 1])
     t = len(ts)
     trk_t.append(frame=np.full(t, truth.frame), time=np.full(t, truth.time), track_id=ts.ids, status=ts.status,
                  x=ts.xy[:, 0], y=ts.xy[:, 1], vx=ts.v[:, 0], vy=ts.v[:, 1], score=ts.score, regime=ts.regime,
