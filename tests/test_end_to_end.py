@@ -104,7 +104,9 @@ def test_tables_have_the_documented_columns(recorded):
                                    "length", "width", "height", "lane", "crashed", "n_points", "in_range"]
     assert len(truth) == recorded.n_frames * 4 and truth.is_ego.sum() == recorded.n_frames
     det = pd.read_parquet(out / "detections.parquet")
-    assert list(det.columns) == ["frame", "time", "x", "y", "provenance", "n_points", "length", "width", "height"]
+    assert list(det.columns) == ["frame", "time", "x", "y", "provenance", "n_points", "length", "width", "height",
+                                 "r_xx", "r_xy", "r_yy"]
+    assert np.all(det.r_xx > 0) and np.all(det.r_yy > 0) and np.all(det.r_xy ** 2 < det.r_xx * det.r_yy)
     assert set(det.provenance.unique()) <= {-1, 1, 2, 3}
     tracks = pd.read_parquet(out / "tracks.parquet")
     assert list(tracks.columns) == ["frame", "time", "track_id", "status", "x", "y", "vx", "vy", "score", "regime", "cov"]

@@ -74,7 +74,7 @@ def test_html_export_is_one_parsable_self_contained_page_with_the_runs_data(shor
 
 def test_export_refuses_an_unknown_format_and_a_folder_that_is_not_a_run(tmp_path, short_run):
     with pytest.raises(ConfigError, match="allowed: " + ", ".join(sorted(FORMATS))):
-        export_run(short_run[0], "kitti")
+        export_run(short_run[0], "nuscenes")
     with pytest.raises(ConfigError, match="not a run folder"):
         export_run(tmp_path, "html")
     proc = cli("export", str(tmp_path), "--format", "html", timeout=60)

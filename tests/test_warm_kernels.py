@@ -55,3 +55,39 @@ def test_every_module_with_cached_kernels_is_warmed():
     with_kernels = {f"sensors.{p.stem}" for p in (REPO / "sensors").glob("*.py")
                     if "@njit(cache=True)" in p.read_text(encoding="utf-8")}
     assert with_kernels == set(KERNEL_MODULES)
+
+
+def test_the_first_compile_note_is_one_line_once_and_only_for_the_watched_modules():
+    """testbed's command line wraps every command but `warmup` in first_compile_note: a run that compiles says so
+    once, on stderr; a compilation of someone else's function says nothing."""
+    import io
+
+    import numba
+
+    from testbed.pipeline.warmup import COMPILE_NOTE, first_compile_note
+
+    def add(x):
+        return x + 1
+
+    ours, theirs = numba.njit(add), numba.njit(lambda x: x * 2)
+    theirs.py_func.__module__ = "someone.else"
+    stream = io.StringIO()
+    with first_compile_note(stream, modules=(__name__,)):
+        theirs(1.0)
+        assert stream.getvalue() == ""
+        ours(1.0)
+        ours(1)  # a second signature: compiled again, not noted again
+    assert len(ours.signatures) == 2
+    assert stream.getvalue() == COMPILE_NOTE + "\n" and COMPILE_NOTE.startswith("note: ")
+    ours(2.0j)  # outside the block: nothing
+    assert stream.getvalue() == COMPILE_NOTE + "\n"
+
+
+def test_testbed_warmup_is_a_command_and_says_where_the_cache_is():
+    out = subprocess.run([sys.executable, "-m", "testbed.cli.main", "warmup", "--help"], capture_output=True,
+                         text=True, cwd=REPO, timeout=300)
+    assert out.returncode == 0 and "numba kernels" in out.stdout
+    from testbed.pipeline.warmup import cache_folders
+
+    folders = cache_folders()
+    assert folders and all(os.path.isdir(f) and os.access(f, os.W_OK) for f in folders), folders

@@ -24,10 +24,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..config import ConfigError, field, find_file, from_dict, one_line, positive, read_toml_file, to_dict
+from ..config import (ConfigError, field, find_file, from_dict, one_line, positive, read_toml_file, shipped_dir,
+                      to_dict)
 from ..config.limits import at_most, check_campaign_size, check_folder_name, seed_field
 
-CAMPAIGN_DIR = Path(__file__).resolve().parent.parent.parent / "campaigns"
+CAMPAIGN_DIR = shipped_dir("campaign")
+"""The shipped campaigns' folder (testbed/config/files.py, :func:`~testbed.config.files.shipped_dir`)."""
 
 # Keys a campaign may not set through `overrides` or `grid`: the seed is derived per run (common random
 # numbers), the tracker is the `trackers` axis, and the scenario name keys the seeds and the results.
@@ -447,7 +449,7 @@ def _campaign_name(name: str, given: bool) -> str:
 def read_campaign_toml(path: str | Path) -> tuple[Path, dict]:
     """The TOML dict of a campaign file (a path, or the name of a shipped campaign); a missing, unreadable,
     non-UTF-8 or malformed file is a one-line ConfigError naming it."""
-    found = find_file(path, CAMPAIGN_DIR, "campaign")
+    found = find_file(path, "campaign")
     return found, read_toml_file(found)
 
 

@@ -1,4 +1,4 @@
-"""``testbed`` command line: run scenarios, view recordings, check files, list scenarios and trackers.
+"""``testbed`` command line: run scenarios, view recordings, check files, list scenarios and trackers, warm up.
 
 Exit codes (every command): 0 success; 1 run-time failure (what was finished is kept); 2 bad input
 (malformed file or option, unusable output folder), nothing run; 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (what
@@ -39,7 +39,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     overrides = parse_sets(args.set or [])
     user = is_factory_spec(args.tracker)  # --tracker my_module:MyTracker or a named one (stonesoup-jpda-kf)
     if args.tracker is not None and not user:
-        _check_combination(args.tracker)
+        check_combination(args.tracker)
         overrides["tracker.name"] = args.tracker  # "" is refused by the loader, not silently ignored
     if args.seed is not None:
         overrides["seed"] = args.seed
@@ -55,9 +55,50 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if not args.no_plot:
             _plot_run(stage.tmp, args)  # a drawing error is a warning; Ctrl-C here keeps the tables as above
     except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - kept, marked INCOMPLETE, one line
-        return _failed(err, stage, args.debug)
-    _commit(stage)
-    _print_run(res, args, stage.shown)
+        return failed(err, stage, args.debug)
+    commit(stage)
+    print_run(res, args, stage.shown)
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    """``testbed replay``: the sequence run like a live run (testbed.pipeline.replay), its folder written like a run's."""
+    from tqdm import tqdm
+
+    from ..pipeline.outdir import RUN_FILES, Staging
+    from ..pipeline.replay import replay_scenario, KittiSource
+    from ..pipeline.run import run_scenario
+    from ..sensing.kitti import open_sequence
+    from ..tracking import is_factory_spec, load_tracker
+
+    overrides = parse_sets(args.set or [])
+    user = is_factory_spec(args.tracker)
+    if args.tracker is not None and not user:
+        check_combination(args.tracker)
+        overrides["tracker.name"] = args.tracker
+    seq = open_sequence(args.sequence_dir, args.sequence)
+    given = None
+    if args.scenario is not None:
+        from ..world import load_scenario
+
+        given = load_scenario(args.scenario, overrides)
+    scn, carried = replay_scenario(seq, given, overrides)
+    if args.road and not (carried or given is not None):
+        raise ConfigError("--road", "no scenario came with the sequence; give one with --scenario")
+    tracker = load_tracker(args.tracker) if user else None
+    label = args.tracker if args.tracker is not None else scn.tracker.name
+    out = args.out if args.out is not None else str(Path("runs") / f"replay-{seq.name}")
+    stage = Staging(out, RUN_FILES)
+    road = carried if args.road is None else args.road
+    try:
+        with tqdm(total=scn.n_frames, desc=f"replay {seq.name} [{label}]", unit="frame",
+                  disable=args.quiet or None, leave=False) as bar:
+            res = run_scenario(scn, out_dir=stage.tmp, record=not args.no_record, tracker=tracker, label=label,
+                               on_frame=frame_progress(bar), source=KittiSource(seq, scn, road))
+    except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - kept, marked INCOMPLETE, one line
+        return failed(err, stage, args.debug)
+    commit(stage)
+    print_run(res, args, stage.shown)
     return 0
 
 
@@ -73,7 +114,7 @@ def _plot_run(folder: Path, args: argparse.Namespace) -> None:
         args.no_plot = True
 
 
-def _check_combination(name: str) -> None:
+def check_combination(name: str) -> None:
     """``--tracker NAME`` that is not a named tracker must be a built-in combination: one line listing both."""
     from trackers import parse_tracker_name
 
@@ -123,7 +164,7 @@ def frame_progress(bar):
     return on_frame
 
 
-def _failed(err: BaseException, stage, debug: bool) -> int:
+def failed(err: BaseException, stage, debug: bool) -> int:
     """A command that wrote into ``stage`` failed or was interrupted: keep what it wrote (marked INCOMPLETE)
     in the output folder, print one line saying what happened and where it is, return the exit code."""
     err = interruption_behind(err)
@@ -149,7 +190,7 @@ def _failed(err: BaseException, stage, debug: bool) -> int:
     return exit_code(err)
 
 
-def _commit(stage) -> None:
+def commit(stage) -> None:
     """Move the finished output into place; if that fails, say where it is (exit 1)."""
     from ..common.errors import RunError
 
@@ -182,7 +223,7 @@ def _print_scores(label: str, scores, m: dict) -> None:
               f"localisation {m['gospa_localisation' + sfx]:.2f} m^2)")
 
 
-def _print_run(res, args: argparse.Namespace, out: str) -> None:
+def print_run(res, args: argparse.Namespace, out: str) -> None:
     from ..scoring.events import format_events
 
     _print_scores(f"{res.scenario.name}/{res.tracker}", res.scores, res.metrics)
@@ -275,8 +316,8 @@ def _cmd_perception(args: argparse.Namespace) -> int:
     try:
         ch, abl, settings, md = _characterise(scn, data, stage.tmp, args)
     except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - one line
-        return _failed(err, stage, args.debug)
-    _commit(stage)
+        return failed(err, stage, args.debug)
+    commit(stage)
     s = ch.summary()
     print(f"ground precision {100 * s['ground_precision']:.2f} %, recall {100 * s['ground_recall']:.2f} %; "
           f"P_D in range {s['pd_in_range']:.3f} (visible {s['pd_visible']:.3f}, occluded {s['pd_occluded']:.3f}); "
@@ -355,6 +396,12 @@ def _cmd_trackers(args: argparse.Namespace) -> int:
     for t in whole_trackers().values():
         print(f"{t.name:<22} {t.doc} [{t.source}]")
     return 0
+
+
+def _cmd_warmup(args: argparse.Namespace) -> int:
+    from ..pipeline.warmup import main as warm
+
+    return warm()
 
 
 def _cmd_keys(args: argparse.Namespace) -> int:
@@ -446,6 +493,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_scenarios)
     k = sub.add_parser("keys", help="print every scenario key with its default and meaning (markdown)")
     k.set_defaults(func=_cmd_keys)
+    warm_help = ("compile the sensors' numba kernels into their cache now, not in the first run after an install "
+                 "or an update (about a minute; a few seconds when the cache is warm)")
+    w = sub.add_parser("warmup", help=warm_help, description=warm_help[0].upper() + warm_help[1:] + ".")
+    w.set_defaults(func=_cmd_warmup)
     t = sub.add_parser("trackers", help="list the tracker names, one line each")
     t.add_argument("--all", action="store_true", help="every associator x filter (x wrapper) combination, "
                    "not only the papers' named trackers")
@@ -459,6 +510,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .export import add_export_parser
 
     add_export_parser(sub)
+    from .replay import add_replay_parser
+
+    add_replay_parser(sub, _cmd_replay)
     _debug_everywhere(p)
     return p
 
@@ -513,7 +567,11 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as stop:  # --help, or a usage error already printed as one line
         return stop.code if isinstance(stop.code, int) else (0 if stop.code is None else 2)
     debug = bool(getattr(args, "debug", False))
-    with _one_line_warnings(debug):
+    from ..pipeline.warmup import first_compile_note
+
+    # a command that compiles numba kernels (the first run after an install, without `testbed warmup`) says so once
+    note = contextlib.nullcontext() if args.command == "warmup" else first_compile_note()
+    with _one_line_warnings(debug), note:
         return guarded(args.func, args, debug)
 
 

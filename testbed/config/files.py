@@ -10,13 +10,43 @@ from pathlib import Path
 from .limits import check
 from .strict import ConfigError, one_line, show_path
 
+SHIPPED = Path(__file__).resolve().parents[1] / "_shipped"
+"""Where the shipped scenario and campaign files are, inside the package: ``_shipped/scenarios`` and
+``_shipped/campaigns``. In a checkout (and an editable install) these are relative symbolic links to the
+repository's ``scenarios/`` and ``campaigns/``; a wheel or a plain ``pip install`` carries the files themselves
+(package data, ``[tool.setuptools.package-data]`` in pyproject.toml). :func:`shipped_dir` is the one lookup."""
+SHIPPED_KINDS = ("scenario", "campaign")
 
-def find_file(path: str | Path, shipped_dir: Path, kind: str) -> Path:
-    """``path`` if it is a file, else the shipped ``shipped_dir/<path>.toml`` when ``path`` is a bare name.
+
+def shipped_dir(kind: str) -> Path:
+    """The folder of the shipped files of ``kind`` ("scenario" or "campaign"): the repository's ``scenarios/``
+    or ``campaigns/`` in a checkout, the package's copy in an installed package. Every lookup of a shipped file by
+    its name goes through here (the folder may be missing in a broken installation: see :func:`shipped_names`)."""
+    if kind not in SHIPPED_KINDS:
+        raise ValueError(f"kind must be one of {SHIPPED_KINDS}, not {kind!r}")
+    return (SHIPPED / f"{kind}s").resolve()
+
+
+def shipped_names(kind: str) -> list[str]:
+    """The names of the shipped files of ``kind`` ("scenario" or "campaign"), sorted; a one-line ConfigError when
+    the installation has lost them (a build that left out the package data), never an empty list."""
+    folder = shipped_dir(kind)
+    names = sorted(p.stem for p in folder.glob("*.toml")) if folder.is_dir() else []
+    if not names:
+        raise ConfigError("", f"this installation of roadtrack has no shipped {kind}s (nothing in "
+                          f"{show_path(folder)}); reinstall it (pip install roadtrack, or pip install -e . in a "
+                          "checkout)")
+    return names
+
+
+def find_file(path: str | Path, kind: str) -> Path:
+    """``path`` if it is a file, else the shipped ``<path>.toml`` of ``kind`` (:func:`shipped_dir`) when ``path`` is
+    a bare name.
 
     ConfigError (one line) for a missing file, a directory, a path with a NUL character or one the system
-    refuses (too long). ``kind``: "scenario" or "campaign", for the messages.
+    refuses (too long). ``kind``: "scenario" or "campaign", for the lookup and the messages.
     """
+    shipped = shipped_dir(kind)
     text, shown = str(path), show_path(path)
     if "\x00" in text:
         raise ConfigError("", f"{shown}: a path cannot contain a NUL character")
@@ -24,7 +54,7 @@ def find_file(path: str | Path, shipped_dir: Path, kind: str) -> Path:
     try:
         if candidate.is_file():
             return candidate
-        named = shipped_dir / f"{text}.toml"
+        named = shipped / f"{text}.toml"
         if candidate.suffix == "" and "/" not in text and named.is_file():
             return named
         if candidate.is_dir():
@@ -34,8 +64,7 @@ def find_file(path: str | Path, shipped_dir: Path, kind: str) -> Path:
     except OSError as err:  # ENAMETOOLONG, ELOOP, EACCES on a parent ...
         what = os.strerror(err.errno).lower() if err.errno else type(err).__name__
         raise ConfigError("", f"{shown}: {what}") from None
-    shipped = ", ".join(sorted(p.stem for p in shipped_dir.glob("*.toml")))
-    raise ConfigError("", f"{shown}: no such {kind} file (shipped: {shipped})")
+    raise ConfigError("", f"{shown}: no such {kind} file (shipped: {', '.join(shipped_names(kind))})")
 
 
 def read_toml_file(path: Path) -> dict:

@@ -4,7 +4,8 @@
     export_run(folder, fmt, out=None) -> Path  write run ``folder`` as ``fmt`` (default file: in the folder)
 
 Adding a format (kitti, mot, csv, ...) = one module with a ``write(run, path) -> Path`` function taking a
-testbed.pipeline.runfolder.RunData, and one line in :data:`FORMATS`.
+testbed.pipeline.runfolder.RunData, and one line in :data:`FORMATS`. A format that writes a folder (kitti, csv, mot) says
+so with ``folder=True``: its ``path`` is then a folder (created if missing).
 """
 from __future__ import annotations
 
@@ -14,32 +15,47 @@ from typing import Callable
 
 from ..config import ConfigError
 from ..pipeline.runfolder import RunData, read_run
-from . import html
+from ..common.safe_io import refuse_link
+from . import csv_tables, html, kitti, mot
 
 
 @dataclass(frozen=True)
 class Format:
-    """write(run, path) -> Path; default_name: the file written in the run folder without ``out``; doc: one line."""
+    """write(run, path) -> Path; default_name: the file (or folder) written in the run folder without ``out``;
+    doc: one line; folder: the format writes a folder, not a file."""
 
     write: Callable[[RunData, Path], Path]
     default_name: str
     doc: str
+    folder: bool = False
 
 
 FORMATS: dict[str, Format] = {
     "html": Format(html.write, "replay.html", "a light top-down replay with a time slider, one self-contained "
                                               "file that opens in any browser without a GPU or a network"),
+    "kitti": Format(kitti.write, "kitti", "a KITTI-tracking sequence (velodyne scans, labels, calib, oxts; "
+                                          "docs/formats.md) for the 3-D MOT tools; `testbed replay` reads it",
+                    folder=True),
+    "csv": Format(csv_tables.write, "csv", "the truth, detections (with their covariance R), tracks and events as "
+                                           "CSV files for a program in any language (docs/formats.md)", folder=True),
+    "mot": Format(mot.write, "mot", "a MOTChallenge sequence (gt, det, the tracks; bird's-eye boxes in metres, "
+                                    "docs/formats.md) that TrackEval's MotChallenge2DBox reads", folder=True),
 }
 
 
 def export_run(folder: str | Path, fmt: str, out: str | Path | None = None) -> Path:
-    """Write the run in ``folder`` as ``fmt`` into ``out`` (default: the format's file in the folder). ConfigError
-    (one line) for an unknown format or a folder that is not a run."""
+    """Write the run in ``folder`` as ``fmt`` into ``out`` (default: the format's file or folder in the run folder).
+    ConfigError (one line) for an unknown format, a folder that is not a run, or an ``out`` of the wrong kind (a folder
+    for a file format, a file for a folder format, a symbolic link)."""
     if fmt not in FORMATS:
         raise ConfigError("--format", f"unknown format {fmt!r}; allowed: {', '.join(sorted(FORMATS))}")
     f = FORMATS[fmt]
     run = read_run(folder)
     path = Path(out) if out is not None else Path(folder) / f.default_name
-    if path.is_dir():
+    if f.folder:
+        refuse_link(path, "--out")
+        if path.exists() and not path.is_dir():
+            raise ConfigError("--out", f"{path} is a file; the {fmt} format writes a folder")
+    elif path.is_dir():
         raise ConfigError("--out", f"{path} is a folder; give a file name")
     return f.write(run, path)

@@ -33,8 +33,8 @@ from ..common.errors import RunError
 
 INCOMPLETE = "INCOMPLETE"
 _TMP_FILE = ".*.tmp-*"  # a write_atomic temporary (a crash between write and rename)
-RUN_FILES = ("run.rrd", "scores.json", "*.parquet", "timeline.png", "replay.html", INCOMPLETE, _TMP_FILE)
-"""What a run folder may hold: a run's files and its exports (``testbed export``, e.g. replay.html), which a new run
+RUN_FILES = ("run.rrd", "scores.json", "*.parquet", "timeline.png", "replay.html", "kitti", INCOMPLETE, _TMP_FILE)
+"""What a run folder may hold: a run's files and its exports (``testbed export``, e.g. replay.html, kitti/), which a new run
 replaces with the folder."""
 REPORT_FILES = ("report.md", "summary.json", "*.png", INCOMPLETE, _TMP_FILE)
 _STALE = re.compile(r"^\..+\.(partial|old)-(\d+)$")

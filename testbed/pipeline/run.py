@@ -57,7 +57,7 @@ class RunResult:
 
 def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool = True, tracker=None,
                  on_frame: Callable[[int, int], None] | None = None, policy: Callable | None = None,
-                 label: str | None = None, sensing_cache: str | Path | None = None) -> RunResult:
+                 label: str | None = None, sensing_cache: str | Path | None = None, source=None) -> RunResult:
     """Run ``scn``; with ``out_dir`` write scores.json, the parquet tables and (``record``) run.rrd, each file
     atomically (complete or absent).
 
@@ -70,25 +70,34 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     file's built-in one. ``label``: the tracker's name in the outputs (default: its built-in name, the
     ``module:Name`` given, or the class's name). ``sensing_cache``: a folder (testbed.sensing.cache) the sensed
     frames are read from when there, else stored in; not with a ``policy`` (a user's code is not part of the key).
-    Frames from the cache carry no point cloud: the recording then shows no LiDAR points."""
+    Frames from the cache carry no point cloud: the recording then shows no LiDAR points. ``source``: the frames
+    come from elsewhere instead of the scenario's traffic (a replayed recording, testbed.pipeline.replay): an
+    object with ``scene() -> (lanes, static)`` (the lane borders and roadside boxes the recording draws) and
+    ``frames(watch) -> iterator of SensedFrame``."""
     name = label or tracker_label(tracker, scn)
     trk = build_tracker(scn, tracker)  # before the traffic is set up: a bad tracker fails at once
     rngs = rng_streams(scn.seed)
     setup = _Setup(scn, rngs, policy)  # the traffic is set up when needed: not for a run read from the cache
-    cached = sensing_cache is not None and policy is None
-    if not cached or (record and out_dir is not None) or not SensingCache(sensing_cache).has(scn):
+    cached = sensing_cache is not None and policy is None and source is None
+    if source is None and (not cached or (record and out_dir is not None) or not SensingCache(sensing_cache).has(scn)):
         setup()  # before any output: a traffic that cannot be set up fails with nothing written
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-    recorder = _recorder(scn, out / "run.rrd", name, *setup()[:2]) if out is not None and record else None
+    if out is not None and record:
+        lanes, static = source.scene() if source is not None else (lane_polylines(setup()[0].network), setup()[1])
+        recorder = _recorder(scn, out / "run.rrd", name, lanes, static)
+    else:
+        recorder = None
     tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(), diagnostics=diagnostics_log())
     watch = Stopwatch()
     state = _Progress()
     overflows = JPDAOverflows()
     closing = None  # the recorder once closed
     try:
-        if cached:
+        if source is not None:
+            frames = source.frames(watch)
+        elif cached:
             frames = SensingCache(sensing_cache).frames(scn, setup, watch)
         else:
             frames = sense_simulation(scn, *setup(), rngs, watch)
@@ -315,7 +324,7 @@ def track_status(ts: TrackSet, moving: MovingTest, time: float) -> np.ndarray:
     return np.where(conf, np.where(moved, "confirmed", "static"), "tentative").astype(object)
 
 
-def _recorder(scn: Scenario, path: Path, tracker_name: str, sim, static: np.ndarray):
+def _recorder(scn: Scenario, path: Path, tracker_name: str, lanes: list, static: np.ndarray):
     """A :class:`~testbed.recording.recorder.Recorder` with the road and roadside objects logged."""
     from ..recording.levels import lidar_step
     from ..recording.recorder import FOOTER_MAX_FRAMES, Recorder  # rerun is imported only when recording
@@ -326,7 +335,7 @@ def _recorder(scn: Scenario, path: Path, tracker_name: str, sim, static: np.ndar
                    write_footer=scn.n_frames <= FOOTER_MAX_FRAMES,
                    occlusion=sensors.OcclusionConfig.from_lidar(scn.sensor.lidar), max_range_m=scn.sensor.lidar.max_range_m,
                    level=scn.record.level, rate_hz=scn.rate_hz, compact=True)
-    rec.static(lane_polylines(sim.network), static)
+    rec.static(lanes, static)
     return rec
 
 
@@ -380,7 +389,8 @@ def log_tables(truth, vis, dets, ts: TrackSet, truth_t, det_t, trk_t) -> None:
     m = len(dets.z)
     det_t.append(frame=np.full(m, truth.frame), time=np.full(m, truth.time), x=dets.z[:, 0], y=dets.z[:, 1],
                  provenance=dets.provenance, n_points=dets.n_points, length=dets.extent[:, 0],
-                 width=dets.extent[:, 1], height=dets.extent[:, 2])
+                 width=dets.extent[:, 1], height=dets.extent[:, 2], r_xx=dets.R[:, 0, 0], r_xy=dets.R[:, 0, 1],
+                 r_yy=dets.R[:, 1, 1])
     t = len(ts)
     trk_t.append(frame=np.full(t, truth.frame), time=np.full(t, truth.time), track_id=ts.ids, status=ts.status,
                  x=ts.xy[:, 0], y=ts.xy[:, 1], vx=ts.v[:, 0], vy=ts.v[:, 1], score=ts.score, regime=ts.regime,

@@ -106,7 +106,8 @@ def truth_log() -> TableLog:
 
 def detections_log() -> TableLog:
     return TableLog(dict(frame=np.int64, time=np.float64, x=np.float64, y=np.float64, provenance=np.int64,
-                         n_points=np.int64, length=np.float64, width=np.float64, height=np.float64))
+                         n_points=np.int64, length=np.float64, width=np.float64, height=np.float64,
+                         r_xx=np.float64, r_xy=np.float64, r_yy=np.float64))
 
 
 def tracks_log() -> TableLog:

@@ -14,12 +14,14 @@ from typing import Any
 
 from sensors import LidarConfig, PerceptionConfig
 
-from ..config import ConfigError, field, find_file, from_dict, non_negative, positive, read_toml_file, to_dict
+from ..config import (ConfigError, field, find_file, from_dict, non_negative, positive, read_toml_file, shipped_dir,
+                      shipped_names, to_dict)
 from .env import EnvSpec, check_env_scenario
 from ..config.limits import at_most, check_folder_name, check_frames, check_scenario, seed_field
 from .moving import MovingTestSpec
 
-SCENARIO_DIR = Path(__file__).resolve().parents[2] / "scenarios"
+SCENARIO_DIR = shipped_dir("scenario")
+"""The shipped scenarios' folder (testbed/config/files.py, :func:`~testbed.config.files.shipped_dir`)."""
 
 BEHAVIOURS = ("idm", "hold_speed", "follow")
 ROAD_KINDS = ("straight", "curved", "u_turn", "motorway")
@@ -521,7 +523,7 @@ def apply_pipeline_preset(data: dict) -> dict:
 def read_toml(path: str | Path) -> dict:
     """The TOML dict of a scenario file (a path, or the name of a shipped scenario); a missing, unreadable,
     non-UTF-8 or malformed file is a one-line ConfigError naming it."""
-    return read_toml_file(find_file(path, SCENARIO_DIR, "scenario"))
+    return read_toml_file(find_file(path, "scenario"))
 
 
 def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> Scenario:
@@ -533,5 +535,6 @@ def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> 
 
 
 def list_scenarios() -> list[str]:
-    return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
+    """The shipped scenarios' names, sorted (a one-line ConfigError if the installation has none)."""
+    return shipped_names("scenario")
 

@@ -165,26 +165,38 @@ def occlusion_pd(scn: Scenario, road: sensors.RoadMap):
 
 def sense_frame(truth, static: np.ndarray, scn: Scenario, rngs: dict, watch, road: sensors.RoadMap | None):
     """One frame's LiDAR scan, perception and detections (plus the scenario's added clutter); ``watch``: a
-    Stopwatch charged raycast and perception, or None.
-
-    ``sensor.outages``: the named vehicles are left out of the ray-cast scene; while the whole sensor is off the
-    scan is cast (so the noise streams stay aligned with a run without the outage) and then emptied, and the
-    added clutter is drawn and dropped."""
-    off, hidden = scn.sensor.outage_at(truth.time)
-    scan = scan_frame(truth, static, scn.sensor.lidar, rngs["lidar"], hidden=hidden)
-    if off:
-        scan = empty_scan(scan)
+    Stopwatch charged raycast and perception, or None (:func:`frame_scan`, then :func:`perceive_frame`)."""
+    off, scan = frame_scan(truth, static, scn, rngs)
     if watch is not None:
         watch.lap("raycast")
+    perc, dets = perceive_frame(scan, off, truth.xy[0], scn, rngs, road)
+    if watch is not None:
+        watch.lap("perception")
+    return scan, perc, dets
+
+
+def frame_scan(truth, static: np.ndarray, scn: Scenario, rngs: dict) -> tuple[bool, sensors.Scan]:
+    """(whether the whole sensor is off, the frame's LiDAR scan), drawn from ``rngs["lidar"]``.
+
+    ``sensor.outages``: the named vehicles are left out of the ray-cast scene; while the whole sensor is off the
+    scan is cast (so the noise streams stay aligned with a run without the outage) and then emptied."""
+    off, hidden = scn.sensor.outage_at(truth.time)
+    scan = scan_frame(truth, static, scn.sensor.lidar, rngs["lidar"], hidden=hidden)
+    return off, (empty_scan(scan) if off else scan)
+
+
+def perceive_frame(scan: sensors.Scan, off: bool, ego_xy: np.ndarray, scn: Scenario, rngs: dict,
+                   road: sensors.RoadMap | None) -> tuple[sensors.PerceptionResult, sensors.Detections]:
+    """The perception of ``scan`` and the detections a tracker gets: perception's, then the scenario's added
+    clutter around ``ego_xy`` (2,) [m] drawn from ``rngs["clutter"]`` (drawn and dropped while the sensor is
+    ``off``). A live run and a replay of recorded scans (testbed.sensing.kitti) both come through here."""
     perc = sensors.perceive(scan, scn.sensor.perception, road)
     dets = perc.detections
     clutter = scn.sensor.clutter
     if clutter.density_per_m2 > 0:
-        extra = sensors.clutter_detections(rngs["clutter"], clutter.density_per_m2, truth.xy[0], clutter.radius_m)
+        extra = sensors.clutter_detections(rngs["clutter"], clutter.density_per_m2, ego_xy, clutter.radius_m)
         dets = dets if off else dets.concat(extra)
-    if watch is not None:
-        watch.lap("perception")
-    return scan, perc, dets
+    return perc, dets
 
 
 def empty_scan(scan: sensors.Scan) -> sensors.Scan:
