@@ -410,38 +410,9 @@ def _linked(pts: np.ndarray, labels: np.ndarray, links: np.ndarray, cfg: Percept
     p, q = pts[links[:, 0]], pts[links[:, 1]]  # shortest first; ties by the points, not by their order
     length = np.linalg.norm(q - p, axis=1)
     ia, ib = np.searchsorted(used, a), np.searchsorted(used, b)
-    parent = list(range(len(used)))
-    lo, hi, top = lo.tolist(), hi.tolist(), top.tolist()
-    holds_cluster = (used < n_clusters).tolist()  # the union holds one of the clusters already
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    truck_top, truck_len, car_len = cfg.truck_min_top_m, cfg.max_truck_length_m, cfg.link_max_length_m
-    pending = np.lexsort((q[:, 2], q[:, 1], q[:, 0], p[:, 2], p[:, 1], p[:, 0], length)).tolist()
-    grew = True
-    while pending and grew:  # passes until no union: a chain of noise points grows from its cluster outwards
-        grew, later = False, []
-        for k in pending:
-            r, s = root(int(ia[k])), root(int(ib[k]))
-            if r == s or holds_cluster[r] == holds_cluster[s]:  # one side must hold a cluster, not both
-                if r != s and not holds_cluster[r]:
-                    later.append(k)  # two noise points: once one of them belongs to a cluster
-                continue
-            (x0, y0), (x1, y1) = lo[r], lo[s]
-            (X0, Y0), (X1, Y1) = hi[r], hi[s]
-            box_lo, box_hi, t = (min(x0, x1), min(y0, y1)), (max(X0, X1), max(Y0, Y1)), max(top[r], top[s])
-            if max(box_hi[0] - box_lo[0], box_hi[1] - box_lo[1]) > (truck_len if t >= truck_top else car_len):
-                continue
-            parent[s] = r
-            lo[r], hi[r], top[r] = box_lo, box_hi, t
-            holds_cluster[r] = True
-            grew = True
-        pending = later
-    roots = np.array([root(i) for i in range(len(used))], dtype=np.int64)
+    pending = np.lexsort((q[:, 2], q[:, 1], q[:, 0], p[:, 2], p[:, 1], p[:, 0], length))
+    roots = perception_jit.link_unions(ia, ib, pending, lo, hi, top, used < n_clusters, float(cfg.truck_min_top_m),
+                                       float(cfg.max_truck_length_m), float(cfg.link_max_length_m))
     out = np.where(labels >= 0, node, -1)
     out[sel] = used[roots[which]]  # every point of a touched node takes its union's representative node
     return numbered(pts, out, cfg.cluster.min_points)

@@ -607,3 +607,52 @@ def open_ends(ray, members, starts, n, keys, ranges, margin, look):
                         if ranges[(edge + step * step_k) % n_az, b] < here - margin:
                             out[q, e] = True
     return out, True
+
+
+# --- scan-line links (sensors/perception_reference.link_unions_reference) ----------------------------------
+
+@njit(cache=True)
+def _root_halving(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True)
+def link_unions(ia, ib, pending, lo, hi, top, holds_cluster, truck_top, truck_len, car_len):
+    """The union loop of sensors.perception._linked (perception_reference.link_unions_reference): links (L,) join
+    nodes ia[k], ib[k] (U nodes: boxes lo, hi (U, 2) [m], tops (U,) [m], holds_cluster (U,) bool), in the order
+    pending (L,), in passes until none joins. Returns the root (U,) int64 of every node. Only comparisons, min and
+    max: the same decisions as the reference."""
+    u_all = len(lo)
+    parent = np.arange(u_all)
+    lo, hi, top, holds = lo.copy(), hi.copy(), top.copy(), holds_cluster.copy()
+    todo = pending.copy()
+    n_todo = len(todo)
+    grew = True
+    while n_todo > 0 and grew:
+        grew = False
+        n_later = 0
+        for j in range(n_todo):
+            k = todo[j]
+            r, s = _root_halving(parent, ia[k]), _root_halving(parent, ib[k])
+            if r == s or holds[r] == holds[s]:
+                if r != s and not holds[r]:
+                    todo[n_later] = k  # n_later <= j: overwrites only links already taken
+                    n_later += 1
+                continue
+            bx0, by0 = min(lo[r, 0], lo[s, 0]), min(lo[r, 1], lo[s, 1])
+            bx1, by1 = max(hi[r, 0], hi[s, 0]), max(hi[r, 1], hi[s, 1])
+            t = max(top[r], top[s])
+            if max(bx1 - bx0, by1 - by0) > (truck_len if t >= truck_top else car_len):
+                continue
+            parent[s] = r
+            lo[r, 0], lo[r, 1], hi[r, 0], hi[r, 1], top[r] = bx0, by0, bx1, by1, t
+            holds[r] = True
+            grew = True
+        n_todo = n_later
+    roots = np.empty(u_all, np.int64)
+    for i in range(u_all):
+        roots[i] = _root_halving(parent, i)
+    return roots

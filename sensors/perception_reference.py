@@ -202,3 +202,42 @@ def open_ends_reference(scan, st, keys: np.ndarray, margin_m: float = 0.5,
         nearer = np.any(scan.ranges[beyond, b[:, None]] < (here[o] - margin_m)[:, None], axis=1)
         out.append(np.bincount(o, weights=nearer, minlength=len(keys)) > 0)
     return [(bool(a), bool(b)) for a, b in zip(*out)]
+
+
+def link_unions_reference(ia, ib, pending, lo, hi, top, holds_cluster, truck_top, truck_len, car_len):
+    """The union loop of sensors.perception._linked: the links (L,) joining nodes ia[k] and ib[k] (U nodes with
+    bird's-eye boxes lo, hi (U, 2) [m], tops (U,) [m] and whether each holds a cluster (U,) bool), taken in the
+    order `pending` (L,), in passes until none joins: a link joins a noise node (or a chain of them) to a union
+    holding a cluster while the union's box stays within car_len (truck_len when its top reaches truck_top) [m].
+    Returns the root (U,) int64 of every node."""
+    parent = list(range(len(lo)))
+    lo, hi, top = lo.tolist(), hi.tolist(), top.tolist()
+    holds_cluster = holds_cluster.tolist()
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    pending = pending.tolist()
+    grew = True
+    while pending and grew:  # passes until no union: a chain of noise points grows from its cluster outwards
+        grew, later = False, []
+        for k in pending:
+            r, s = root(int(ia[k])), root(int(ib[k]))
+            if r == s or holds_cluster[r] == holds_cluster[s]:  # one side must hold a cluster, not both
+                if r != s and not holds_cluster[r]:
+                    later.append(k)  # two noise points: once one of them belongs to a cluster
+                continue
+            (x0, y0), (x1, y1) = lo[r], lo[s]
+            (X0, Y0), (X1, Y1) = hi[r], hi[s]
+            box_lo, box_hi, t = (min(x0, x1), min(y0, y1)), (max(X0, X1), max(Y0, Y1)), max(top[r], top[s])
+            if max(box_hi[0] - box_lo[0], box_hi[1] - box_lo[1]) > (truck_len if t >= truck_top else car_len):
+                continue
+            parent[s] = r
+            lo[r], hi[r], top[r] = box_lo, box_hi, t
+            holds_cluster[r] = True
+            grew = True
+        pending = later
+    return np.array([root(i) for i in range(len(parent))], dtype=np.int64)

@@ -17,6 +17,35 @@ WIDE = dataclasses.replace(CFG, max_length_m=12.0, max_width_m=5.0)  # more unio
 
 
 @pytest.fixture(scope="module")
+def shipped():
+    """(scene name, scan, perception config, road) of every other frame of the first second of every shipped
+    scenario."""
+    from testbed.scenario.spec import list_scenarios, load_scenario
+    from testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
+
+    out = []
+    for name in list_scenarios():
+        scn = load_scenario(name, {"duration_s": 1.0})
+        rngs = rng_streams(scn.seed)
+        sim, static, road = sensing_setup(scn, rngs)
+        for i, truth in enumerate(sim.frames()):
+            s = scan_frame(truth, static, scn.sensor.lidar, rngs["lidar"])
+            if i % 2 == 0:
+                out.append((name, s, scn.sensor.perception, road))
+    return out
+
+
+def kernel_calls(monkeypatch, frames, name: str) -> list[tuple]:
+    """The arguments of every call perceive makes to perception_jit.<name> on `frames` ((name, scan, cfg, road))."""
+    calls, kernel = [], getattr(perception_jit, name)
+    monkeypatch.setattr(perception_jit, name, lambda *a: calls.append(a) or kernel(*a))
+    for _, scan, cfg, road in frames:
+        perception.perceive(scan, cfg, road)
+    monkeypatch.undo()
+    return calls
+
+
+@pytest.fixture(scope="module")
 def highway():
     """(points (N, 3), objects, _stats, road) of the first 1.5 s of highway_benchmark, every frame: the clusters
     before split and merge, as perceive sees them."""
@@ -95,6 +124,19 @@ def test_split_object_equals_the_reference_on_edge_cases():
                 assert same_arrays(perception.split_object(obj, pts[obj, :2], pts[obj, 2], axis, cfg), ref)
                 cut += len(ref) > 1
     assert cut >= 8
+
+
+# --- scan-line links -------------------------------------------------------------------------------------
+
+def test_link_unions_equal_the_reference_on_every_shipped_scenario(monkeypatch, shipped):
+    calls = kernel_calls(monkeypatch, shipped, "link_unions")
+    joined = 0
+    for args in calls:
+        got = perception_jit.link_unions(*args)
+        ref = perception_reference.link_unions_reference(*args)
+        assert got.dtype == ref.dtype and np.array_equal(got, ref)
+        joined += int(np.sum(ref != np.arange(len(ref))))
+    assert len(calls) >= 20 and joined >= 100  # links did join noise to clusters
 
 
 # --- merge ----------------------------------------------------------------------------------------------
