@@ -582,12 +582,21 @@ def open_ends(ray, members, starts, n, keys, ranges, margin, look):
         for i in range(starts[k], starts[k] + n[k]):
             if ray[members[i]] < 0:
                 return out, False
+    seen = np.zeros(n_az, np.bool_)  # the columns met so far in this object (reset after each)
+    found = np.empty(n_az, np.int64)
     for q in range(len(keys)):
         s0, m = starts[keys[q]], n[keys[q]]
         az = np.empty(m, np.int64)
+        n_cols = 0
         for i in range(m):
-            az[i] = ray[members[s0 + i]] // n_beams
-        cols = np.unique(az)
+            a = ray[members[s0 + i]] // n_beams
+            az[i] = a
+            if not seen[a]:
+                seen[a] = True
+                found[n_cols] = a
+                n_cols += 1
+        cols = np.sort(found[:n_cols])  # np.unique(az) without sorting all members
+        seen[cols] = False
         widest, widest_gap = 0, -1
         for i in range(len(cols)):
             gap = (cols[i + 1] if i + 1 < len(cols) else cols[0] + n_az) - cols[i]
