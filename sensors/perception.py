@@ -441,8 +441,19 @@ def _raw_objects(pts: np.ndarray, candidates: np.ndarray, sub: np.ndarray) -> li
 
 
 def _canonical(pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """The point indices idx in lexicographic (x, y, z) order of their points."""
-    return idx[np.lexsort((pts[idx, 2], pts[idx, 1], pts[idx, 0]))]
+    """The point indices idx in lexicographic (x, y, z) order of their points, equal points in idx's order
+    (perception_reference.canonical_reference): one stable sort by x (a group joined from canonical objects is
+    a few sorted runs), the full lexicographic order only within runs of equal x."""
+    x = pts[idx, 0]
+    order = np.argsort(x, kind="stable")
+    tie = np.diff(x[order]) == 0.0
+    if np.any(tie):
+        in_run = np.r_[tie, False] | np.r_[False, tie]
+        pos = np.flatnonzero(in_run)
+        run = np.cumsum(np.r_[True, ~tie])[pos]  # run number of each position in a run
+        sel = order[pos]
+        order[pos] = sel[np.lexsort((sel, pts[idx[sel], 2], pts[idx[sel], 1], run))]
+    return idx[order]
 
 
 @dataclass(frozen=True)
@@ -811,6 +822,8 @@ def _merge_boxes(pts, objects, flags, reason, fits, shape_centre, st, cfg):
     lo, hi = st.lo[keys], st.hi[keys]
     near = np.hypot(*np.maximum(np.maximum(lo[None] - c[:, None], c[:, None] - hi[None]), 0.0).transpose(2, 0, 1))
     ii, jj = np.nonzero((near <= reach[:, None]) & ~np.eye(len(keys), dtype=bool))
+    keep = _box_gap_bound(c[ii], h[ii], half[ii], lo[jj], hi[jj]) <= cfg.merge_gap_m + _BOUND_MARGIN_M
+    ii, jj = ii[keep], jj[keep]
     dist: dict[tuple[int, int], float] = {}
     for a, b in zip(ii, jj):
         xy = pts[_members(st, keys[b]), :2] - c[a]
@@ -848,6 +861,27 @@ def _merge_boxes(pts, objects, flags, reason, fits, shape_centre, st, cfg):
             out_centre[new] = shape_centre[k]
     return (out, np.asarray(out_flags, np.int64), np.asarray(out_reason, dtype=object), out_fits, out_centre,
             merged)
+
+
+_BOUND_MARGIN_M = 1e-6
+"""_merge_boxes drops a pair only when the lower bound of its points' distance exceeds merge_gap_m by this [m]
+(far more than the rounding of either computation), so the pairs it keeps decide the merge alone."""
+
+
+def _box_gap_bound(c: np.ndarray, heading: np.ndarray, half: np.ndarray, lo: np.ndarray,
+                   hi: np.ndarray) -> np.ndarray:
+    """(P,) a lower bound of the distance [m] from any point within the axis-aligned boxes lo, hi (P, 2) [m] to
+    the oriented boxes of centres c (P, 2) [m], headings (P,) [rad] and half sides half (P, 2) [m]: the distance
+    of the corners' extents along and across each oriented box from its sides (hypot of both, 0 inside)."""
+    cos_h, sin_h = np.cos(heading)[:, None], np.sin(heading)[:, None]
+    corner_x = np.stack([lo[:, 0], lo[:, 0], hi[:, 0], hi[:, 0]], axis=1) - c[:, :1]  # (P, 4)
+    corner_y = np.stack([lo[:, 1], hi[:, 1], lo[:, 1], hi[:, 1]], axis=1) - c[:, 1:]
+    gaps = []
+    for u, h in ((corner_x * cos_h + corner_y * sin_h, half[:, 0]), (corner_y * cos_h - corner_x * sin_h, half[:, 1])):
+        u_lo, u_hi = u.min(axis=1), u.max(axis=1)
+        nearest = np.where((u_lo <= 0.0) & (u_hi >= 0.0), 0.0, np.minimum(np.abs(u_lo), np.abs(u_hi)))
+        gaps.append(np.maximum(nearest - h, 0.0))
+    return np.hypot(gaps[0], gaps[1])
 
 
 def _fit_all(scan: Scan, st: _Stats, keys: np.ndarray, hinted: bool, cfg: PerceptionConfig,

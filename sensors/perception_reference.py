@@ -241,3 +241,9 @@ def link_unions_reference(ia, ib, pending, lo, hi, top, holds_cluster, truck_top
             grew = True
         pending = later
     return np.array([root(i) for i in range(len(parent))], dtype=np.int64)
+
+
+def canonical_reference(pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The point indices idx (n,) in lexicographic (x, y, z) order of their points pts (N, 3), equal points in
+    idx's order (sensors.perception._canonical)."""
+    return idx[np.lexsort((pts[idx, 2], pts[idx, 1], pts[idx, 0]))]

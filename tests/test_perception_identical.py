@@ -139,6 +139,24 @@ def test_link_unions_equal_the_reference_on_every_shipped_scenario(monkeypatch, 
     assert len(calls) >= 20 and joined >= 100  # links did join noise to clusters
 
 
+# --- canonical order -------------------------------------------------------------------------------------
+
+def test_canonical_order_equals_the_reference(highway):
+    rng = np.random.default_rng(2)
+    cases = []
+    for pts, objects, _, _ in highway[::3]:
+        cases += [(pts, np.concatenate(objects[i:i + 3])) for i in range(0, len(objects), 3)]  # joined groups
+        cases.append((pts, rng.permutation(np.concatenate(objects))))
+    grid = np.column_stack([rng.integers(0, 3, (300, 2)).astype(float), rng.integers(0, 2, 300) * 0.5])
+    grid[::7, 0] = -0.0  # -0.0 and 0.0 are equal x
+    cases += [(grid, rng.permutation(300)), (grid, np.arange(300)[::-1]), (grid[:1], np.array([0])),
+              (grid, np.zeros(0, np.int64))]
+    for pts, idx in cases:
+        got, ref = perception._canonical(pts, idx), perception_reference.canonical_reference(pts, idx)
+        assert got.dtype == ref.dtype and np.array_equal(got, ref)
+    assert len(cases) > 50
+
+
 # --- merge ----------------------------------------------------------------------------------------------
 
 def test_merge_equals_the_reference_on_highway_scans(highway):
@@ -220,6 +238,28 @@ def test_unite_fitting_runs_the_reference_test_at_a_bound(monkeypatch):
     pa, pb = np.triu_indices(k, 1)
     assert_unions_equal(pts, objects, st, pa, pb, CFG)
     assert_unions_equal(pts, objects, st, pa, pb, WIDE)
+
+
+def test_box_gap_bound_is_a_lower_bound_of_the_points_distance():
+    rng = np.random.default_rng(3)
+    n_pairs, pruned = 2000, 0
+    c = rng.uniform(-20, 20, (n_pairs, 2))
+    heading = rng.uniform(-np.pi, np.pi, n_pairs)
+    half = rng.uniform(0.2, 4.0, (n_pairs, 2))
+    pts = [rng.uniform(-1.5, 1.5, (int(rng.integers(1, 30)), 2)) * rng.uniform(0.1, 3.0, 2) + rng.uniform(-25, 25, 2)
+           for _ in range(n_pairs)]
+    pts[:50] = [np.repeat(p[:1], 3, axis=0) for p in pts[:50]]  # a point box (lo = hi)
+    lo, hi = np.array([p.min(axis=0) for p in pts]), np.array([p.max(axis=0) for p in pts])
+    bound = perception._box_gap_bound(c, heading, half, lo, hi)
+    for k, p in enumerate(pts):
+        xy = p - c[k]
+        ca, sa = np.cos(heading[k]), np.sin(heading[k])
+        du = np.maximum(np.abs(xy @ np.array([ca, sa])) - half[k, 0], 0.0)
+        dv = np.maximum(np.abs(xy @ np.array([-sa, ca])) - half[k, 1], 0.0)
+        d = float(np.min(np.hypot(du, dv)))  # _merge_boxes' distance
+        assert bound[k] <= d + 1e-9
+        pruned += bound[k] > 1.0 + perception._BOUND_MARGIN_M
+    assert 100 < pruned < n_pairs  # the bound removes pairs, not all
 
 
 # --- selection and fit ----------------------------------------------------------------------------------
