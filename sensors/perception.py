@@ -342,12 +342,19 @@ class PerceptionResult:
             object.__setattr__(self, "cluster_labels", np.full(len(self.labels), -1, np.int64))
 
 
-def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None) -> PerceptionResult:
+PERCEIVE_STAGES = ("ground", "clustering", "split and merge", "screen", "box fits", "box merge", "ROI and output")
+"""The stages perceive reports to its `timer`, in order (a stage that does not run is not reported)."""
+
+
+def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None,
+             timer: Callable[[str], None] | None = None) -> PerceptionResult:
     """Scan -> ground mask, clusters, one detection per vehicle-like object (see the module docstring).
 
     road: the lane map; with it the box fit gets the lane heading as prior, and with cfg.roi objects off
     the road are rejected. Without it there is no ROI test.
+    timer: called with the name of each stage (PERCEIVE_STAGES) as it ends (a benchmark's stopwatch), or None.
     """
+    lap = timer if timer is not None else _no_lap
     if not isinstance(scan, Scan):
         raise TypeError(f"scan: expected Scan, got {type(scan).__name__}")
     if not isinstance(cfg, PerceptionConfig):
@@ -357,6 +364,7 @@ def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None) -> 
     pts = scan.points
     road_z = cfg.ground.ground_z_m
     is_ground = segment_ground(pts, cfg.ground, scan.origin)
+    lap("ground")
     candidates = np.flatnonzero(~is_ground & (pts[:, 2] - road_z <= cfg.max_height_m))
     sub = cluster(pts[candidates], cfg.cluster)
     cluster_labels = np.full(len(pts), -1, np.int64)
@@ -368,6 +376,7 @@ def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None) -> 
             lane = road.on_road(pts[candidates][links.reshape(-1), :2], cfg.roi_margin_m).reshape(-1, 2)
             sub = _linked(pts[candidates], sub, links[lane.all(axis=1)], cfg)
     labels = np.full(len(pts), -1, np.int64)
+    lap("clustering")
     if len(sub) == 0 or sub.max() < 0:
         return PerceptionResult(Detections.empty(), is_ground, labels, Rejected.empty(), cluster_labels)
 
@@ -379,7 +388,12 @@ def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None) -> 
             objects, flags, changed = step(pts, objects, flags, cfg, st)
             if changed:
                 st = _stats(pts, objects, road_z, scan.origin[:2], road)
-    return _select(scan, objects, np.asarray(flags, np.int64), cfg, road, st, is_ground, labels, cluster_labels)
+    lap("split and merge")
+    return _select(scan, objects, np.asarray(flags, np.int64), cfg, road, st, is_ground, labels, cluster_labels, lap)
+
+
+def _no_lap(stage: str) -> None:
+    """perceive's timer when it has none."""
 
 
 # --- objects --------------------------------------------------------------------------------------------
@@ -658,20 +672,24 @@ def _required_top(scan: Scan, d_min: np.ndarray, cfg: PerceptionConfig) -> np.nd
 
 def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: PerceptionConfig,
             road: RoadMap | None, st: _Stats, is_ground: np.ndarray, labels: np.ndarray,
-            cluster_labels: np.ndarray) -> PerceptionResult:
-    """Selection tests, fits, the box merge, ROI; the PerceptionResult. st: the objects' _stats."""
+            cluster_labels: np.ndarray, lap: Callable[[str], None] = _no_lap) -> PerceptionResult:
+    """Selection tests, fits, the box merge, ROI; the PerceptionResult. st: the objects' _stats; lap: perceive's
+    timer."""
     pts = scan.points
     road_z = cfg.ground.ground_z_m
     boxfit = _boxfit_for(scan, cfg)
     reason, shape_centre = _screen(scan, st, cfg)
+    lap("screen")
     pool = _SidePool(pts, is_ground, cfg, boxfit)
     fits = _fit_all(scan, st, np.flatnonzero(reason == ""), road is not None, cfg, boxfit, pool)
+    lap("box fits")
     if cfg.merge_fragments and len(fits) > 1:
         objects, flags, reason, fits, shape_centre, merged = _merge_boxes(
             pts, objects, flags, reason, fits, shape_centre, st, cfg)
         if merged:
             st = _stats(pts, objects, road_z, scan.origin[:2], road)
             fits.update(_fit_all(scan, st, np.asarray(merged, np.int64), road is not None, cfg, boxfit, pool))
+        lap("box merge")
 
     k_all = len(objects)
     centre = st.centroid.copy()
@@ -709,6 +727,7 @@ def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: Perce
     detections = Detections(z[keep], provenance[keep], st.n[keep], extent[keep], R[keep], st.centroid[keep],
                             np.mod(heading[keep], np.pi), flags[keep] & ~OFF_ROAD)
     rejected = Rejected(centre[~keep], reason[~keep].astype(str), provenance[~keep], st.n[~keep], flags[~keep])
+    lap("ROI and output")
     return PerceptionResult(detections, is_ground, labels, rejected, cluster_labels)
 
 

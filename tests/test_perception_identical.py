@@ -126,6 +126,24 @@ def test_split_object_equals_the_reference_on_edge_cases():
     assert cut >= 8
 
 
+# --- stage timer -------------------------------------------------------------------------------------------
+
+def test_the_timer_sees_the_stages_in_order_and_changes_nothing(shipped):
+    full = 0
+    for _, scan, cfg, road in shipped[::3]:
+        stages = []
+        timed = perception.perceive(scan, cfg, road, timer=stages.append)
+        plain = perception.perceive(scan, cfg, road)
+        assert stages == [s for s in perception.PERCEIVE_STAGES if s in stages]  # in order, each once
+        assert stages[:2] == ["ground", "clustering"]
+        full += stages == list(perception.PERCEIVE_STAGES)
+        for a, b in ((timed.detections, plain.detections), (timed.rejected, plain.rejected)):
+            for f in dataclasses.fields(a):
+                assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
+        assert np.array_equal(timed.labels, plain.labels)
+    assert full >= 3
+
+
 # --- scan-line links -------------------------------------------------------------------------------------
 
 def test_link_unions_equal_the_reference_on_every_shipped_scenario(monkeypatch, shipped):
