@@ -26,7 +26,7 @@ from typing import Callable
 import numpy as np
 from scipy import ndimage
 
-from sensors import checks
+from sensors import checks, perception_jit
 from sensors.grid import bev_cells
 from sensors.open3d_loader import open3d
 
@@ -115,8 +115,7 @@ def numbered(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.ndarray:
     lab = raw[valid]
     counts = np.bincount(lab)
     x = pts[valid, 0]
-    min_x = np.full(len(counts), np.inf)
-    np.minimum.at(min_x, lab, x)
+    min_x = perception_jit.group_min(lab, x, len(counts))  # np.minimum.at into inf, compiled
     first = np.flatnonzero((x == min_x[lab]) & (counts[lab] >= min_points))  # candidates for a first point
     order = np.lexsort((pts[valid[first], 2], pts[valid[first], 1], x[first]))
     ids, at = np.unique(lab[first[order]], return_index=True)  # each cluster's first point in that order

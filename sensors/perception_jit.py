@@ -1,4 +1,4 @@
-"""Compiled (numba) per-object loops of sensors/perception.py and sensors/ground.py.
+"""Compiled (numba) per-object loops of sensors/perception.py, sensors/ground.py and sensors/clustering.py.
 
 Each kernel computes what the former numpy code computed, bit for bit: sums follow numpy's pairwise
 summation (the order `np.add.reduceat` adds in, `_reduceat_add`), products and differences are the same
@@ -665,3 +665,17 @@ def link_unions(ia, ib, pending, lo, hi, top, holds_cluster, truck_top, truck_le
     for i in range(u_all):
         roots[i] = _root_halving(parent, i)
     return roots
+
+
+# --- clustering (sensors/clustering.numbered) --------------------------------------------------------------
+
+@njit(cache=True)
+def group_min(label, x, k):
+    """(k,) the smallest x (N,) of each label (N,) in 0..k-1, inf for a label without points: np.minimum.at into
+    np.full(k, inf), bit for bit (np.minimum(a, b) is b when a == b, so the last of equal zeros gives the sign;
+    NaN propagates)."""
+    out = np.full(k, np.inf)
+    for i in range(len(x)):
+        if x[i] <= out[label[i]] or x[i] != x[i]:
+            out[label[i]] = x[i]
+    return out

@@ -157,6 +157,22 @@ def test_link_unions_equal_the_reference_on_every_shipped_scenario(monkeypatch, 
     assert len(calls) >= 20 and joined >= 100  # links did join noise to clusters
 
 
+# --- clustering --------------------------------------------------------------------------------------------
+
+def test_group_min_equals_numpys_minimum_at(highway):
+    rng = np.random.default_rng(4)
+    cases = [(rng.integers(0, 40, len(pts)), pts[:, 0].copy()) for pts, _, _, _ in highway[::4]]
+    cases += [(np.array([0, 0, 2, 2, 2]), np.array([0.0, -0.0, -0.0, 0.0, 1.0])),  # signed zeros, label 1 empty
+              (np.array([1, 1, 1, 0]), np.array([2.0, np.nan, 1.0, np.nan])),  # NaN propagates, as np.minimum
+              (np.zeros(0, np.int64), np.zeros(0))]
+    for label, x in cases:
+        k = int(label.max()) + 3 if len(label) else 2
+        ref = np.full(k, np.inf)
+        np.minimum.at(ref, label, x)
+        got = perception_jit.group_min(label, x, k)
+        assert np.array_equal(got.view(np.int64), ref.view(np.int64))  # bit for bit, signs of zero included
+
+
 # --- canonical order -------------------------------------------------------------------------------------
 
 def test_canonical_order_equals_the_reference(highway):
