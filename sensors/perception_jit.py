@@ -208,6 +208,38 @@ def body_reaches(z, u, required, bin_m, starts, n):
 
 
 @njit(cache=True)
+def relative_columns(pts, cx, cy, cz):
+    """sensors/ground._road_plane's columns: x, y, z (N,) = pts (N, 3) [m] minus (cx, cy, cz), and (4,) the
+    smallest and largest pts x, then y [m] (pts[:, 0].min(), .max(), pts[:, 1].min(), .max()); N >= 1."""
+    n = len(pts)
+    x, y, z = np.empty(n), np.empty(n), np.empty(n)
+    x_lo, x_hi, y_lo, y_hi = pts[0, 0], pts[0, 0], pts[0, 1], pts[0, 1]
+    for i in range(n):
+        px, py = pts[i, 0], pts[i, 1]
+        x[i], y[i], z[i] = px - cx, py - cy, pts[i, 2] - cz
+        x_lo, x_hi, y_lo, y_hi = min(x_lo, px), max(x_hi, px), min(y_lo, py), max(y_hi, py)
+    return x, y, z, np.array([x_lo, x_hi, y_lo, y_hi])
+
+
+@njit(cache=True)
+def near_plane(x, y, z, a, b, c, band):
+    """x, y, z (M,) of the points x, y, z (N,) with np.abs(z - a x - b y - c) <= band (the same operations in
+    the same order as numpy's), in their order."""
+    keep = np.empty(len(z), np.bool_)
+    m = 0
+    for i in range(len(z)):
+        keep[i] = abs(z[i] - a * x[i] - b * y[i] - c) <= band
+        m += keep[i]
+    xs, ys, zs = np.empty(m), np.empty(m), np.empty(m)
+    j = 0
+    for i in range(len(z)):
+        if keep[i]:
+            xs[j], ys[j], zs[j] = x[i], y[i], z[i]
+            j += 1
+    return xs, ys, zs
+
+
+@njit(cache=True)
 def cell_lowest(pts, z, inv, fx0, fy0, ny, size):
     """(size,) the lowest z (N,) in each BEV cell (floor(x inv) - fx0) * ny + floor(y inv) - fy0 of the points
     (N, 3) (sensors/grid.bev_cells numbering), inf where empty."""

@@ -157,6 +157,36 @@ def test_link_unions_equal_the_reference_on_every_shipped_scenario(monkeypatch, 
     assert len(calls) >= 20 and joined >= 100  # links did join noise to clusters
 
 
+# --- ground ------------------------------------------------------------------------------------------------
+
+def bits(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a).view(np.int64)
+
+
+def test_ground_columns_and_band_equal_numpy_on_every_shipped_scenario(monkeypatch, shipped):
+    columns = kernel_calls(monkeypatch, shipped, "relative_columns")
+    bands = kernel_calls(monkeypatch, shipped, "near_plane")
+    assert len(columns) == len(bands) == len(shipped)
+    for pts, cx, cy, cz in columns:
+        x, y, z, bounds = perception_jit.relative_columns(pts, cx, cy, cz)
+        for got, ref in ((x, pts[:, 0] - cx), (y, pts[:, 1] - cy), (z, pts[:, 2] - cz),
+                         (bounds, np.array([pts[:, 0].min(), pts[:, 0].max(), pts[:, 1].min(), pts[:, 1].max()]))):
+            assert np.array_equal(bits(got), bits(ref))
+    kept = 0
+    for x, y, z, a, b, c, band in bands:
+        near = np.abs(z - a * x - b * y - c) <= band
+        got = perception_jit.near_plane(x, y, z, a, b, c, band)
+        for g, ref in zip(got, (x[near], y[near], z[near])):
+            assert np.array_equal(bits(g), bits(ref))
+        kept += int(near.sum())
+        # at a band between two points' residuals the kernel decides as numpy does
+        res = np.sort(np.abs(z - a * x - b * y - c))[len(z) // 2 : len(z) // 2 + 2]
+        for edge in (res[0], np.nextafter(res[0], -np.inf), res.mean()):
+            assert len(perception_jit.near_plane(x, y, z, a, b, c, edge)[0]) == int(
+                np.sum(np.abs(z - a * x - b * y - c) <= edge))
+    assert kept > 10000
+
+
 # --- clustering --------------------------------------------------------------------------------------------
 
 def test_group_min_equals_numpys_minimum_at(highway):
