@@ -172,9 +172,25 @@ def _plane_fit(x: np.ndarray, y: np.ndarray, z: np.ndarray, plane: np.ndarray) -
     n = len(x)
     sx, sy, sxy = x.sum(), y.sum(), np.dot(x, y)
     normal = np.array([[np.dot(x, x), sxy, sx], [sxy, np.dot(y, y), sy], [sx, sy, n]])
-    if n < 3 or np.linalg.cond(normal) > 1e12:
+    if n < 3 or _ill_conditioned(normal):
         return plane
     return np.linalg.solve(normal, np.array([np.dot(x, z), np.dot(y, z), z.sum()]))
+
+
+_MAX_COND = 1e12  # _plane_fit: a normal matrix with a larger condition number does not fix a plane
+
+
+def _ill_conditioned(normal: np.ndarray) -> bool:
+    """np.linalg.cond(normal) > _MAX_COND for a 3x3 normal matrix (symmetric), without its SVD when a bound shows
+    it well below: for a positive definite matrix cond = l_max / l_min <= trace / (4 det / trace^2) (l_max <=
+    trace, and the other two eigenvalues' product is at most (trace / 2)^2). The bound is trusted only below
+    _MAX_COND / 100, where the rounding of det is far too small to matter; anything else is np.linalg.cond's."""
+    (a, b, c), (_, d, e), (_, _, f) = normal.tolist()
+    trace = a + d + f
+    det = a * (d * f - e * e) - b * (b * f - c * e) + c * (b * e - c * d)
+    if det > 0.0 and trace > 0.0 and trace**3 / (4.0 * det) < _MAX_COND / 100.0:
+        return False
+    return bool(np.linalg.cond(normal) > _MAX_COND)
 
 
 def _acceptable(plane: np.ndarray, cfg: GroundConfig) -> bool:

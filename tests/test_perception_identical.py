@@ -187,6 +187,37 @@ def test_ground_columns_and_band_equal_numpy_on_every_shipped_scenario(monkeypat
     assert kept > 10000
 
 
+def test_the_conditioning_shortcut_decides_as_numpys_cond(monkeypatch, shipped):
+    import sensors.ground as ground
+
+    normals, conds = [], []
+    ill = ground._ill_conditioned
+    monkeypatch.setattr(ground, "_ill_conditioned", lambda m: normals.append(m.copy()) or ill(m))
+    for _, scan, cfg, _ in shipped:
+        ground.segment_ground(scan.points, cfg.ground, scan.origin)
+    monkeypatch.undo()
+    rng = np.random.default_rng(5)
+
+    def normal_of(x, y):
+        return np.array([[np.dot(x, x), np.dot(x, y), x.sum()], [np.dot(x, y), np.dot(y, y), y.sum()],
+                         [x.sum(), y.sum(), len(x)]])
+
+    x = rng.uniform(-70, 70, 500)
+    for scale in (1.0, 1e-3, 1e-5, 1e-6, 1e-7, 1e-9, 0.0):  # from a plane to a line: cond crosses 1e12
+        normals.append(normal_of(x, 0.5 * x + 3.0 + scale * rng.normal(size=500)))
+    normals += [normal_of(np.full(10, 3.0), np.full(10, -2.0)), np.zeros((3, 3)), -np.eye(3),
+                np.diag([1e13, 1.0, 1.0]), np.diag([1e10, 1.0, 1.0]), np.diag([1e12 * 0.999, 1.0, 1.0])]
+    shortcut = 0
+    for m in normals:
+        assert ground._ill_conditioned(m) == bool(np.linalg.cond(m) > 1e12)
+        conds.append(np.linalg.cond(m))
+        (a, b, c), (_, d, e), (_, _, f) = m.tolist()
+        det = a * (d * f - e * e) - b * (b * f - c * e) + c * (b * e - c * d)
+        shortcut += det > 0 and (a + d + f) ** 3 / (4 * det) < 1e10
+    assert len(normals) > 4 * len(shipped) and shortcut >= 4 * len(shipped)  # the scans' fits take the shortcut
+    assert min(conds) < 1e12 < max(conds)  # both answers are checked
+
+
 # --- clustering --------------------------------------------------------------------------------------------
 
 def test_group_min_equals_numpys_minimum_at(highway):
