@@ -711,3 +711,58 @@ def group_min(label, x, k):
         if x[i] <= out[label[i]] or x[i] != x[i]:
             out[label[i]] = x[i]
     return out
+
+
+# --- scan-line links (sensors/clustering.scan_line_links) ----------------------------------------------------
+
+@njit(cache=True)
+def _norm3(x, y, z):
+    """np.linalg.norm of one row (x, y, z): sqrt((x x + y y) + z z), numpy's order for a 3-wide axis."""
+    return np.sqrt((x * x + y * y) + z * z)
+
+
+@njit(cache=True, error_model="numpy")
+def line_links(pts, ray, n_az, n_beams, returned, labels, has_labels, origin, max_gap, min_sin):
+    """sensors.clustering.scan_line_links (perception_reference.scan_line_links_reference): (L, 2) int64 pairs of
+    indices into pts (N, 3) [m] of consecutive returns of one beam (ray (N,) int64 flat index a * n_beams + b,
+    -1 unknown; the next azimuth, or the one after when the next returned nothing: returned (n_az, n_beams)
+    bool), not already in one cluster (labels (N,) int64 when has_labels), at most max_gap [m] apart and at
+    least asin(min_sin) off the line of sight from origin (3,) [m]. The same float operations in numpy's order."""
+    n = len(ray)
+    n_known = 0
+    for k in range(n):
+        n_known += ray[k] >= 0
+    if n_known < 2 or n_az < 2:
+        return np.zeros((0, 2), np.int64)
+    at = np.full(n_az * n_beams, -1, np.int64)
+    for k in range(n):
+        if ray[k] >= 0:
+            at[ray[k]] = k
+    out = np.empty((n_known, 2), np.int64)
+    m = 0
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in range(n):
+        if ray[i] < 0:
+            continue
+        a, b = ray[i] // n_beams, ray[i] % n_beams
+        j = at[((a + 1) % n_az) * n_beams + b]
+        if j < 0 and not returned[(a + 1) % n_az, b]:
+            j = at[((a + 2) % n_az) * n_beams + b]
+        if j < 0:
+            continue
+        if has_labels and not (labels[i] != labels[j] or labels[i] < 0):
+            continue
+        dx, dy, dz = pts[j, 0] - pts[i, 0], pts[j, 1] - pts[i, 1], pts[j, 2] - pts[i, 2]
+        length = _norm3(dx, dy, dz)
+        far_j = _norm3(pts[j, 0] - ox, pts[j, 1] - oy, pts[j, 2] - oz) >= _norm3(pts[i, 0] - ox, pts[i, 1] - oy,
+                                                                                pts[i, 2] - oz)
+        f = j if far_j else i
+        ux, uy, uz = pts[f, 0] - ox, pts[f, 1] - oy, pts[f, 2] - oz
+        un = _norm3(ux, uy, uz)
+        ux, uy, uz = ux / un, uy / un, uz / un
+        cx, cy, cz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux  # np.cross(d, u)
+        sin_angle = _norm3(cx, cy, cz) / max(length, 1e-12)
+        if length <= max_gap and sin_angle >= min_sin:
+            out[m, 0], out[m, 1] = i, j
+            m += 1
+    return out[:m].copy()

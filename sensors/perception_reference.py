@@ -247,3 +247,31 @@ def canonical_reference(pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """The point indices idx (n,) in lexicographic (x, y, z) order of their points pts (N, 3), equal points in
     idx's order (sensors.perception._canonical)."""
     return idx[np.lexsort((pts[idx, 2], pts[idx, 1], pts[idx, 0]))]
+
+
+def scan_line_links_reference(points, ray, shape, origin, returned, cfg, labels=None):
+    """sensors.clustering.scan_line_links in numpy (the former code of its compiled kernel, perception_jit.line_links):
+    pairs (L, 2) int64 of indices into points (N, 3) [m] that are consecutive returns of one beam on one surface."""
+    pts = np.asarray(points, np.float64)
+    n_az, n_beams = shape
+    known = np.flatnonzero(ray >= 0)
+    if len(known) < 2 or n_az < 2:
+        return np.zeros((0, 2), np.int64)
+    at = np.full(n_az * n_beams, -1, np.int64)  # point index of each ray among points
+    at[ray[known]] = known
+    a, b = np.divmod(ray[known], n_beams)
+    nxt = at[((a + 1) % n_az) * n_beams + b]
+    gap = (nxt < 0) & ~returned[(a + 1) % n_az, b]  # the next ray returned nothing: look one further
+    nxt = np.where(gap, at[((a + 2) % n_az) * n_beams + b], nxt)
+    i, j = known[nxt >= 0], nxt[nxt >= 0]
+    if labels is not None:
+        apart = (labels[i] != labels[j]) | (labels[i] < 0)
+        i, j = i[apart], j[apart]
+    d = pts[j] - pts[i]
+    length = np.linalg.norm(d, axis=1)
+    far = np.where(np.linalg.norm(pts[j] - origin, axis=1) >= np.linalg.norm(pts[i] - origin, axis=1), j, i)
+    u = pts[far] - origin
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    sin_angle = np.linalg.norm(np.cross(d, u), axis=1) / np.maximum(length, 1e-12)
+    ok = (length <= cfg.link_max_gap_m) & (sin_angle >= np.sin(np.deg2rad(cfg.link_min_angle_deg)))
+    return np.column_stack([i[ok], j[ok]]).astype(np.int64)

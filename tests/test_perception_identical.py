@@ -234,6 +234,34 @@ def test_group_min_equals_numpys_minimum_at(highway):
         assert np.array_equal(got.view(np.int64), ref.view(np.int64))  # bit for bit, signs of zero included
 
 
+def test_scan_line_links_equal_the_reference_on_every_shipped_scenario(shipped):
+    from sensors.clustering import scan_line_links
+
+    n_links = 0
+    for _, s, cfg, _ in shipped:
+        is_ground = segment_ground(s.points, cfg.ground, s.origin)
+        cand = np.flatnonzero(~is_ground & (s.points[:, 2] - cfg.ground.ground_z_m <= cfg.max_height_m))
+        sub = cluster(s.points[cand], cfg.cluster)
+        ray = s.ray[cand].copy()
+        ray[::50] = -1  # some points of unknown ray
+        args = (s.points[cand], ray, s.ranges.shape, s.origin, np.isfinite(s.ranges), cfg.cluster)
+        for labels in (sub, None):
+            got = scan_line_links(*args, labels=labels)
+            ref = perception_reference.scan_line_links_reference(*args, labels=labels)
+            assert got.dtype == ref.dtype and got.shape == ref.shape and np.array_equal(got, ref)
+            n_links += len(ref)
+    # the azimuth wraps round; a ray without a return is looked across; too few points give no link
+    pts = np.array([[10.0, 0.0, 1.0], [10.0, 0.05, 1.0], [10.0, 0.1, 1.0], [10.0, 0.2, 1.0]])
+    returned = np.ones((4, 1), bool)
+    returned[2] = False
+    for ray in (np.array([3, 0, 1, 3]), np.array([0, 1, 3, -1]), np.array([-1, -1, -1, 2])):
+        for origin in (np.zeros(3), np.array([10.0, 0.0, 1.0])):  # a point at the origin itself
+            got = scan_line_links(pts, ray, (4, 1), origin, returned, CFG.cluster)
+            ref = perception_reference.scan_line_links_reference(pts, ray, (4, 1), origin, returned, CFG.cluster)
+            assert np.array_equal(got, ref) and got.shape == ref.shape
+    assert n_links > 1000
+
+
 # --- canonical order -------------------------------------------------------------------------------------
 
 def test_canonical_order_equals_the_reference(highway):
