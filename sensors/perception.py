@@ -503,12 +503,10 @@ def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy:
         pts, members, starts, n, float(road_z), float(sensor_xy[0]), float(sensor_xy[1]))
     principal = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     cos_p, sin_p = np.cos(principal), np.sin(principal)
-    thickness = _extent(rel, -sin_p, cos_p, n, starts)
-    p_length = _extent(rel, cos_p, sin_p, n, starts)
     axis = road.heading_at(centroid) if road is not None else principal
     cos_a, sin_a = (np.cos(axis), np.sin(axis)) if road is not None else (cos_p, sin_p)
-    u, along = perception_jit.along(rel, cos_a, sin_a, starts, n)
-    across = _extent(rel, -sin_a, cos_a, n, starts)
+    # extents across and along the principal axis, u and the extents along and across `axis`: one pass
+    thickness, p_length, u, along, across = perception_jit.axis_extents(rel, cos_p, sin_p, cos_a, sin_a, starts, n)
     return _Stats(members, starts, n, top, lo, hi, centroid, axis, along, across, d_min, u, xy, z, rel, principal,
                   thickness, p_length)
 
@@ -718,7 +716,8 @@ def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: Perce
         elif min(seen) > cfg.max_width_m:
             reason[k] = "too_wide"
     if cfg.roi and road is not None:
-        off = (reason == "") & ~road.on_road(centre, cfg.roi_margin_m) & ~road.on_road(st.centroid, cfg.roi_margin_m)
+        on = road.on_road(np.concatenate([centre, st.centroid]), cfg.roi_margin_m)  # one query: centres, centroids
+        off = (reason == "") & ~on[:k_all] & ~on[k_all:]
         reason[off] = "off_road"
         flags[off] |= OFF_ROAD
     keep = reason == ""

@@ -141,6 +141,33 @@ def along(rel, cx, cy, starts, n):
 
 
 @njit(cache=True)
+def axis_extents(rel, cos_p, sin_p, cos_a, sin_a, starts, n):
+    """extent(rel, -sin_p, cos_p), extent(rel, cos_p, sin_p), along(rel, cos_a, sin_a) (u and its extent) and
+    extent(rel, -sin_a, cos_a) in one pass over rel (sum n, 2): the same products and sums per point."""
+    k_all = len(starts)
+    thickness, p_length, along_, across = np.empty(k_all), np.empty(k_all), np.empty(k_all), np.empty(k_all)
+    u = np.empty(len(rel))
+    for k in range(k_all):
+        cp, sp, ca, sa = cos_p[k], sin_p[k], cos_a[k], sin_a[k]
+        ncp, nsp, nsa = -sp, cp, -sa  # (cx, cy) of the principal axis's normal; -sin_a of axis's normal
+        t_lo = p_lo = u_lo = c_lo = np.inf
+        t_hi = p_hi = u_hi = c_hi = -np.inf
+        for i in range(starts[k], starts[k] + n[k]):
+            x, y = rel[i, 0], rel[i, 1]
+            w = x * ncp + y * nsp
+            t_lo, t_hi = min(t_lo, w), max(t_hi, w)
+            w = x * cp + y * sp
+            p_lo, p_hi = min(p_lo, w), max(p_hi, w)
+            w = x * ca + y * sa
+            u[i] = w
+            u_lo, u_hi = min(u_lo, w), max(u_hi, w)
+            w = x * nsa + y * ca
+            c_lo, c_hi = min(c_lo, w), max(c_hi, w)
+        thickness[k], p_length[k], along_[k], across[k] = t_hi - t_lo, p_hi - p_lo, u_hi - u_lo, c_hi - c_lo
+    return thickness, p_length, u, along_, across
+
+
+@njit(cache=True)
 def medians(z, starts, n):
     """(K,) median of each object's z (sum n,)."""
     out = np.empty(len(starts))

@@ -451,6 +451,23 @@ def test_min_area_rectangle_with_the_compiled_hull_equals_qhull(highway):
         assert np.array_equal(got[0], ref[0]) and got[1:] == ref[1:]
 
 
+def test_axis_extents_equal_the_separate_extent_kernels(highway):
+    rng = np.random.default_rng(6)
+    _, _, edge = synthetic(EDGE_OBJECTS)
+    for st in [st for _, _, st, _ in highway] + [edge]:
+        k = len(st.n)
+        cos_p, sin_p, cos_a, sin_a = (np.cos(st.principal), np.sin(st.principal), *np.split(
+            rng.normal(size=(2, k)) / np.hypot(*rng.normal(size=(2, k))), 2))
+        cos_a, sin_a = cos_a[0], sin_a[0]
+        got = perception_jit.axis_extents(st.rel, cos_p, sin_p, cos_a, sin_a, st.starts, st.n)
+        u, along = perception_jit.along(st.rel, cos_a, sin_a, st.starts, st.n)
+        ref = (perception_jit.extent(st.rel, -sin_p, cos_p, st.starts, st.n),
+               perception_jit.extent(st.rel, cos_p, sin_p, st.starts, st.n), u, along,
+               perception_jit.extent(st.rel, -sin_a, cos_a, st.starts, st.n))
+        for g, r in zip(got, ref):
+            assert np.array_equal(g.view(np.int64), r.view(np.int64))
+
+
 def test_nearest_range_of_the_object_sums_is_numpys_smallest_hypot(highway):
     for pts, objects, st, _ in highway[::4]:
         for k, o in enumerate(objects[:40]):
