@@ -366,15 +366,16 @@ def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None,
     is_ground = segment_ground(pts, cfg.ground, scan.origin)
     lap("ground")
     candidates = np.flatnonzero(~is_ground & (pts[:, 2] - road_z <= cfg.max_height_m))
-    sub = cluster(pts[candidates], cfg.cluster)
+    cand_pts = pts[candidates]
+    sub = cluster(cand_pts, cfg.cluster)
     cluster_labels = np.full(len(pts), -1, np.int64)
     cluster_labels[candidates] = sub
     if cfg.cluster.scan_line_links and cfg.roi and road is not None and scan.ranges.size and len(sub):
-        links = scan_line_links(pts[candidates], scan.ray[candidates], scan.ranges.shape, scan.origin,
+        links = scan_line_links(cand_pts, scan.ray[candidates], scan.ranges.shape, scan.origin,
                                 np.isfinite(scan.ranges), cfg.cluster, labels=sub)
         if len(links):  # on the lanes only: a roadside rail or wall is the grazing surface links would grow
-            lane = road.on_road(pts[candidates][links.reshape(-1), :2], cfg.roi_margin_m).reshape(-1, 2)
-            sub = _linked(pts[candidates], sub, links[lane.all(axis=1)], cfg)
+            lane = road.on_road(cand_pts[links.reshape(-1), :2], cfg.roi_margin_m).reshape(-1, 2)
+            sub = _linked(cand_pts, sub, links[lane.all(axis=1)], cfg)
     labels = np.full(len(pts), -1, np.int64)
     lap("clustering")
     if len(sub) == 0 or sub.max() < 0:
@@ -912,8 +913,8 @@ def _fit_all(scan: Scan, st: _Stats, keys: np.ndarray, hinted: bool, cfg: Percep
         return {}
     ends = _open_ends(scan, st, keys)
     open_ends = np.array([e if e is not None else (False, False) for e in ends], bool).reshape(-1, 2)
-    rows = np.concatenate([np.arange(st.starts[k], st.starts[k] + st.n[k]) for k in keys])
     n = st.n[keys]
+    rows = np.repeat(st.starts[keys] - (np.cumsum(n) - n), n) + np.arange(int(n.sum()))  # the keys' members' rows
     fits = fit_vehicle_boxes_unchecked(st.xy[rows], st.z[rows] - cfg.ground.ground_z_m, np.cumsum(n) - n, n,
                                        scan.origin[:2], st.top[keys], st.axis[keys] if hinted else None, open_ends,
                                        boxfit)
