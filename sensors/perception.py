@@ -1024,12 +1024,6 @@ def _complete_one_face(centre: np.ndarray, xy: np.ndarray, length: float, width:
 
 def _plurality_vehicle(source: np.ndarray, n: np.ndarray) -> np.ndarray:
     """(K,) per object (its n (K,) consecutive entries of source): the most frequent source label if it is a
-    vehicle id (>= 0), else -1; ties go to the smallest label."""
-    owner = np.repeat(np.arange(len(n)), n)
-    low = int(source.min())
-    pairs, count = np.unique(owner * (int(source.max()) - low + 1) + (source - low), return_counts=True)
-    p_owner, label = np.divmod(pairs, int(source.max()) - low + 1)
-    label = label + low
-    best = np.lexsort((label, -count, p_owner))  # by object, most points first, then smallest label
-    first = best[np.r_[True, p_owner[best][1:] != p_owner[best][:-1]]]
-    return np.where(label[first] >= 0, label[first], -1).astype(np.int64)
+    vehicle id (>= 0), else -1; ties go to the smallest label. Compiled (perception_jit.plurality);
+    perception_reference.plurality_reference is the former numpy code."""
+    return perception_jit.plurality(np.ascontiguousarray(source, np.int64), np.cumsum(n) - n, np.asarray(n, np.int64))

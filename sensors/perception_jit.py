@@ -793,3 +793,21 @@ def line_links(pts, ray, n_az, n_beams, returned, labels, has_labels, origin, ma
             out[m, 0], out[m, 1] = i, j
             m += 1
     return out[:m].copy()
+
+
+# --- provenance (sensors/perception_reference.plurality_reference) -------------------------------------------
+
+@njit(cache=True)
+def plurality(source, starts, n):
+    """(K,) per object (source[starts[k] : starts[k] + n[k]], n >= 1) its most frequent label if >= 0, else -1;
+    ties go to the smallest label."""
+    out = np.empty(len(starts), np.int64)
+    for k in range(len(starts)):
+        labels = np.sort(source[starts[k] : starts[k] + n[k]])
+        best, best_count, run = labels[0], 0, 0
+        for i in range(len(labels)):
+            run = run + 1 if i > 0 and labels[i] == labels[i - 1] else 1
+            if run > best_count:  # a later label needs strictly more points: ties keep the smaller
+                best, best_count = labels[i], run
+        out[k] = best if best >= 0 else -1
+    return out

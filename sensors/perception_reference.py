@@ -275,3 +275,16 @@ def scan_line_links_reference(points, ray, shape, origin, returned, cfg, labels=
     sin_angle = np.linalg.norm(np.cross(d, u), axis=1) / np.maximum(length, 1e-12)
     ok = (length <= cfg.link_max_gap_m) & (sin_angle >= np.sin(np.deg2rad(cfg.link_min_angle_deg)))
     return np.column_stack([i[ok], j[ok]]).astype(np.int64)
+
+
+def plurality_reference(source: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """sensors.perception._plurality_vehicle in numpy: (K,) per object (its n (K,) consecutive entries of source)
+    the most frequent source label if it is a vehicle id (>= 0), else -1; ties go to the smallest label."""
+    owner = np.repeat(np.arange(len(n)), n)
+    low = int(source.min())
+    pairs, count = np.unique(owner * (int(source.max()) - low + 1) + (source - low), return_counts=True)
+    p_owner, label = np.divmod(pairs, int(source.max()) - low + 1)
+    label = label + low
+    best = np.lexsort((label, -count, p_owner))  # by object, most points first, then smallest label
+    first = best[np.r_[True, p_owner[best][1:] != p_owner[best][:-1]]]
+    return np.where(label[first] >= 0, label[first], -1).astype(np.int64)

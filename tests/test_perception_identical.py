@@ -468,6 +468,24 @@ def test_axis_extents_equal_the_separate_extent_kernels(highway):
             assert np.array_equal(g.view(np.int64), r.view(np.int64))
 
 
+def test_plurality_equals_the_reference(shipped):
+    rng = np.random.default_rng(7)
+    cases = [(s.source[np.flatnonzero(s.source != -2)], None) for _, s, _, _ in shipped[::2]]
+    cases += [(np.array([3, 1, 3, 1, -1, -1, 7]), np.array([4, 3])),  # a 2-2 tie: the smaller label, 1
+              (np.array([-1, -1, 5]), np.array([3])), (np.array([2]), np.array([1]))]
+    n_vehicle = 0
+    for source, n in cases:
+        if n is None:  # the scan's points cut into objects of 1-40 points
+            n = rng.integers(1, 40, len(source))
+            n = n[np.cumsum(n) <= len(source)]
+            source = source[: n.sum()]
+        got = perception._plurality_vehicle(source, n)
+        ref = perception_reference.plurality_reference(source, n)
+        assert got.dtype == ref.dtype and np.array_equal(got, ref)
+        n_vehicle += int(np.sum(ref >= 0))
+    assert n_vehicle > 100
+
+
 def test_nearest_range_of_the_object_sums_is_numpys_smallest_hypot(highway):
     for pts, objects, st, _ in highway[::4]:
         for k, o in enumerate(objects[:40]):
