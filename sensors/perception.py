@@ -66,7 +66,7 @@ from typing import Callable
 
 import numpy as np
 
-from sensors import checks, perception_jit
+from sensors import checks, perception_jit, perception_reference
 from sensors.boxfit import (
     SHAPES,
     BoxFit,
@@ -524,12 +524,7 @@ def _split(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: Pe
            st: _Stats) -> tuple[list[np.ndarray], list[int], bool]:
     """Cut objects holding several vehicles (see the module docstring, stage 2); whether any was cut."""
     too_big = _too_big(np.maximum(st.along, st.across), np.minimum(st.along, st.across), st.top, cfg)
-    # widest gap along the axis of every object: one sort of all members by (object, u)
-    owner = np.repeat(np.arange(len(objects)), st.n)
-    u_sorted = st.u[np.argsort(owner * (np.ptp(st.u) + 1.0) + (st.u - st.u.min()))]
-    step = np.diff(u_sorted, append=u_sorted[-1])
-    step[st.starts + st.n - 1] = 0.0  # no gap across two objects
-    gappy = np.maximum.reduceat(step, st.starts) > cfg.split_gap_m
+    gappy = _widest_gaps(st) > cfg.split_gap_m
     # a single thin surface (a guard rail, a wall, a rail with its posts) is not cut into vehicle-sized pieces
     candidate = (too_big | gappy) & (st.across >= cfg.split_min_width_m)
     out: list[np.ndarray] = []
@@ -540,6 +535,14 @@ def _split(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: Pe
         out += pieces
         out_flags += [flags[k] | (SPLIT if len(pieces) > 1 else 0)] * len(pieces)
     return out, out_flags, len(out) > len(objects)
+
+
+def _widest_gaps(st: _Stats) -> np.ndarray:
+    """(K,) the widest gap [m] between consecutive members of each object along its axis (st.u), compiled
+    (perception_jit.widest_gaps: each object's u sorted on its own); perception_reference.widest_gaps_reference,
+    the former sort of all members by one float key of (object, u), where that key cannot tell two u apart."""
+    gaps, clear = perception_jit.widest_gaps(st.u, st.starts, st.n, float(st.u.min()), float(np.ptp(st.u) + 1.0))
+    return gaps if clear else perception_reference.widest_gaps_reference(st.u, st.starts, st.n)
 
 
 def _too_big(length, width, top, cfg: PerceptionConfig):

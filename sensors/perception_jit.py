@@ -811,3 +811,23 @@ def plurality(source, starts, n):
                 best, best_count = labels[i], run
         out[k] = best if best >= 0 else -1
     return out
+
+
+# --- split candidates (sensors/perception_reference.widest_gaps_reference) -----------------------------------
+
+@njit(cache=True)
+def widest_gaps(u, starts, n, u_min, span):
+    """(K,) the widest gap between consecutive sorted values of each object's u (sum n,), and whether the
+    reference's one sort by the key k * span + (u - u_min) orders every object's distinct u the same way (no
+    two distinct u of an object share a key); when not, the caller uses the reference."""
+    out = np.zeros(len(starts))
+    for k in range(len(starts)):
+        seg = np.sort(u[starts[k] : starts[k] + n[k]])
+        base = k * span
+        best = 0.0
+        for i in range(1, len(seg)):
+            if seg[i] != seg[i - 1] and base + (seg[i] - u_min) == base + (seg[i - 1] - u_min):
+                return out, False
+            best = max(best, seg[i] - seg[i - 1])
+        out[k] = best
+    return out, True

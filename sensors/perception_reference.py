@@ -288,3 +288,14 @@ def plurality_reference(source: np.ndarray, n: np.ndarray) -> np.ndarray:
     best = np.lexsort((label, -count, p_owner))  # by object, most points first, then smallest label
     first = best[np.r_[True, p_owner[best][1:] != p_owner[best][:-1]]]
     return np.where(label[first] >= 0, label[first], -1).astype(np.int64)
+
+
+def widest_gaps_reference(u: np.ndarray, starts: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(K,) the widest gap between consecutive values of each object's u (sum n,) in sorted order, from one sort
+    of all members by the float key object * (ptp(u) + 1) + (u - min(u)) (sensors.perception._split's former
+    code; its order among equal keys is numpy's)."""
+    owner = np.repeat(np.arange(len(n)), n)
+    u_sorted = u[np.argsort(owner * (np.ptp(u) + 1.0) + (u - u.min()))]
+    step = np.diff(u_sorted, append=u_sorted[-1])
+    step[starts + n - 1] = 0.0  # no gap across two objects
+    return np.maximum.reduceat(step, starts)
