@@ -1,9 +1,11 @@
-"""Pure-numpy reference versions of the per-object loops that sensors/perception.py runs compiled.
+"""Pure-numpy reference versions of the per-object loops that sensors/perception.py (and the scan-line links of
+sensors/clustering.py) run compiled.
 
 Each function here is the former numpy code of a perception step, kept as the specification of its compiled
 replacement (sensors/perception_jit.py): tests/test_perception_identical.py checks, on ray-cast scans and on
 hand-made edge cases, that the compiled path gives the same bits. `union_fits_reference` is also the compiled
-merge test's fallback when its decision lies within rounding of a bound.
+merge test's fallback when its decision lies within rounding of a bound, `widest_gaps_reference` the split's when a
+key cannot order an object's members.
 
 `cfg` is a sensors.perception.PerceptionConfig (read by attribute; not imported, perception imports this module).
 """
