@@ -431,9 +431,19 @@ def _nearest_sq(xy, sa, na, sb, nb, bound):
                 dx, dy = xy[i, 0] - xy[j, 0], xy[i, 1] - xy[j, 1]
                 best = min(best, dx * dx + dy * dy)
         return best
+    x_lo, x_hi = xy[sa, 0], xy[sa + na - 1, 0]  # the box of a's points
+    y_lo, y_hi = np.inf, -np.inf
+    for i in range(sa, sa + na):
+        y_lo, y_hi = min(y_lo, xy[i, 1]), max(y_hi, xy[i, 1])
     lo = sa
     for j in range(sb, sb + nb):
         xb, yb = xy[j, 0], xy[j, 1]
+        # a point of b farther from a's box than the best is farther from every point of a: skipped. Exact: each
+        # coordinate difference to a point of a rounds to at least that to the box's side (rounding is monotone)
+        bx = x_lo - xb if xb < x_lo else (xb - x_hi if xb > x_hi else 0.0)
+        by = y_lo - yb if yb < y_lo else (yb - y_hi if yb > y_hi else 0.0)
+        if bx * bx + by * by > best:
+            continue
         while lo < sa + na and xy[lo, 0] < xb and (xb - xy[lo, 0]) * (xb - xy[lo, 0]) > best:
             lo += 1  # farther left than the best distance, for this point and every later (larger x) one
         for i in range(lo, sa + na):
