@@ -386,9 +386,10 @@ def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None,
     st = _stats(pts, objects, road_z, scan.origin[:2], road)
     for step, on in ((_split, cfg.split_vehicles), (_merge, cfg.merge_fragments)):
         if on:
+            before = objects
             objects, flags, changed = step(pts, objects, flags, cfg, st)
             if changed:
-                st = _stats(pts, objects, road_z, scan.origin[:2], road)
+                st = _restats(pts, objects, before, st, road_z, scan.origin[:2], road)
     lap("split and merge")
     return _select(scan, objects, np.asarray(flags, np.int64), cfg, road, st, is_ground, labels, cluster_labels, lap)
 
@@ -510,6 +511,41 @@ def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy:
     thickness, p_length, u, along, across = perception_jit.axis_extents(rel, cos_p, sin_p, cos_a, sin_a, starts, n)
     return _Stats(members, starts, n, top, lo, hi, centroid, axis, along, across, d_min, u, xy, z, rel, principal,
                   thickness, p_length)
+
+
+def _restats(pts: np.ndarray, objects: list[np.ndarray], before: list[np.ndarray], old: _Stats, road_z: float,
+             sensor_xy: np.ndarray, road: RoadMap | None) -> _Stats:
+    """_stats(pts, objects, ...) after a split or merge, bit for bit: an object that is one of `before` (the same
+    array: the same points in the same order), whose _stats are `old`, keeps its summaries (each depends on its own
+    points only; perception_jit.take_runs copies its rows), only the others are computed."""
+    index = {id(o): k for k, o in enumerate(before)}
+    src = np.fromiter((index.get(id(o), -1) for o in objects), np.int64, len(objects))
+    new = np.flatnonzero(src < 0)
+    if len(new) == len(objects):
+        return _stats(pts, objects, road_z, sensor_xy, road)
+    kept = np.flatnonzero(src >= 0)
+    if len(new) == 0:
+        fresh = old  # (unused rows: every object is kept)
+    else:
+        fresh = _stats(pts, [objects[k] for k in new], road_z, sensor_xy, road)
+    where = np.zeros(len(objects), np.int64)  # the object's index in old (kept) or in fresh (new)
+    where[kept], where[new] = src[kept], np.arange(len(new))
+    is_new = src < 0
+    n = np.where(is_new, fresh.n[np.minimum(where, len(fresh.n) - 1)], old.n[np.maximum(src, 0)])
+    starts = np.cumsum(n) - n
+    per_object = {}
+    for name in ("top", "lo", "hi", "centroid", "axis", "along", "across", "d_min", "principal", "thickness",
+                 "p_length"):
+        a, b = getattr(old, name), getattr(fresh, name)
+        out = np.empty((len(objects),) + a.shape[1:])
+        out[kept] = a[src[kept]]
+        if len(new):
+            out[new] = b
+        per_object[name] = out
+    members, u, xy, z, rel = perception_jit.take_runs(
+        is_new, where, old.starts, fresh.starts, n, starts, old.members, old.u, old.xy, old.z, old.rel,
+        fresh.members, fresh.u, fresh.xy, fresh.z, fresh.rel)
+    return _Stats(members=members, starts=starts, n=n, u=u, xy=xy, z=z, rel=rel, **per_object)
 
 
 def _extent(rel: np.ndarray, cx: np.ndarray, cy: np.ndarray, n: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -686,10 +722,11 @@ def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: Perce
     fits = _fit_all(scan, st, np.flatnonzero(reason == ""), road is not None, cfg, boxfit, pool)
     lap("box fits")
     if cfg.merge_fragments and len(fits) > 1:
+        before = objects
         objects, flags, reason, fits, shape_centre, merged = _merge_boxes(
             pts, objects, flags, reason, fits, shape_centre, st, cfg)
         if merged:
-            st = _stats(pts, objects, road_z, scan.origin[:2], road)
+            st = _restats(pts, objects, before, st, road_z, scan.origin[:2], road)
             fits.update(_fit_all(scan, st, np.asarray(merged, np.int64), road is not None, cfg, boxfit, pool))
         lap("box merge")
 

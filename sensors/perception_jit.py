@@ -841,3 +841,31 @@ def widest_gaps(u, starts, n, u_min, span):
             best = max(best, seg[i] - seg[i - 1])
         out[k] = best
     return out, True
+
+
+# --- statistics after split and merge (sensors/perception._restats) -----------------------------------------
+
+@njit(cache=True)
+def take_runs(is_new, where, old_starts, new_starts, n, starts, members0, u0, xy0, z0, rel0, members1, u1, xy1,
+              z1, rel1):
+    """The packed member rows (members, u, xy, z, rel) of K objects (starts, n (K,)), object k's copied from the
+    new arrays (suffix 1) at new_starts[where[k]] when is_new[k], else from the old ones (suffix 0) at
+    old_starts[where[k]]."""
+    m = 0
+    for k in range(len(n)):
+        m += n[k]
+    members, u, z = np.empty(m, np.int64), np.empty(m), np.empty(m)
+    xy, rel = np.empty((m, 2)), np.empty((m, 2))
+    for k in range(len(n)):
+        o = starts[k]
+        if is_new[k]:
+            s = new_starts[where[k]]
+            for i in range(n[k]):
+                members[o + i], u[o + i], z[o + i] = members1[s + i], u1[s + i], z1[s + i]
+                xy[o + i, 0], xy[o + i, 1], rel[o + i, 0], rel[o + i, 1] = xy1[s + i, 0], xy1[s + i, 1], rel1[s + i, 0], rel1[s + i, 1]
+        else:
+            s = old_starts[where[k]]
+            for i in range(n[k]):
+                members[o + i], u[o + i], z[o + i] = members0[s + i], u0[s + i], z0[s + i]
+                xy[o + i, 0], xy[o + i, 1], rel[o + i, 0], rel[o + i, 1] = xy0[s + i, 0], xy0[s + i, 1], rel0[s + i, 0], rel0[s + i, 1]
+    return members, u, xy, z, rel

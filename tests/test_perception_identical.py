@@ -469,6 +469,29 @@ def test_min_area_rectangle_with_the_compiled_hull_equals_qhull(highway):
         assert np.array_equal(got[0], ref[0]) and got[1:] == ref[1:]
 
 
+def test_restats_after_split_and_merge_equal_stats(highway):
+    kept_some = 0
+    for pts, objects, _, road in highway:
+        st = perception._stats(pts, objects, 0.0, np.zeros(2), road)  # the old summaries, as restats is given them
+        for step in (perception._split, perception._merge):
+            out, _, changed = step(pts, objects, [0] * len(objects), CFG, st)
+            if not changed:
+                continue
+            got = perception._restats(pts, out, objects, st, 0.0, np.zeros(2), road)
+            ref = perception._stats(pts, out, 0.0, np.zeros(2), road)
+            for f in dataclasses.fields(ref):
+                a, b = getattr(got, f.name), getattr(ref, f.name)
+                assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a.view(np.uint8), b.view(np.uint8))
+            kept_some += sum(any(o is p for p in objects) for o in out) > 0
+    # all objects new, and none new (the same list)
+    pts, objects, st = synthetic(EDGE_OBJECTS)
+    for out in ([o.copy() for o in objects], list(objects[::-1])):
+        got, ref = perception._restats(pts, out, objects, st, 0.0, np.zeros(2), None), perception._stats(
+            pts, out, 0.0, np.zeros(2), None)
+        assert all(np.array_equal(getattr(got, f.name), getattr(ref, f.name)) for f in dataclasses.fields(ref))
+    assert kept_some >= 10
+
+
 def test_axis_extents_equal_the_separate_extent_kernels(highway):
     rng = np.random.default_rng(6)
     _, _, edge = synthetic(EDGE_OBJECTS)
