@@ -26,7 +26,7 @@ from typing import Callable
 import numpy as np
 from scipy import ndimage
 
-from sensors import checks
+from sensors import checks, perception_jit
 from sensors.grid import bev_cells
 from sensors.open3d_loader import open3d
 
@@ -80,27 +80,13 @@ def scan_line_links(points: np.ndarray, ray: np.ndarray, shape: tuple[int, int],
     given, only pairs not already in one cluster are returned (the others join nothing)."""
     pts = checks.float_array("points", points, (None, 3))
     n_az, n_beams = shape
-    known = np.flatnonzero(ray >= 0)
-    if len(known) < 2 or n_az < 2:
-        return np.zeros((0, 2), np.int64)
-    at = np.full(n_az * n_beams, -1, np.int64)  # point index of each ray among points
-    at[ray[known]] = known
-    a, b = np.divmod(ray[known], n_beams)
-    nxt = at[((a + 1) % n_az) * n_beams + b]
-    gap = (nxt < 0) & ~returned[(a + 1) % n_az, b]  # the next ray returned nothing: look one further
-    nxt = np.where(gap, at[((a + 2) % n_az) * n_beams + b], nxt)
-    i, j = known[nxt >= 0], nxt[nxt >= 0]
-    if labels is not None:
-        apart = (labels[i] != labels[j]) | (labels[i] < 0)
-        i, j = i[apart], j[apart]
-    d = pts[j] - pts[i]
-    length = np.linalg.norm(d, axis=1)
-    far = np.where(np.linalg.norm(pts[j] - origin, axis=1) >= np.linalg.norm(pts[i] - origin, axis=1), j, i)
-    u = pts[far] - origin
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    sin_angle = np.linalg.norm(np.cross(d, u), axis=1) / np.maximum(length, 1e-12)
-    ok = (length <= cfg.link_max_gap_m) & (sin_angle >= np.sin(np.deg2rad(cfg.link_min_angle_deg)))
-    return np.column_stack([i[ok], j[ok]]).astype(np.int64)
+    ray = np.asarray(ray, np.int64)
+    has_labels = labels is not None
+    # compiled: the same operations in numpy's order (perception_reference.scan_line_links_reference)
+    return perception_jit.line_links(pts, ray, int(n_az), int(n_beams), np.asarray(returned, bool),
+                                     np.asarray(labels, np.int64) if has_labels else ray, has_labels,
+                                     np.asarray(origin, np.float64), float(cfg.link_max_gap_m),
+                                     float(np.sin(np.deg2rad(cfg.link_min_angle_deg))))
 
 
 def numbered(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.ndarray:
@@ -115,8 +101,7 @@ def numbered(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.ndarray:
     lab = raw[valid]
     counts = np.bincount(lab)
     x = pts[valid, 0]
-    min_x = np.full(len(counts), np.inf)
-    np.minimum.at(min_x, lab, x)
+    min_x = perception_jit.group_min(lab, x, len(counts))  # np.minimum.at into inf, compiled
     first = np.flatnonzero((x == min_x[lab]) & (counts[lab] >= min_points))  # candidates for a first point
     order = np.lexsort((pts[valid[first], 2], pts[valid[first], 1], x[first]))
     ids, at = np.unique(lab[first[order]], return_index=True)  # each cluster's first point in that order

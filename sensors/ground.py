@@ -126,11 +126,12 @@ def _grid(pts: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None) -> np.n
 
 def _road_plane(pts: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None) -> np.ndarray:
     centre = origin if origin is not None else np.array([*pts[:, :2].mean(axis=0), cfg.ground_z_m])
-    # coordinates relative to the sensor, as contiguous columns (much faster than (N, 3) broadcasting)
-    x, y, z = pts[:, 0] - centre[0], pts[:, 1] - centre[1], pts[:, 2] - centre[2]
-    plane = _coarse_plane(pts, centre, z, cfg)
-    near = np.abs(z - plane[0] * x - plane[1] * y - plane[2]) <= _FINE_BAND_M
-    plane = _plane_fit(x[near], y[near], z[near], plane)  # the cells' lowest points sit low and off-centre
+    # coordinates relative to the sensor, as contiguous columns, and the points' x, y bounds: one compiled pass
+    x, y, z, bounds = perception_jit.relative_columns(pts, float(centre[0]), float(centre[1]), float(centre[2]))
+    plane = _coarse_plane(pts, centre, z, cfg, bounds)
+    # the points within _FINE_BAND_M of the coarse plane (np.abs(z - a x - b y - c) <= band, compiled)
+    near = perception_jit.near_plane(x, y, z, float(plane[0]), float(plane[1]), float(plane[2]), _FINE_BAND_M)
+    plane = _plane_fit(*near, plane)  # the cells' lowest points sit low and off-centre
     if not _acceptable(plane, cfg):
         plane = np.array([0.0, 0.0, cfg.ground_z_m - centre[2]])
     # compiled: a point is road when its height above the plane is at most the band tol (the range-aware band of
@@ -141,13 +142,16 @@ def _road_plane(pts: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None) -
         cfg.foot_cell_m, _FOOT_ABOVE_M[0], _FOOT_ABOVE_M[1], _FOOT_KEEP)
 
 
-def _coarse_plane(pts: np.ndarray, centre: np.ndarray, z: np.ndarray, cfg: GroundConfig) -> np.ndarray:
+def _coarse_plane(pts: np.ndarray, centre: np.ndarray, z: np.ndarray, cfg: GroundConfig,
+                  bounds: np.ndarray) -> np.ndarray:
     """(3,) plane [a, b, c], z = a x + b y + c relative to `centre` (3,), through the lowest point z (N,) of
     each BEV cell of the points (N, 3), taken at the cell centre: least squares trimmed to _COARSE_BANDS_M
-    around the previous plane, starting from the road at ground_z_m."""
+    around the previous plane, starting from the road at ground_z_m. bounds: (4,) the points' smallest and
+    largest x, then y [m]."""
     inv = 1.0 / cfg.cell_m  # cells numbered the way bev_cells does
-    fx0, fy0 = np.floor(pts[:, 0].min() * inv), np.floor(pts[:, 1].min() * inv)
-    shape = (int(np.floor(pts[:, 0].max() * inv) - fx0) + 1, int(np.floor(pts[:, 1].max() * inv) - fy0) + 1)
+    x_min, x_max, y_min, y_max = bounds
+    fx0, fy0 = np.floor(x_min * inv), np.floor(y_min * inv)
+    shape = (int(np.floor(x_max * inv) - fx0) + 1, int(np.floor(y_max * inv) - fy0) + 1)
     if shape[0] * shape[1] > MAX_CELLS:
         bev_cells(pts, cfg.cell_m, "ground")  # raises its ValueError
     lowest = perception_jit.cell_lowest(pts, z, inv, fx0, fy0, shape[1], shape[0] * shape[1])
@@ -168,9 +172,25 @@ def _plane_fit(x: np.ndarray, y: np.ndarray, z: np.ndarray, plane: np.ndarray) -
     n = len(x)
     sx, sy, sxy = x.sum(), y.sum(), np.dot(x, y)
     normal = np.array([[np.dot(x, x), sxy, sx], [sxy, np.dot(y, y), sy], [sx, sy, n]])
-    if n < 3 or np.linalg.cond(normal) > 1e12:
+    if n < 3 or _ill_conditioned(normal):
         return plane
     return np.linalg.solve(normal, np.array([np.dot(x, z), np.dot(y, z), z.sum()]))
+
+
+_MAX_COND = 1e12  # _plane_fit: a normal matrix with a larger condition number does not fix a plane
+
+
+def _ill_conditioned(normal: np.ndarray) -> bool:
+    """np.linalg.cond(normal) > _MAX_COND for a 3x3 normal matrix (symmetric), without its SVD when a bound shows
+    it well below: for a positive definite matrix cond = l_max / l_min <= trace / (4 det / trace^2) (l_max <=
+    trace, and the other two eigenvalues' product is at most (trace / 2)^2). The bound is trusted only below
+    _MAX_COND / 100, where the rounding of det is far too small to matter; anything else is np.linalg.cond's."""
+    (a, b, c), (_, d, e), (_, _, f) = normal.tolist()
+    trace = a + d + f
+    det = a * (d * f - e * e) - b * (b * f - c * e) + c * (b * e - c * d)
+    if det > 0.0 and trace > 0.0 and trace**3 / (4.0 * det) < _MAX_COND / 100.0:
+        return False
+    return bool(np.linalg.cond(normal) > _MAX_COND)
 
 
 def _acceptable(plane: np.ndarray, cfg: GroundConfig) -> bool:

@@ -66,7 +66,7 @@ from typing import Callable
 
 import numpy as np
 
-from sensors import checks, perception_jit
+from sensors import checks, perception_jit, perception_reference
 from sensors.boxfit import (
     SHAPES,
     BoxFit,
@@ -342,12 +342,19 @@ class PerceptionResult:
             object.__setattr__(self, "cluster_labels", np.full(len(self.labels), -1, np.int64))
 
 
-def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None) -> PerceptionResult:
+PERCEIVE_STAGES = ("ground", "clustering", "split and merge", "screen", "box fits", "box merge", "ROI and output")
+"""The stages perceive reports to its `timer`, in order (a stage that does not run is not reported)."""
+
+
+def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None,
+             timer: Callable[[str], None] | None = None) -> PerceptionResult:
     """Scan -> ground mask, clusters, one detection per vehicle-like object (see the module docstring).
 
     road: the lane map; with it the box fit gets the lane heading as prior, and with cfg.roi objects off
     the road are rejected. Without it there is no ROI test.
+    timer: called with the name of each stage (PERCEIVE_STAGES) as it ends (a benchmark's stopwatch), or None.
     """
+    lap = timer if timer is not None else _no_lap
     if not isinstance(scan, Scan):
         raise TypeError(f"scan: expected Scan, got {type(scan).__name__}")
     if not isinstance(cfg, PerceptionConfig):
@@ -357,17 +364,20 @@ def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None) -> 
     pts = scan.points
     road_z = cfg.ground.ground_z_m
     is_ground = segment_ground(pts, cfg.ground, scan.origin)
+    lap("ground")
     candidates = np.flatnonzero(~is_ground & (pts[:, 2] - road_z <= cfg.max_height_m))
-    sub = cluster(pts[candidates], cfg.cluster)
+    cand_pts = pts[candidates]
+    sub = cluster(cand_pts, cfg.cluster)
     cluster_labels = np.full(len(pts), -1, np.int64)
     cluster_labels[candidates] = sub
     if cfg.cluster.scan_line_links and cfg.roi and road is not None and scan.ranges.size and len(sub):
-        links = scan_line_links(pts[candidates], scan.ray[candidates], scan.ranges.shape, scan.origin,
+        links = scan_line_links(cand_pts, scan.ray[candidates], scan.ranges.shape, scan.origin,
                                 np.isfinite(scan.ranges), cfg.cluster, labels=sub)
         if len(links):  # on the lanes only: a roadside rail or wall is the grazing surface links would grow
-            lane = road.on_road(pts[candidates][links.reshape(-1), :2], cfg.roi_margin_m).reshape(-1, 2)
-            sub = _linked(pts[candidates], sub, links[lane.all(axis=1)], cfg)
+            lane = road.on_road(cand_pts[links.reshape(-1), :2], cfg.roi_margin_m).reshape(-1, 2)
+            sub = _linked(cand_pts, sub, links[lane.all(axis=1)], cfg)
     labels = np.full(len(pts), -1, np.int64)
+    lap("clustering")
     if len(sub) == 0 or sub.max() < 0:
         return PerceptionResult(Detections.empty(), is_ground, labels, Rejected.empty(), cluster_labels)
 
@@ -376,10 +386,16 @@ def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None) -> 
     st = _stats(pts, objects, road_z, scan.origin[:2], road)
     for step, on in ((_split, cfg.split_vehicles), (_merge, cfg.merge_fragments)):
         if on:
+            before = objects
             objects, flags, changed = step(pts, objects, flags, cfg, st)
             if changed:
-                st = _stats(pts, objects, road_z, scan.origin[:2], road)
-    return _select(scan, objects, np.asarray(flags, np.int64), cfg, road, st, is_ground, labels, cluster_labels)
+                st = _restats(pts, objects, before, st, road_z, scan.origin[:2], road)
+    lap("split and merge")
+    return _select(scan, objects, np.asarray(flags, np.int64), cfg, road, st, is_ground, labels, cluster_labels, lap)
+
+
+def _no_lap(stage: str) -> None:
+    """perceive's timer when it has none."""
 
 
 # --- objects --------------------------------------------------------------------------------------------
@@ -410,38 +426,9 @@ def _linked(pts: np.ndarray, labels: np.ndarray, links: np.ndarray, cfg: Percept
     p, q = pts[links[:, 0]], pts[links[:, 1]]  # shortest first; ties by the points, not by their order
     length = np.linalg.norm(q - p, axis=1)
     ia, ib = np.searchsorted(used, a), np.searchsorted(used, b)
-    parent = list(range(len(used)))
-    lo, hi, top = lo.tolist(), hi.tolist(), top.tolist()
-    holds_cluster = (used < n_clusters).tolist()  # the union holds one of the clusters already
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    truck_top, truck_len, car_len = cfg.truck_min_top_m, cfg.max_truck_length_m, cfg.link_max_length_m
-    pending = np.lexsort((q[:, 2], q[:, 1], q[:, 0], p[:, 2], p[:, 1], p[:, 0], length)).tolist()
-    grew = True
-    while pending and grew:  # passes until no union: a chain of noise points grows from its cluster outwards
-        grew, later = False, []
-        for k in pending:
-            r, s = root(int(ia[k])), root(int(ib[k]))
-            if r == s or holds_cluster[r] == holds_cluster[s]:  # one side must hold a cluster, not both
-                if r != s and not holds_cluster[r]:
-                    later.append(k)  # two noise points: once one of them belongs to a cluster
-                continue
-            (x0, y0), (x1, y1) = lo[r], lo[s]
-            (X0, Y0), (X1, Y1) = hi[r], hi[s]
-            box_lo, box_hi, t = (min(x0, x1), min(y0, y1)), (max(X0, X1), max(Y0, Y1)), max(top[r], top[s])
-            if max(box_hi[0] - box_lo[0], box_hi[1] - box_lo[1]) > (truck_len if t >= truck_top else car_len):
-                continue
-            parent[s] = r
-            lo[r], hi[r], top[r] = box_lo, box_hi, t
-            holds_cluster[r] = True
-            grew = True
-        pending = later
-    roots = np.array([root(i) for i in range(len(used))], dtype=np.int64)
+    pending = np.lexsort((q[:, 2], q[:, 1], q[:, 0], p[:, 2], p[:, 1], p[:, 0], length))
+    roots = perception_jit.link_unions(ia, ib, pending, lo, hi, top, used < n_clusters, float(cfg.truck_min_top_m),
+                                       float(cfg.max_truck_length_m), float(cfg.link_max_length_m))
     out = np.where(labels >= 0, node, -1)
     out[sel] = used[roots[which]]  # every point of a touched node takes its union's representative node
     return numbered(pts, out, cfg.cluster.min_points)
@@ -470,8 +457,19 @@ def _raw_objects(pts: np.ndarray, candidates: np.ndarray, sub: np.ndarray) -> li
 
 
 def _canonical(pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """The point indices idx in lexicographic (x, y, z) order of their points."""
-    return idx[np.lexsort((pts[idx, 2], pts[idx, 1], pts[idx, 0]))]
+    """The point indices idx in lexicographic (x, y, z) order of their points, equal points in idx's order
+    (perception_reference.canonical_reference): one stable sort by x (a group joined from canonical objects is
+    a few sorted runs), the full lexicographic order only within runs of equal x."""
+    x = pts[idx, 0]
+    order = np.argsort(x, kind="stable")
+    tie = np.diff(x[order]) == 0.0
+    if np.any(tie):
+        in_run = np.r_[tie, False] | np.r_[False, tie]
+        pos = np.flatnonzero(in_run)
+        run = np.cumsum(np.r_[True, ~tie])[pos]  # run number of each position in a run
+        sel = order[pos]
+        order[pos] = sel[np.lexsort((sel, pts[idx[sel], 2], pts[idx[sel], 1], run))]
+    return idx[order]
 
 
 @dataclass(frozen=True)
@@ -507,14 +505,47 @@ def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy:
         pts, members, starts, n, float(road_z), float(sensor_xy[0]), float(sensor_xy[1]))
     principal = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     cos_p, sin_p = np.cos(principal), np.sin(principal)
-    thickness = _extent(rel, -sin_p, cos_p, n, starts)
-    p_length = _extent(rel, cos_p, sin_p, n, starts)
     axis = road.heading_at(centroid) if road is not None else principal
     cos_a, sin_a = (np.cos(axis), np.sin(axis)) if road is not None else (cos_p, sin_p)
-    u, along = perception_jit.along(rel, cos_a, sin_a, starts, n)
-    across = _extent(rel, -sin_a, cos_a, n, starts)
+    # extents across and along the principal axis, u and the extents along and across `axis`: one pass
+    thickness, p_length, u, along, across = perception_jit.axis_extents(rel, cos_p, sin_p, cos_a, sin_a, starts, n)
     return _Stats(members, starts, n, top, lo, hi, centroid, axis, along, across, d_min, u, xy, z, rel, principal,
                   thickness, p_length)
+
+
+def _restats(pts: np.ndarray, objects: list[np.ndarray], before: list[np.ndarray], old: _Stats, road_z: float,
+             sensor_xy: np.ndarray, road: RoadMap | None) -> _Stats:
+    """_stats(pts, objects, ...) after a split or merge, bit for bit: an object that is one of `before` (the same
+    array: the same points in the same order), whose _stats are `old`, keeps its summaries (each depends on its own
+    points only; perception_jit.take_runs copies its rows), only the others are computed."""
+    index = {id(o): k for k, o in enumerate(before)}
+    src = np.fromiter((index.get(id(o), -1) for o in objects), np.int64, len(objects))
+    new = np.flatnonzero(src < 0)
+    if len(new) == len(objects):
+        return _stats(pts, objects, road_z, sensor_xy, road)
+    kept = np.flatnonzero(src >= 0)
+    if len(new) == 0:
+        fresh = old  # (unused rows: every object is kept)
+    else:
+        fresh = _stats(pts, [objects[k] for k in new], road_z, sensor_xy, road)
+    where = np.zeros(len(objects), np.int64)  # the object's index in old (kept) or in fresh (new)
+    where[kept], where[new] = src[kept], np.arange(len(new))
+    is_new = src < 0
+    n = np.where(is_new, fresh.n[np.minimum(where, len(fresh.n) - 1)], old.n[np.maximum(src, 0)])
+    starts = np.cumsum(n) - n
+    per_object = {}
+    for name in ("top", "lo", "hi", "centroid", "axis", "along", "across", "d_min", "principal", "thickness",
+                 "p_length"):
+        a, b = getattr(old, name), getattr(fresh, name)
+        out = np.empty((len(objects),) + a.shape[1:])
+        out[kept] = a[src[kept]]
+        if len(new):
+            out[new] = b
+        per_object[name] = out
+    members, u, xy, z, rel = perception_jit.take_runs(
+        is_new, where, old.starts, fresh.starts, n, starts, old.members, old.u, old.xy, old.z, old.rel,
+        fresh.members, fresh.u, fresh.xy, fresh.z, fresh.rel)
+    return _Stats(members=members, starts=starts, n=n, u=u, xy=xy, z=z, rel=rel, **per_object)
 
 
 def _extent(rel: np.ndarray, cx: np.ndarray, cy: np.ndarray, n: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -529,12 +560,7 @@ def _split(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: Pe
            st: _Stats) -> tuple[list[np.ndarray], list[int], bool]:
     """Cut objects holding several vehicles (see the module docstring, stage 2); whether any was cut."""
     too_big = _too_big(np.maximum(st.along, st.across), np.minimum(st.along, st.across), st.top, cfg)
-    # widest gap along the axis of every object: one sort of all members by (object, u)
-    owner = np.repeat(np.arange(len(objects)), st.n)
-    u_sorted = st.u[np.argsort(owner * (np.ptp(st.u) + 1.0) + (st.u - st.u.min()))]
-    step = np.diff(u_sorted, append=u_sorted[-1])
-    step[st.starts + st.n - 1] = 0.0  # no gap across two objects
-    gappy = np.maximum.reduceat(step, st.starts) > cfg.split_gap_m
+    gappy = _widest_gaps(st) > cfg.split_gap_m
     # a single thin surface (a guard rail, a wall, a rail with its posts) is not cut into vehicle-sized pieces
     candidate = (too_big | gappy) & (st.across >= cfg.split_min_width_m)
     out: list[np.ndarray] = []
@@ -545,6 +571,14 @@ def _split(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: Pe
         out += pieces
         out_flags += [flags[k] | (SPLIT if len(pieces) > 1 else 0)] * len(pieces)
     return out, out_flags, len(out) > len(objects)
+
+
+def _widest_gaps(st: _Stats) -> np.ndarray:
+    """(K,) the widest gap [m] between consecutive members of each object along its axis (st.u), compiled
+    (perception_jit.widest_gaps: each object's u sorted on its own); perception_reference.widest_gaps_reference,
+    the former sort of all members by one float key of (object, u), where that key cannot tell two u apart."""
+    gaps, clear = perception_jit.widest_gaps(st.u, st.starts, st.n, float(st.u.min()), float(np.ptp(st.u) + 1.0))
+    return gaps if clear else perception_reference.widest_gaps_reference(st.u, st.starts, st.n)
 
 
 def _too_big(length, width, top, cfg: PerceptionConfig):
@@ -676,20 +710,25 @@ def _required_top(scan: Scan, d_min: np.ndarray, cfg: PerceptionConfig) -> np.nd
 
 def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: PerceptionConfig,
             road: RoadMap | None, st: _Stats, is_ground: np.ndarray, labels: np.ndarray,
-            cluster_labels: np.ndarray) -> PerceptionResult:
-    """Selection tests, fits, the box merge, ROI; the PerceptionResult. st: the objects' _stats."""
+            cluster_labels: np.ndarray, lap: Callable[[str], None] = _no_lap) -> PerceptionResult:
+    """Selection tests, fits, the box merge, ROI; the PerceptionResult. st: the objects' _stats; lap: perceive's
+    timer."""
     pts = scan.points
     road_z = cfg.ground.ground_z_m
     boxfit = _boxfit_for(scan, cfg)
     reason, shape_centre = _screen(scan, st, cfg)
+    lap("screen")
     pool = _SidePool(pts, is_ground, cfg, boxfit)
     fits = _fit_all(scan, st, np.flatnonzero(reason == ""), road is not None, cfg, boxfit, pool)
+    lap("box fits")
     if cfg.merge_fragments and len(fits) > 1:
+        before = objects
         objects, flags, reason, fits, shape_centre, merged = _merge_boxes(
             pts, objects, flags, reason, fits, shape_centre, st, cfg)
         if merged:
-            st = _stats(pts, objects, road_z, scan.origin[:2], road)
+            st = _restats(pts, objects, before, st, road_z, scan.origin[:2], road)
             fits.update(_fit_all(scan, st, np.asarray(merged, np.int64), road is not None, cfg, boxfit, pool))
+        lap("box merge")
 
     k_all = len(objects)
     centre = st.centroid.copy()
@@ -718,7 +757,8 @@ def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: Perce
         elif min(seen) > cfg.max_width_m:
             reason[k] = "too_wide"
     if cfg.roi and road is not None:
-        off = (reason == "") & ~road.on_road(centre, cfg.roi_margin_m) & ~road.on_road(st.centroid, cfg.roi_margin_m)
+        on = road.on_road(np.concatenate([centre, st.centroid]), cfg.roi_margin_m)  # one query: centres, centroids
+        off = (reason == "") & ~on[:k_all] & ~on[k_all:]
         reason[off] = "off_road"
         flags[off] |= OFF_ROAD
     keep = reason == ""
@@ -727,6 +767,7 @@ def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: Perce
     detections = Detections(z[keep], provenance[keep], st.n[keep], extent[keep], R[keep], st.centroid[keep],
                             np.mod(heading[keep], np.pi), flags[keep] & ~OFF_ROAD)
     rejected = Rejected(centre[~keep], reason[~keep].astype(str), provenance[~keep], st.n[~keep], flags[~keep])
+    lap("ROI and output")
     return PerceptionResult(detections, is_ground, labels, rejected, cluster_labels)
 
 
@@ -840,6 +881,8 @@ def _merge_boxes(pts, objects, flags, reason, fits, shape_centre, st, cfg):
     lo, hi = st.lo[keys], st.hi[keys]
     near = np.hypot(*np.maximum(np.maximum(lo[None] - c[:, None], c[:, None] - hi[None]), 0.0).transpose(2, 0, 1))
     ii, jj = np.nonzero((near <= reach[:, None]) & ~np.eye(len(keys), dtype=bool))
+    keep = _box_gap_bound(c[ii], h[ii], half[ii], lo[jj], hi[jj]) <= cfg.merge_gap_m + _BOUND_MARGIN_M
+    ii, jj = ii[keep], jj[keep]
     dist: dict[tuple[int, int], float] = {}
     for a, b in zip(ii, jj):
         xy = pts[_members(st, keys[b]), :2] - c[a]
@@ -879,6 +922,27 @@ def _merge_boxes(pts, objects, flags, reason, fits, shape_centre, st, cfg):
             merged)
 
 
+_BOUND_MARGIN_M = 1e-6
+"""_merge_boxes drops a pair only when the lower bound of its points' distance exceeds merge_gap_m by this [m]
+(far more than the rounding of either computation), so the pairs it keeps decide the merge alone."""
+
+
+def _box_gap_bound(c: np.ndarray, heading: np.ndarray, half: np.ndarray, lo: np.ndarray,
+                   hi: np.ndarray) -> np.ndarray:
+    """(P,) a lower bound of the distance [m] from any point within the axis-aligned boxes lo, hi (P, 2) [m] to
+    the oriented boxes of centres c (P, 2) [m], headings (P,) [rad] and half sides half (P, 2) [m]: the distance
+    of the corners' extents along and across each oriented box from its sides (hypot of both, 0 inside)."""
+    cos_h, sin_h = np.cos(heading)[:, None], np.sin(heading)[:, None]
+    corner_x = np.stack([lo[:, 0], lo[:, 0], hi[:, 0], hi[:, 0]], axis=1) - c[:, :1]  # (P, 4)
+    corner_y = np.stack([lo[:, 1], hi[:, 1], lo[:, 1], hi[:, 1]], axis=1) - c[:, 1:]
+    gaps = []
+    for u, h in ((corner_x * cos_h + corner_y * sin_h, half[:, 0]), (corner_y * cos_h - corner_x * sin_h, half[:, 1])):
+        u_lo, u_hi = u.min(axis=1), u.max(axis=1)
+        nearest = np.where((u_lo <= 0.0) & (u_hi >= 0.0), 0.0, np.minimum(np.abs(u_lo), np.abs(u_hi)))
+        gaps.append(np.maximum(nearest - h, 0.0))
+    return np.hypot(gaps[0], gaps[1])
+
+
 def _fit_all(scan: Scan, st: _Stats, keys: np.ndarray, hinted: bool, cfg: PerceptionConfig,
              boxfit: BoxFitConfig, pool: _SidePool | None = None) -> dict[int, BoxFit]:
     """The fits of objects `keys` (K,); with a map (hinted) the lane heading at the centroid is the prior;
@@ -889,8 +953,8 @@ def _fit_all(scan: Scan, st: _Stats, keys: np.ndarray, hinted: bool, cfg: Percep
         return {}
     ends = _open_ends(scan, st, keys)
     open_ends = np.array([e if e is not None else (False, False) for e in ends], bool).reshape(-1, 2)
-    rows = np.concatenate([np.arange(st.starts[k], st.starts[k] + st.n[k]) for k in keys])
     n = st.n[keys]
+    rows = np.repeat(st.starts[keys] - (np.cumsum(n) - n), n) + np.arange(int(n.sum()))  # the keys' members' rows
     fits = fit_vehicle_boxes_unchecked(st.xy[rows], st.z[rows] - cfg.ground.ground_z_m, np.cumsum(n) - n, n,
                                        scan.origin[:2], st.top[keys], st.axis[keys] if hinted else None, open_ends,
                                        boxfit)
@@ -1000,12 +1064,6 @@ def _complete_one_face(centre: np.ndarray, xy: np.ndarray, length: float, width:
 
 def _plurality_vehicle(source: np.ndarray, n: np.ndarray) -> np.ndarray:
     """(K,) per object (its n (K,) consecutive entries of source): the most frequent source label if it is a
-    vehicle id (>= 0), else -1; ties go to the smallest label."""
-    owner = np.repeat(np.arange(len(n)), n)
-    low = int(source.min())
-    pairs, count = np.unique(owner * (int(source.max()) - low + 1) + (source - low), return_counts=True)
-    p_owner, label = np.divmod(pairs, int(source.max()) - low + 1)
-    label = label + low
-    best = np.lexsort((label, -count, p_owner))  # by object, most points first, then smallest label
-    first = best[np.r_[True, p_owner[best][1:] != p_owner[best][:-1]]]
-    return np.where(label[first] >= 0, label[first], -1).astype(np.int64)
+    vehicle id (>= 0), else -1; ties go to the smallest label. Compiled (perception_jit.plurality);
+    perception_reference.plurality_reference is the former numpy code."""
+    return perception_jit.plurality(np.ascontiguousarray(source, np.int64), np.cumsum(n) - n, np.asarray(n, np.int64))

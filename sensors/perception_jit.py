@@ -1,4 +1,4 @@
-"""Compiled (numba) per-object loops of sensors/perception.py and sensors/ground.py.
+"""Compiled (numba) per-object loops of sensors/perception.py, sensors/ground.py and sensors/clustering.py.
 
 Each kernel computes what the former numpy code computed, bit for bit: sums follow numpy's pairwise
 summation (the order `np.add.reduceat` adds in, `_reduceat_add`), products and differences are the same
@@ -141,6 +141,33 @@ def along(rel, cx, cy, starts, n):
 
 
 @njit(cache=True)
+def axis_extents(rel, cos_p, sin_p, cos_a, sin_a, starts, n):
+    """extent(rel, -sin_p, cos_p), extent(rel, cos_p, sin_p), along(rel, cos_a, sin_a) (u and its extent) and
+    extent(rel, -sin_a, cos_a) in one pass over rel (sum n, 2): the same products and sums per point."""
+    k_all = len(starts)
+    thickness, p_length, along_, across = np.empty(k_all), np.empty(k_all), np.empty(k_all), np.empty(k_all)
+    u = np.empty(len(rel))
+    for k in range(k_all):
+        cp, sp, ca, sa = cos_p[k], sin_p[k], cos_a[k], sin_a[k]
+        ncp, nsp, nsa = -sp, cp, -sa  # (cx, cy) of the principal axis's normal; -sin_a of axis's normal
+        t_lo = p_lo = u_lo = c_lo = np.inf
+        t_hi = p_hi = u_hi = c_hi = -np.inf
+        for i in range(starts[k], starts[k] + n[k]):
+            x, y = rel[i, 0], rel[i, 1]
+            w = x * ncp + y * nsp
+            t_lo, t_hi = min(t_lo, w), max(t_hi, w)
+            w = x * cp + y * sp
+            p_lo, p_hi = min(p_lo, w), max(p_hi, w)
+            w = x * ca + y * sa
+            u[i] = w
+            u_lo, u_hi = min(u_lo, w), max(u_hi, w)
+            w = x * nsa + y * ca
+            c_lo, c_hi = min(c_lo, w), max(c_hi, w)
+        thickness[k], p_length[k], along_[k], across[k] = t_hi - t_lo, p_hi - p_lo, u_hi - u_lo, c_hi - c_lo
+    return thickness, p_length, u, along_, across
+
+
+@njit(cache=True)
 def medians(z, starts, n):
     """(K,) median of each object's z (sum n,)."""
     out = np.empty(len(starts))
@@ -205,6 +232,38 @@ def body_reaches(z, u, required, bin_m, starts, n):
                     reach += 1
         out[k] = reach >= 0.5 * bins
     return out
+
+
+@njit(cache=True)
+def relative_columns(pts, cx, cy, cz):
+    """sensors/ground._road_plane's columns: x, y, z (N,) = pts (N, 3) [m] minus (cx, cy, cz), and (4,) the
+    smallest and largest pts x, then y [m] (pts[:, 0].min(), .max(), pts[:, 1].min(), .max()); N >= 1."""
+    n = len(pts)
+    x, y, z = np.empty(n), np.empty(n), np.empty(n)
+    x_lo, x_hi, y_lo, y_hi = pts[0, 0], pts[0, 0], pts[0, 1], pts[0, 1]
+    for i in range(n):
+        px, py = pts[i, 0], pts[i, 1]
+        x[i], y[i], z[i] = px - cx, py - cy, pts[i, 2] - cz
+        x_lo, x_hi, y_lo, y_hi = min(x_lo, px), max(x_hi, px), min(y_lo, py), max(y_hi, py)
+    return x, y, z, np.array([x_lo, x_hi, y_lo, y_hi])
+
+
+@njit(cache=True)
+def near_plane(x, y, z, a, b, c, band):
+    """x, y, z (M,) of the points x, y, z (N,) with np.abs(z - a x - b y - c) <= band (the same operations in
+    the same order as numpy's), in their order."""
+    keep = np.empty(len(z), np.bool_)
+    m = 0
+    for i in range(len(z)):
+        keep[i] = abs(z[i] - a * x[i] - b * y[i] - c) <= band
+        m += keep[i]
+    xs, ys, zs = np.empty(m), np.empty(m), np.empty(m)
+    j = 0
+    for i in range(len(z)):
+        if keep[i]:
+            xs[j], ys[j], zs[j] = x[i], y[i], z[i]
+            j += 1
+    return xs, ys, zs
 
 
 @njit(cache=True)
@@ -372,9 +431,19 @@ def _nearest_sq(xy, sa, na, sb, nb, bound):
                 dx, dy = xy[i, 0] - xy[j, 0], xy[i, 1] - xy[j, 1]
                 best = min(best, dx * dx + dy * dy)
         return best
+    x_lo, x_hi = xy[sa, 0], xy[sa + na - 1, 0]  # the box of a's points
+    y_lo, y_hi = np.inf, -np.inf
+    for i in range(sa, sa + na):
+        y_lo, y_hi = min(y_lo, xy[i, 1]), max(y_hi, xy[i, 1])
     lo = sa
     for j in range(sb, sb + nb):
         xb, yb = xy[j, 0], xy[j, 1]
+        # a point of b farther from a's box than the best is farther from every point of a: skipped. Exact: each
+        # coordinate difference to a point of a rounds to at least that to the box's side (rounding is monotone)
+        bx = x_lo - xb if xb < x_lo else (xb - x_hi if xb > x_hi else 0.0)
+        by = y_lo - yb if yb < y_lo else (yb - y_hi if yb > y_hi else 0.0)
+        if bx * bx + by * by > best:
+            continue
         while lo < sa + na and xy[lo, 0] < xb and (xb - xy[lo, 0]) * (xb - xy[lo, 0]) > best:
             lo += 1  # farther left than the best distance, for this point and every later (larger x) one
         for i in range(lo, sa + na):
@@ -582,12 +651,21 @@ def open_ends(ray, members, starts, n, keys, ranges, margin, look):
         for i in range(starts[k], starts[k] + n[k]):
             if ray[members[i]] < 0:
                 return out, False
+    seen = np.zeros(n_az, np.bool_)  # the columns met so far in this object (reset after each)
+    found = np.empty(n_az, np.int64)
     for q in range(len(keys)):
         s0, m = starts[keys[q]], n[keys[q]]
         az = np.empty(m, np.int64)
+        n_cols = 0
         for i in range(m):
-            az[i] = ray[members[s0 + i]] // n_beams
-        cols = np.unique(az)
+            a = ray[members[s0 + i]] // n_beams
+            az[i] = a
+            if not seen[a]:
+                seen[a] = True
+                found[n_cols] = a
+                n_cols += 1
+        cols = np.sort(found[:n_cols])  # np.unique(az) without sorting all members
+        seen[cols] = False
         widest, widest_gap = 0, -1
         for i in range(len(cols)):
             gap = (cols[i + 1] if i + 1 < len(cols) else cols[0] + n_az) - cols[i]
@@ -607,3 +685,187 @@ def open_ends(ray, members, starts, n, keys, ranges, margin, look):
                         if ranges[(edge + step * step_k) % n_az, b] < here - margin:
                             out[q, e] = True
     return out, True
+
+
+# --- scan-line links (sensors/perception_reference.link_unions_reference) ----------------------------------
+
+@njit(cache=True)
+def _root_halving(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True)
+def link_unions(ia, ib, pending, lo, hi, top, holds_cluster, truck_top, truck_len, car_len):
+    """The union loop of sensors.perception._linked (perception_reference.link_unions_reference): links (L,) join
+    nodes ia[k], ib[k] (U nodes: boxes lo, hi (U, 2) [m], tops (U,) [m], holds_cluster (U,) bool), in the order
+    pending (L,), in passes until none joins. Returns the root (U,) int64 of every node. Only comparisons, min and
+    max: the same decisions as the reference."""
+    u_all = len(lo)
+    parent = np.arange(u_all)
+    lo, hi, top, holds = lo.copy(), hi.copy(), top.copy(), holds_cluster.copy()
+    todo = pending.copy()
+    n_todo = len(todo)
+    grew = True
+    while n_todo > 0 and grew:
+        grew = False
+        n_later = 0
+        for j in range(n_todo):
+            k = todo[j]
+            r, s = _root_halving(parent, ia[k]), _root_halving(parent, ib[k])
+            if r == s or holds[r] == holds[s]:
+                if r != s and not holds[r]:
+                    todo[n_later] = k  # n_later <= j: overwrites only links already taken
+                    n_later += 1
+                continue
+            bx0, by0 = min(lo[r, 0], lo[s, 0]), min(lo[r, 1], lo[s, 1])
+            bx1, by1 = max(hi[r, 0], hi[s, 0]), max(hi[r, 1], hi[s, 1])
+            t = max(top[r], top[s])
+            if max(bx1 - bx0, by1 - by0) > (truck_len if t >= truck_top else car_len):
+                continue
+            parent[s] = r
+            lo[r, 0], lo[r, 1], hi[r, 0], hi[r, 1], top[r] = bx0, by0, bx1, by1, t
+            holds[r] = True
+            grew = True
+        n_todo = n_later
+    roots = np.empty(u_all, np.int64)
+    for i in range(u_all):
+        roots[i] = _root_halving(parent, i)
+    return roots
+
+
+# --- clustering (sensors/clustering.numbered) --------------------------------------------------------------
+
+@njit(cache=True)
+def group_min(label, x, k):
+    """(k,) the smallest x (N,) of each label (N,) in 0..k-1, inf for a label without points: np.minimum.at into
+    np.full(k, inf), bit for bit (np.minimum(a, b) is b when a == b, so the last of equal zeros gives the sign;
+    NaN propagates)."""
+    out = np.full(k, np.inf)
+    for i in range(len(x)):
+        if x[i] <= out[label[i]] or x[i] != x[i]:
+            out[label[i]] = x[i]
+    return out
+
+
+# --- scan-line links (sensors/clustering.scan_line_links) ----------------------------------------------------
+
+@njit(cache=True)
+def _norm3(x, y, z):
+    """np.linalg.norm of one row (x, y, z): sqrt((x x + y y) + z z), numpy's order for a 3-wide axis."""
+    return np.sqrt((x * x + y * y) + z * z)
+
+
+@njit(cache=True, error_model="numpy")
+def line_links(pts, ray, n_az, n_beams, returned, labels, has_labels, origin, max_gap, min_sin):
+    """sensors.clustering.scan_line_links (perception_reference.scan_line_links_reference): (L, 2) int64 pairs of
+    indices into pts (N, 3) [m] of consecutive returns of one beam (ray (N,) int64 flat index a * n_beams + b,
+    -1 unknown; the next azimuth, or the one after when the next returned nothing: returned (n_az, n_beams)
+    bool), not already in one cluster (labels (N,) int64 when has_labels), at most max_gap [m] apart and at
+    least asin(min_sin) off the line of sight from origin (3,) [m]. The same float operations in numpy's order."""
+    n = len(ray)
+    n_known = 0
+    for k in range(n):
+        n_known += ray[k] >= 0
+    if n_known < 2 or n_az < 2:
+        return np.zeros((0, 2), np.int64)
+    at = np.full(n_az * n_beams, -1, np.int64)
+    for k in range(n):
+        if ray[k] >= 0:
+            at[ray[k]] = k
+    out = np.empty((n_known, 2), np.int64)
+    m = 0
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in range(n):
+        if ray[i] < 0:
+            continue
+        a, b = ray[i] // n_beams, ray[i] % n_beams
+        j = at[((a + 1) % n_az) * n_beams + b]
+        if j < 0 and not returned[(a + 1) % n_az, b]:
+            j = at[((a + 2) % n_az) * n_beams + b]
+        if j < 0:
+            continue
+        if has_labels and not (labels[i] != labels[j] or labels[i] < 0):
+            continue
+        dx, dy, dz = pts[j, 0] - pts[i, 0], pts[j, 1] - pts[i, 1], pts[j, 2] - pts[i, 2]
+        length = _norm3(dx, dy, dz)
+        far_j = _norm3(pts[j, 0] - ox, pts[j, 1] - oy, pts[j, 2] - oz) >= _norm3(pts[i, 0] - ox, pts[i, 1] - oy,
+                                                                                pts[i, 2] - oz)
+        f = j if far_j else i
+        ux, uy, uz = pts[f, 0] - ox, pts[f, 1] - oy, pts[f, 2] - oz
+        un = _norm3(ux, uy, uz)
+        ux, uy, uz = ux / un, uy / un, uz / un
+        cx, cy, cz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux  # np.cross(d, u)
+        sin_angle = _norm3(cx, cy, cz) / max(length, 1e-12)
+        if length <= max_gap and sin_angle >= min_sin:
+            out[m, 0], out[m, 1] = i, j
+            m += 1
+    return out[:m].copy()
+
+
+# --- provenance (sensors/perception_reference.plurality_reference) -------------------------------------------
+
+@njit(cache=True)
+def plurality(source, starts, n):
+    """(K,) per object (source[starts[k] : starts[k] + n[k]], n >= 1) its most frequent label if >= 0, else -1;
+    ties go to the smallest label."""
+    out = np.empty(len(starts), np.int64)
+    for k in range(len(starts)):
+        labels = np.sort(source[starts[k] : starts[k] + n[k]])
+        best, best_count, run = labels[0], 0, 0
+        for i in range(len(labels)):
+            run = run + 1 if i > 0 and labels[i] == labels[i - 1] else 1
+            if run > best_count:  # a later label needs strictly more points: ties keep the smaller
+                best, best_count = labels[i], run
+        out[k] = best if best >= 0 else -1
+    return out
+
+
+# --- split candidates (sensors/perception_reference.widest_gaps_reference) -----------------------------------
+
+@njit(cache=True)
+def widest_gaps(u, starts, n, u_min, span):
+    """(K,) the widest gap between consecutive sorted values of each object's u (sum n,), and whether the
+    reference's one sort by the key k * span + (u - u_min) orders every object's distinct u the same way (no
+    two distinct u of an object share a key); when not, the caller uses the reference."""
+    out = np.zeros(len(starts))
+    for k in range(len(starts)):
+        seg = np.sort(u[starts[k] : starts[k] + n[k]])
+        base = k * span
+        best = 0.0
+        for i in range(1, len(seg)):
+            if seg[i] != seg[i - 1] and base + (seg[i] - u_min) == base + (seg[i - 1] - u_min):
+                return out, False
+            best = max(best, seg[i] - seg[i - 1])
+        out[k] = best
+    return out, True
+
+
+# --- statistics after split and merge (sensors/perception._restats) -----------------------------------------
+
+@njit(cache=True)
+def take_runs(is_new, where, old_starts, new_starts, n, starts, members0, u0, xy0, z0, rel0, members1, u1, xy1,
+              z1, rel1):
+    """The packed member rows (members, u, xy, z, rel) of K objects (starts, n (K,)), object k's copied from the
+    new arrays (suffix 1) at new_starts[where[k]] when is_new[k], else from the old ones (suffix 0) at
+    old_starts[where[k]]."""
+    m = 0
+    for k in range(len(n)):
+        m += n[k]
+    members, u, z = np.empty(m, np.int64), np.empty(m), np.empty(m)
+    xy, rel = np.empty((m, 2)), np.empty((m, 2))
+    for k in range(len(n)):
+        o = starts[k]
+        if is_new[k]:
+            s = new_starts[where[k]]
+            for i in range(n[k]):
+                members[o + i], u[o + i], z[o + i] = members1[s + i], u1[s + i], z1[s + i]
+                xy[o + i, 0], xy[o + i, 1], rel[o + i, 0], rel[o + i, 1] = xy1[s + i, 0], xy1[s + i, 1], rel1[s + i, 0], rel1[s + i, 1]
+        else:
+            s = old_starts[where[k]]
+            for i in range(n[k]):
+                members[o + i], u[o + i], z[o + i] = members0[s + i], u0[s + i], z0[s + i]
+                xy[o + i, 0], xy[o + i, 1], rel[o + i, 0], rel[o + i, 1] = xy0[s + i, 0], xy0[s + i, 1], rel0[s + i, 0], rel0[s + i, 1]
+    return members, u, xy, z, rel

@@ -1,9 +1,11 @@
-"""Pure-numpy reference versions of the per-object loops that sensors/perception.py runs compiled.
+"""Pure-numpy reference versions of the per-object loops that sensors/perception.py (and the scan-line links of
+sensors/clustering.py) run compiled.
 
 Each function here is the former numpy code of a perception step, kept as the specification of its compiled
 replacement (sensors/perception_jit.py): tests/test_perception_identical.py checks, on ray-cast scans and on
 hand-made edge cases, that the compiled path gives the same bits. `union_fits_reference` is also the compiled
-merge test's fallback when its decision lies within rounding of a bound.
+merge test's fallback when its decision lies within rounding of a bound, `widest_gaps_reference` the split's when a
+key cannot order an object's members.
 
 `cfg` is a sensors.perception.PerceptionConfig (read by attribute; not imported, perception imports this module).
 """
@@ -202,3 +204,100 @@ def open_ends_reference(scan, st, keys: np.ndarray, margin_m: float = 0.5,
         nearer = np.any(scan.ranges[beyond, b[:, None]] < (here[o] - margin_m)[:, None], axis=1)
         out.append(np.bincount(o, weights=nearer, minlength=len(keys)) > 0)
     return [(bool(a), bool(b)) for a, b in zip(*out)]
+
+
+def link_unions_reference(ia, ib, pending, lo, hi, top, holds_cluster, truck_top, truck_len, car_len):
+    """The union loop of sensors.perception._linked: the links (L,) joining nodes ia[k] and ib[k] (U nodes with
+    bird's-eye boxes lo, hi (U, 2) [m], tops (U,) [m] and whether each holds a cluster (U,) bool), taken in the
+    order `pending` (L,), in passes until none joins: a link joins a noise node (or a chain of them) to a union
+    holding a cluster while the union's box stays within car_len (truck_len when its top reaches truck_top) [m].
+    Returns the root (U,) int64 of every node."""
+    parent = list(range(len(lo)))
+    lo, hi, top = lo.tolist(), hi.tolist(), top.tolist()
+    holds_cluster = holds_cluster.tolist()
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    pending = pending.tolist()
+    grew = True
+    while pending and grew:  # passes until no union: a chain of noise points grows from its cluster outwards
+        grew, later = False, []
+        for k in pending:
+            r, s = root(int(ia[k])), root(int(ib[k]))
+            if r == s or holds_cluster[r] == holds_cluster[s]:  # one side must hold a cluster, not both
+                if r != s and not holds_cluster[r]:
+                    later.append(k)  # two noise points: once one of them belongs to a cluster
+                continue
+            (x0, y0), (x1, y1) = lo[r], lo[s]
+            (X0, Y0), (X1, Y1) = hi[r], hi[s]
+            box_lo, box_hi, t = (min(x0, x1), min(y0, y1)), (max(X0, X1), max(Y0, Y1)), max(top[r], top[s])
+            if max(box_hi[0] - box_lo[0], box_hi[1] - box_lo[1]) > (truck_len if t >= truck_top else car_len):
+                continue
+            parent[s] = r
+            lo[r], hi[r], top[r] = box_lo, box_hi, t
+            holds_cluster[r] = True
+            grew = True
+        pending = later
+    return np.array([root(i) for i in range(len(parent))], dtype=np.int64)
+
+
+def canonical_reference(pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The point indices idx (n,) in lexicographic (x, y, z) order of their points pts (N, 3), equal points in
+    idx's order (sensors.perception._canonical)."""
+    return idx[np.lexsort((pts[idx, 2], pts[idx, 1], pts[idx, 0]))]
+
+
+def scan_line_links_reference(points, ray, shape, origin, returned, cfg, labels=None):
+    """sensors.clustering.scan_line_links in numpy (the former code of its compiled kernel, perception_jit.line_links):
+    pairs (L, 2) int64 of indices into points (N, 3) [m] that are consecutive returns of one beam on one surface."""
+    pts = np.asarray(points, np.float64)
+    n_az, n_beams = shape
+    known = np.flatnonzero(ray >= 0)
+    if len(known) < 2 or n_az < 2:
+        return np.zeros((0, 2), np.int64)
+    at = np.full(n_az * n_beams, -1, np.int64)  # point index of each ray among points
+    at[ray[known]] = known
+    a, b = np.divmod(ray[known], n_beams)
+    nxt = at[((a + 1) % n_az) * n_beams + b]
+    gap = (nxt < 0) & ~returned[(a + 1) % n_az, b]  # the next ray returned nothing: look one further
+    nxt = np.where(gap, at[((a + 2) % n_az) * n_beams + b], nxt)
+    i, j = known[nxt >= 0], nxt[nxt >= 0]
+    if labels is not None:
+        apart = (labels[i] != labels[j]) | (labels[i] < 0)
+        i, j = i[apart], j[apart]
+    d = pts[j] - pts[i]
+    length = np.linalg.norm(d, axis=1)
+    far = np.where(np.linalg.norm(pts[j] - origin, axis=1) >= np.linalg.norm(pts[i] - origin, axis=1), j, i)
+    u = pts[far] - origin
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    sin_angle = np.linalg.norm(np.cross(d, u), axis=1) / np.maximum(length, 1e-12)
+    ok = (length <= cfg.link_max_gap_m) & (sin_angle >= np.sin(np.deg2rad(cfg.link_min_angle_deg)))
+    return np.column_stack([i[ok], j[ok]]).astype(np.int64)
+
+
+def plurality_reference(source: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """sensors.perception._plurality_vehicle in numpy: (K,) per object (its n (K,) consecutive entries of source)
+    the most frequent source label if it is a vehicle id (>= 0), else -1; ties go to the smallest label."""
+    owner = np.repeat(np.arange(len(n)), n)
+    low = int(source.min())
+    pairs, count = np.unique(owner * (int(source.max()) - low + 1) + (source - low), return_counts=True)
+    p_owner, label = np.divmod(pairs, int(source.max()) - low + 1)
+    label = label + low
+    best = np.lexsort((label, -count, p_owner))  # by object, most points first, then smallest label
+    first = best[np.r_[True, p_owner[best][1:] != p_owner[best][:-1]]]
+    return np.where(label[first] >= 0, label[first], -1).astype(np.int64)
+
+
+def widest_gaps_reference(u: np.ndarray, starts: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(K,) the widest gap between consecutive values of each object's u (sum n,) in sorted order, from one sort
+    of all members by the float key object * (ptp(u) + 1) + (u - min(u)) (sensors.perception._split's former
+    code; its order among equal keys is numpy's)."""
+    owner = np.repeat(np.arange(len(n)), n)
+    u_sorted = u[np.argsort(owner * (np.ptp(u) + 1.0) + (u - u.min()))]
+    step = np.diff(u_sorted, append=u_sorted[-1])
+    step[starts + n - 1] = 0.0  # no gap across two objects
+    return np.maximum.reduceat(step, starts)

@@ -17,6 +17,35 @@ WIDE = dataclasses.replace(CFG, max_length_m=12.0, max_width_m=5.0)  # more unio
 
 
 @pytest.fixture(scope="module")
+def shipped():
+    """(scene name, scan, perception config, road) of every other frame of the first second of every shipped
+    scenario."""
+    from testbed.scenario.spec import list_scenarios, load_scenario
+    from testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
+
+    out = []
+    for name in list_scenarios():
+        scn = load_scenario(name, {"duration_s": 1.0})
+        rngs = rng_streams(scn.seed)
+        sim, static, road = sensing_setup(scn, rngs)
+        for i, truth in enumerate(sim.frames()):
+            s = scan_frame(truth, static, scn.sensor.lidar, rngs["lidar"])
+            if i % 2 == 0:
+                out.append((name, s, scn.sensor.perception, road))
+    return out
+
+
+def kernel_calls(monkeypatch, frames, name: str) -> list[tuple]:
+    """The arguments of every call perceive makes to perception_jit.<name> on `frames` ((name, scan, cfg, road))."""
+    calls, kernel = [], getattr(perception_jit, name)
+    monkeypatch.setattr(perception_jit, name, lambda *a: calls.append(a) or kernel(*a))
+    for _, scan, cfg, road in frames:
+        perception.perceive(scan, cfg, road)
+    monkeypatch.undo()
+    return calls
+
+
+@pytest.fixture(scope="module")
 def highway():
     """(points (N, 3), objects, _stats, road) of the first 1.5 s of highway_benchmark, every frame: the clusters
     before split and merge, as perceive sees them."""
@@ -84,6 +113,23 @@ def test_split_object_equals_the_reference_on_highway_scans(highway):
     assert n_split >= 10  # the scans do hold objects that are cut
 
 
+def test_widest_gaps_equal_the_reference(highway, monkeypatch):
+    frames = [st for _, _, st, _ in highway] + [synthetic(EDGE_OBJECTS)[2]]
+    for st in frames:
+        gaps, clear = perception_jit.widest_gaps(st.u, st.starts, st.n, float(st.u.min()), float(np.ptp(st.u) + 1.0))
+        assert clear
+        ref = perception_reference.widest_gaps_reference(st.u, st.starts, st.n)
+        assert np.array_equal(gaps.view(np.int64), ref.view(np.int64))
+        assert np.array_equal(perception._widest_gaps(st).view(np.int64), ref.view(np.int64))
+    assert sum(int(np.sum(perception_reference.widest_gaps_reference(st.u, st.starts, st.n) > 0.3)) for st in frames) > 10
+    # distinct u that one key cannot tell apart (an object far along the key): the reference decides
+    u = np.array([0.0, 1e6, 5.0, 5.0 + 1e-11, 7.0])
+    starts, n = np.array([0, 1]), np.array([1, 4])
+    assert not perception_jit.widest_gaps(u, starts, n, 0.0, float(np.ptp(u) + 1.0))[1]
+    st = type(frames[0])(**{**frames[0].__dict__, "u": u, "starts": starts, "n": n})
+    assert np.array_equal(perception._widest_gaps(st), perception_reference.widest_gaps_reference(u, starts, n))
+
+
 def test_split_object_equals_the_reference_on_edge_cases():
     pts, objects, _ = synthetic(EDGE_OBJECTS)
     cut = 0
@@ -95,6 +141,161 @@ def test_split_object_equals_the_reference_on_edge_cases():
                 assert same_arrays(perception.split_object(obj, pts[obj, :2], pts[obj, 2], axis, cfg), ref)
                 cut += len(ref) > 1
     assert cut >= 8
+
+
+# --- stage timer -------------------------------------------------------------------------------------------
+
+def test_the_timer_sees_the_stages_in_order_and_changes_nothing(shipped):
+    full = 0
+    for _, scan, cfg, road in shipped[::3]:
+        stages = []
+        timed = perception.perceive(scan, cfg, road, timer=stages.append)
+        plain = perception.perceive(scan, cfg, road)
+        assert stages == [s for s in perception.PERCEIVE_STAGES if s in stages]  # in order, each once
+        assert stages[:2] == ["ground", "clustering"]
+        full += stages == list(perception.PERCEIVE_STAGES)
+        for a, b in ((timed.detections, plain.detections), (timed.rejected, plain.rejected)):
+            for f in dataclasses.fields(a):
+                assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
+        assert np.array_equal(timed.labels, plain.labels)
+    assert full >= 3
+
+
+# --- scan-line links -------------------------------------------------------------------------------------
+
+def test_link_unions_equal_the_reference_on_every_shipped_scenario(monkeypatch, shipped):
+    calls = kernel_calls(monkeypatch, shipped, "link_unions")
+    joined = 0
+    for args in calls:
+        got = perception_jit.link_unions(*args)
+        ref = perception_reference.link_unions_reference(*args)
+        assert got.dtype == ref.dtype and np.array_equal(got, ref)
+        joined += int(np.sum(ref != np.arange(len(ref))))
+    assert len(calls) >= 20 and joined >= 100  # links did join noise to clusters
+
+
+# --- ground ------------------------------------------------------------------------------------------------
+
+def bits(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a).view(np.int64)
+
+
+def test_ground_columns_and_band_equal_numpy_on_every_shipped_scenario(monkeypatch, shipped):
+    columns = kernel_calls(monkeypatch, shipped, "relative_columns")
+    bands = kernel_calls(monkeypatch, shipped, "near_plane")
+    assert len(columns) == len(bands) == len(shipped)
+    for pts, cx, cy, cz in columns:
+        x, y, z, bounds = perception_jit.relative_columns(pts, cx, cy, cz)
+        for got, ref in ((x, pts[:, 0] - cx), (y, pts[:, 1] - cy), (z, pts[:, 2] - cz),
+                         (bounds, np.array([pts[:, 0].min(), pts[:, 0].max(), pts[:, 1].min(), pts[:, 1].max()]))):
+            assert np.array_equal(bits(got), bits(ref))
+    kept = 0
+    for x, y, z, a, b, c, band in bands:
+        near = np.abs(z - a * x - b * y - c) <= band
+        got = perception_jit.near_plane(x, y, z, a, b, c, band)
+        for g, ref in zip(got, (x[near], y[near], z[near])):
+            assert np.array_equal(bits(g), bits(ref))
+        kept += int(near.sum())
+        # at a band between two points' residuals the kernel decides as numpy does
+        res = np.sort(np.abs(z - a * x - b * y - c))[len(z) // 2 : len(z) // 2 + 2]
+        for edge in (res[0], np.nextafter(res[0], -np.inf), res.mean()):
+            assert len(perception_jit.near_plane(x, y, z, a, b, c, edge)[0]) == int(
+                np.sum(np.abs(z - a * x - b * y - c) <= edge))
+    assert kept > 10000
+
+
+def test_the_conditioning_shortcut_decides_as_numpys_cond(monkeypatch, shipped):
+    import sensors.ground as ground
+
+    normals, conds = [], []
+    ill = ground._ill_conditioned
+    monkeypatch.setattr(ground, "_ill_conditioned", lambda m: normals.append(m.copy()) or ill(m))
+    for _, scan, cfg, _ in shipped:
+        ground.segment_ground(scan.points, cfg.ground, scan.origin)
+    monkeypatch.undo()
+    rng = np.random.default_rng(5)
+
+    def normal_of(x, y):
+        return np.array([[np.dot(x, x), np.dot(x, y), x.sum()], [np.dot(x, y), np.dot(y, y), y.sum()],
+                         [x.sum(), y.sum(), len(x)]])
+
+    x = rng.uniform(-70, 70, 500)
+    for scale in (1.0, 1e-3, 1e-5, 1e-6, 1e-7, 1e-9, 0.0):  # from a plane to a line: cond crosses 1e12
+        normals.append(normal_of(x, 0.5 * x + 3.0 + scale * rng.normal(size=500)))
+    normals += [normal_of(np.full(10, 3.0), np.full(10, -2.0)), np.zeros((3, 3)), -np.eye(3),
+                np.diag([1e13, 1.0, 1.0]), np.diag([1e10, 1.0, 1.0]), np.diag([1e12 * 0.999, 1.0, 1.0])]
+    shortcut = 0
+    for m in normals:
+        assert ground._ill_conditioned(m) == bool(np.linalg.cond(m) > 1e12)
+        conds.append(np.linalg.cond(m))
+        (a, b, c), (_, d, e), (_, _, f) = m.tolist()
+        det = a * (d * f - e * e) - b * (b * f - c * e) + c * (b * e - c * d)
+        shortcut += det > 0 and (a + d + f) ** 3 / (4 * det) < 1e10
+    assert len(normals) > 4 * len(shipped) and shortcut >= 4 * len(shipped)  # the scans' fits take the shortcut
+    assert min(conds) < 1e12 < max(conds)  # both answers are checked
+
+
+# --- clustering --------------------------------------------------------------------------------------------
+
+def test_group_min_equals_numpys_minimum_at(highway):
+    rng = np.random.default_rng(4)
+    cases = [(rng.integers(0, 40, len(pts)), pts[:, 0].copy()) for pts, _, _, _ in highway[::4]]
+    cases += [(np.array([0, 0, 2, 2, 2]), np.array([0.0, -0.0, -0.0, 0.0, 1.0])),  # signed zeros, label 1 empty
+              (np.array([1, 1, 1, 0]), np.array([2.0, np.nan, 1.0, np.nan])),  # NaN propagates, as np.minimum
+              (np.zeros(0, np.int64), np.zeros(0))]
+    for label, x in cases:
+        k = int(label.max()) + 3 if len(label) else 2
+        ref = np.full(k, np.inf)
+        with np.errstate(invalid="ignore"):  # the NaN case
+            np.minimum.at(ref, label, x)
+        got = perception_jit.group_min(label, x, k)
+        assert np.array_equal(got.view(np.int64), ref.view(np.int64))  # bit for bit, signs of zero included
+
+
+def test_scan_line_links_equal_the_reference_on_every_shipped_scenario(shipped):
+    from sensors.clustering import scan_line_links
+
+    n_links = 0
+    for _, s, cfg, _ in shipped:
+        is_ground = segment_ground(s.points, cfg.ground, s.origin)
+        cand = np.flatnonzero(~is_ground & (s.points[:, 2] - cfg.ground.ground_z_m <= cfg.max_height_m))
+        sub = cluster(s.points[cand], cfg.cluster)
+        ray = s.ray[cand].copy()
+        ray[::50] = -1  # some points of unknown ray
+        args = (s.points[cand], ray, s.ranges.shape, s.origin, np.isfinite(s.ranges), cfg.cluster)
+        for labels in (sub, None):
+            got = scan_line_links(*args, labels=labels)
+            ref = perception_reference.scan_line_links_reference(*args, labels=labels)
+            assert got.dtype == ref.dtype and got.shape == ref.shape and np.array_equal(got, ref)
+            n_links += len(ref)
+    # the azimuth wraps round; a ray without a return is looked across; too few points give no link
+    pts = np.array([[10.0, 0.0, 1.0], [10.0, 0.05, 1.0], [10.0, 0.1, 1.0], [10.0, 0.2, 1.0]])
+    returned = np.ones((4, 1), bool)
+    returned[2] = False
+    for ray in (np.array([3, 0, 1, 3]), np.array([0, 1, 3, -1]), np.array([-1, -1, -1, 2])):
+        for origin in (np.zeros(3), np.array([10.0, 0.0, 1.0])):  # a point at the origin itself
+            got = scan_line_links(pts, ray, (4, 1), origin, returned, CFG.cluster)
+            ref = perception_reference.scan_line_links_reference(pts, ray, (4, 1), origin, returned, CFG.cluster)
+            assert np.array_equal(got, ref) and got.shape == ref.shape
+    assert n_links > 1000
+
+
+# --- canonical order -------------------------------------------------------------------------------------
+
+def test_canonical_order_equals_the_reference(highway):
+    rng = np.random.default_rng(2)
+    cases = []
+    for pts, objects, _, _ in highway[::3]:
+        cases += [(pts, np.concatenate(objects[i:i + 3])) for i in range(0, len(objects), 3)]  # joined groups
+        cases.append((pts, rng.permutation(np.concatenate(objects))))
+    grid = np.column_stack([rng.integers(0, 3, (300, 2)).astype(float), rng.integers(0, 2, 300) * 0.5])
+    grid[::7, 0] = -0.0  # -0.0 and 0.0 are equal x
+    cases += [(grid, rng.permutation(300)), (grid, np.arange(300)[::-1]), (grid[:1], np.array([0])),
+              (grid, np.zeros(0, np.int64))]
+    for pts, idx in cases:
+        got, ref = perception._canonical(pts, idx), perception_reference.canonical_reference(pts, idx)
+        assert got.dtype == ref.dtype and np.array_equal(got, ref)
+    assert len(cases) > 50
 
 
 # --- merge ----------------------------------------------------------------------------------------------
@@ -180,6 +381,28 @@ def test_unite_fitting_runs_the_reference_test_at_a_bound(monkeypatch):
     assert_unions_equal(pts, objects, st, pa, pb, WIDE)
 
 
+def test_box_gap_bound_is_a_lower_bound_of_the_points_distance():
+    rng = np.random.default_rng(3)
+    n_pairs, pruned = 2000, 0
+    c = rng.uniform(-20, 20, (n_pairs, 2))
+    heading = rng.uniform(-np.pi, np.pi, n_pairs)
+    half = rng.uniform(0.2, 4.0, (n_pairs, 2))
+    pts = [rng.uniform(-1.5, 1.5, (int(rng.integers(1, 30)), 2)) * rng.uniform(0.1, 3.0, 2) + rng.uniform(-25, 25, 2)
+           for _ in range(n_pairs)]
+    pts[:50] = [np.repeat(p[:1], 3, axis=0) for p in pts[:50]]  # a point box (lo = hi)
+    lo, hi = np.array([p.min(axis=0) for p in pts]), np.array([p.max(axis=0) for p in pts])
+    bound = perception._box_gap_bound(c, heading, half, lo, hi)
+    for k, p in enumerate(pts):
+        xy = p - c[k]
+        ca, sa = np.cos(heading[k]), np.sin(heading[k])
+        du = np.maximum(np.abs(xy @ np.array([ca, sa])) - half[k, 0], 0.0)
+        dv = np.maximum(np.abs(xy @ np.array([-sa, ca])) - half[k, 1], 0.0)
+        d = float(np.min(np.hypot(du, dv)))  # _merge_boxes' distance
+        assert bound[k] <= d + 1e-9
+        pruned += bound[k] > 1.0 + perception._BOUND_MARGIN_M
+    assert 100 < pruned < n_pairs  # the bound removes pairs, not all
+
+
 # --- selection and fit ----------------------------------------------------------------------------------
 
 def test_batched_box_fits_equal_one_by_one_fits(highway):
@@ -206,18 +429,21 @@ def test_batched_box_fits_equal_one_by_one_fits(highway):
     assert n_fits > 100
 
 
-def test_open_ends_equal_the_reference():
+def test_open_ends_equal_the_reference(shipped):
     from testbed.scenario.spec import load_scenario
     from testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
 
     scn = load_scenario("highway_benchmark", {"duration_s": 0.5})
     rngs = rng_streams(scn.seed)
     sim, static, road = sensing_setup(scn, rngs)
+    frames = [(scan_frame(truth, static, scn.sensor.lidar, rngs["lidar"]), road) for truth in sim.frames()]
+    frames += [(s, road) for _, s, _, road in shipped]  # and every shipped scenario
     n_open = 0
-    for truth in sim.frames():
-        s = scan_frame(truth, static, scn.sensor.lidar, rngs["lidar"])
+    for s, road in frames:
         is_ground = segment_ground(s.points, CFG.ground, s.origin)
         cand = np.flatnonzero(~is_ground & (s.points[:, 2] <= CFG.max_height_m))
+        if len(cand) == 0:
+            continue
         objects = perception._raw_objects(s.points, cand, cluster(s.points[cand], CFG.cluster))
         st = perception._stats(s.points, objects, 0.0, s.origin[:2], road)
         for keys in (np.arange(len(objects)), np.arange(len(objects))[::-3]):
@@ -241,6 +467,64 @@ def test_min_area_rectangle_with_the_compiled_hull_equals_qhull(highway):
     for xy in sets:
         got, ref = min_area_rectangle(xy), min_area_rectangle(xy, compiled_hull=False)
         assert np.array_equal(got[0], ref[0]) and got[1:] == ref[1:]
+
+
+def test_restats_after_split_and_merge_equal_stats(highway):
+    kept_some = 0
+    for pts, objects, _, road in highway:
+        st = perception._stats(pts, objects, 0.0, np.zeros(2), road)  # the old summaries, as restats is given them
+        for step in (perception._split, perception._merge):
+            out, _, changed = step(pts, objects, [0] * len(objects), CFG, st)
+            if not changed:
+                continue
+            got = perception._restats(pts, out, objects, st, 0.0, np.zeros(2), road)
+            ref = perception._stats(pts, out, 0.0, np.zeros(2), road)
+            for f in dataclasses.fields(ref):
+                a, b = getattr(got, f.name), getattr(ref, f.name)
+                assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a.view(np.uint8), b.view(np.uint8))
+            kept_some += sum(any(o is p for p in objects) for o in out) > 0
+    # all objects new, and none new (the same list)
+    pts, objects, st = synthetic(EDGE_OBJECTS)
+    for out in ([o.copy() for o in objects], list(objects[::-1])):
+        got, ref = perception._restats(pts, out, objects, st, 0.0, np.zeros(2), None), perception._stats(
+            pts, out, 0.0, np.zeros(2), None)
+        assert all(np.array_equal(getattr(got, f.name), getattr(ref, f.name)) for f in dataclasses.fields(ref))
+    assert kept_some >= 10
+
+
+def test_axis_extents_equal_the_separate_extent_kernels(highway):
+    rng = np.random.default_rng(6)
+    _, _, edge = synthetic(EDGE_OBJECTS)
+    for st in [st for _, _, st, _ in highway] + [edge]:
+        k = len(st.n)
+        cos_p, sin_p, cos_a, sin_a = (np.cos(st.principal), np.sin(st.principal), *np.split(
+            rng.normal(size=(2, k)) / np.hypot(*rng.normal(size=(2, k))), 2))
+        cos_a, sin_a = cos_a[0], sin_a[0]
+        got = perception_jit.axis_extents(st.rel, cos_p, sin_p, cos_a, sin_a, st.starts, st.n)
+        u, along = perception_jit.along(st.rel, cos_a, sin_a, st.starts, st.n)
+        ref = (perception_jit.extent(st.rel, -sin_p, cos_p, st.starts, st.n),
+               perception_jit.extent(st.rel, cos_p, sin_p, st.starts, st.n), u, along,
+               perception_jit.extent(st.rel, -sin_a, cos_a, st.starts, st.n))
+        for g, r in zip(got, ref):
+            assert np.array_equal(g.view(np.int64), r.view(np.int64))
+
+
+def test_plurality_equals_the_reference(shipped):
+    rng = np.random.default_rng(7)
+    cases = [(s.source[np.flatnonzero(s.source != -2)], None) for _, s, _, _ in shipped[::2]]
+    cases += [(np.array([3, 1, 3, 1, -1, -1, 7]), np.array([4, 3])),  # a 2-2 tie: the smaller label, 1
+              (np.array([-1, -1, 5]), np.array([3])), (np.array([2]), np.array([1]))]
+    n_vehicle = 0
+    for source, n in cases:
+        if n is None:  # the scan's points cut into objects of 1-40 points
+            n = rng.integers(1, 40, len(source))
+            n = n[np.cumsum(n) <= len(source)]
+            source = source[: n.sum()]
+        got = perception._plurality_vehicle(source, n)
+        ref = perception_reference.plurality_reference(source, n)
+        assert got.dtype == ref.dtype and np.array_equal(got, ref)
+        n_vehicle += int(np.sum(ref >= 0))
+    assert n_vehicle > 100
 
 
 def test_nearest_range_of_the_object_sums_is_numpys_smallest_hypot(highway):
