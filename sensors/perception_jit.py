@@ -126,23 +126,8 @@ def extent(rel, cx, cy, starts, n):
 
 
 @njit(cache=True)
-def along(rel, cx, cy, starts, n):
-    """u (sum n,) each member's coordinate rel along its object's (cx, cy) (K,), and (K,) its extent."""
-    u = np.empty(len(rel))
-    out = np.empty(len(starts))
-    for k in range(len(starts)):
-        w_lo, w_hi = np.inf, -np.inf
-        for i in range(starts[k], starts[k] + n[k]):
-            w = rel[i, 0] * cx[k] + rel[i, 1] * cy[k]
-            u[i] = w
-            w_lo, w_hi = min(w_lo, w), max(w_hi, w)
-        out[k] = w_hi - w_lo
-    return u, out
-
-
-@njit(cache=True)
 def axis_extents(rel, cos_p, sin_p, cos_a, sin_a, starts, n):
-    """extent(rel, -sin_p, cos_p), extent(rel, cos_p, sin_p), along(rel, cos_a, sin_a) (u and its extent) and
+    """extent(rel, -sin_p, cos_p), extent(rel, cos_p, sin_p), u (each member along (cos_a, sin_a)) and its extent, and
     extent(rel, -sin_a, cos_a) in one pass over rel (sum n, 2): the same products and sums per point."""
     k_all = len(starts)
     thickness, p_length, along_, across = np.empty(k_all), np.empty(k_all), np.empty(k_all), np.empty(k_all)

@@ -492,6 +492,18 @@ def test_restats_after_split_and_merge_equal_stats(highway):
     assert kept_some >= 10
 
 
+def along_reference(rel, cx, cy, starts, n):
+    """u (each member's coordinate along its object's (cx, cy)) and each object's extent along it, in NumPy: the
+    same products and sums, member by member, as axis_extents (no fused multiply-add on either side)."""
+    u = np.full(len(rel), np.nan)
+    out = np.empty(len(starts))
+    for k, (s0, m) in enumerate(zip(starts, n)):
+        w = rel[s0:s0 + m, 0] * cx[k] + rel[s0:s0 + m, 1] * cy[k]
+        u[s0:s0 + m] = w
+        out[k] = (w.max() - w.min()) if m else -np.inf
+    return u, out
+
+
 def test_axis_extents_equal_the_separate_extent_kernels(highway):
     rng = np.random.default_rng(6)
     _, _, edge = synthetic(EDGE_OBJECTS)
@@ -501,7 +513,7 @@ def test_axis_extents_equal_the_separate_extent_kernels(highway):
             rng.normal(size=(2, k)) / np.hypot(*rng.normal(size=(2, k))), 2))
         cos_a, sin_a = cos_a[0], sin_a[0]
         got = perception_jit.axis_extents(st.rel, cos_p, sin_p, cos_a, sin_a, st.starts, st.n)
-        u, along = perception_jit.along(st.rel, cos_a, sin_a, st.starts, st.n)
+        u, along = along_reference(st.rel, cos_a, sin_a, st.starts, st.n)
         ref = (perception_jit.extent(st.rel, -sin_p, cos_p, st.starts, st.n),
                perception_jit.extent(st.rel, cos_p, sin_p, st.starts, st.n), u, along,
                perception_jit.extent(st.rel, -sin_a, cos_a, st.starts, st.n))
