@@ -55,6 +55,31 @@ class RunResult:
         return out
 
 
+def _events(scn: Scenario, tables: dict):
+    """(events, truth, tracks): the run's events (testbed.scoring.events.run_events) and the two frames they were
+    computed from (the recording marks them); a campaign's runs without a folder skip this."""
+    truth_df, tracks_df = event_frames(tables["truth"], tables["tracks"])
+    return run_events(truth_df, tracks_df, scn.scoring, scn.dt), truth_df, tracks_df
+
+
+def _timed(fn: Callable[[], object], watch: Stopwatch, stage: str) -> None:
+    """fn() with its wall time added to ``watch``'s ``stage``."""
+    t0 = time.perf_counter()
+    fn()
+    watch.spent[stage] += time.perf_counter() - t0
+
+
+def _open_outputs(scn: Scenario, out: Path | None, record: bool, name: str, setup, source):
+    """The run folder created (when there is one) and the recorder writing run.rrd into it, or None."""
+    if out is None:
+        return None
+    out.mkdir(parents=True, exist_ok=True)
+    if not record:
+        return None
+    lanes, static = source.scene() if source is not None else (lane_polylines(setup()[0].network), setup()[1])
+    return _recorder(scn, out / "run.rrd", name, lanes, static)
+
+
 def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool = True, tracker=None,
                  on_frame: Callable[[int, int], None] | None = None, policy: Callable | None = None,
                  label: str | None = None, sensing_cache: str | Path | None = None, source=None) -> RunResult:
@@ -78,17 +103,11 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     trk = build_tracker(scn, tracker)  # before the traffic is set up: a bad tracker fails at once
     rngs = rng_streams(scn.seed)
     setup = _Setup(scn, rngs, policy)  # the traffic is set up when needed: not for a run read from the cache
-    cached = sensing_cache is not None and policy is None and source is None
-    if source is None and (not cached or (record and out_dir is not None) or not SensingCache(sensing_cache).has(scn)):
+    cache = SensingCache(sensing_cache) if sensing_cache is not None and policy is None and source is None else None
+    if source is None and (cache is None or (record and out_dir is not None) or not cache.has(scn)):
         setup()  # before any output: a traffic that cannot be set up fails with nothing written
     out = Path(out_dir) if out_dir is not None else None
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-    if out is not None and record:
-        lanes, static = source.scene() if source is not None else (lane_polylines(setup()[0].network), setup()[1])
-        recorder = _recorder(scn, out / "run.rrd", name, lanes, static)
-    else:
-        recorder = None
+    recorder = _open_outputs(scn, out, record, name, setup, source)
     tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(), diagnostics=diagnostics_log())
     watch = Stopwatch()
     state = _Progress()
@@ -97,27 +116,19 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     try:
         if source is not None:
             frames = source.frames(watch)
-        elif cached:
-            frames = SensingCache(sensing_cache).frames(scn, setup, watch)
         else:
-            frames = sense_simulation(scn, *setup(), rngs, watch)
+            frames = cache.frames(scn, setup, watch) if cache is not None else sense_simulation(scn, *setup(), rngs,
+                                                                                                   watch)
         _frames(scn, trk, frames, recorder, tables, watch, state, overflows, on_frame)
         state.looping = False
-        events = None  # a campaign's runs without a folder skip them
-        if out is not None or recorder is not None:
-            truth_df, tracks_df = event_frames(tables["truth"], tables["tracks"])
-            events = run_events(truth_df, tracks_df, scn.scoring, scn.dt)
+        events, truth_df, tracks_df = _events(scn, tables) if out is not None or recorder is not None else (None,) * 3
         if recorder is not None:
             recorder.events(events, truth_df, tracks_df)  # marked in the recording before it is closed
-            t0 = time.perf_counter()
             closing, recorder = recorder, None  # closed once, even if closing fails
-            _close_recording(closing)  # and its compaction started, in its own process
-            watch.spent["recording"] += time.perf_counter() - t0
+            _timed(lambda: _close_recording(closing), watch, "recording")  # its compaction started in its own process
         scores, metrics = score_tables(scn, tables["truth"], tables["tracks"], state.frames)
         if closing is not None:  # the compaction ran beside the scoring: the wait left is the recording's
-            t0 = time.perf_counter()
-            closing.wait_compacted()
-            watch.spent["recording"] += time.perf_counter() - t0
+            _timed(closing.wait_compacted, watch, "recording")
         timings = {k: 1000.0 * v / max(state.frames, 1) for k, v in watch.spent.items()}
         res = RunResult(scn, scores, timings, state.frames, out, tables, metrics, name, state.fallbacks, events)
         if out is not None:

@@ -107,6 +107,29 @@ def shown_cars(tl: Timeline, max_rows: int = MAX_ROWS) -> list[int]:
     return sorted(order)
 
 
+def _car_row(ax, ax2, tl: Timeline, c: int, y: float, dt: float, colour, numbered: dict | None, labelled: bool,
+             span_s: float) -> None:
+    """Car ``c``'s bar at height y (visible stretches grey, covered ones in the track's colour, hatched when the
+    track is not its own, relabel ticks with their event labels) and its position errors on ``ax2``."""
+    f, vis, a = tl.frames[c], tl.visible[c], tl.assigned[c]
+    for s, e in _runs(vis, f):
+        ax.broken_barh([(s * dt, (e - s) * dt)], (y - 0.35, 0.7), color="0.85", lw=0)
+    for tid in np.unique(a[a >= 0]):
+        good = tl.correct.get(int(tid)) == int(tl.cars[c])
+        for s, e in _runs(a == tid, f):
+            ax.broken_barh([(s * dt, (e - s) * dt)], (y - 0.35, 0.7), color=colour(tid), lw=0,
+                           hatch=None if good else "////", edgecolor="k" if not good else None)
+            if labelled and (e - s) * dt >= span_s / 40:  # room for the label
+                ax.text(s * dt, y, f" T{int(tid)}", va="center", ha="left", fontsize=7)
+            sel = (f >= s) & (f < e)  # one error line per stretch of one track on this car
+            ax2.plot(f[sel] * dt, tl.err[c][sel], "-", lw=0.9, color=colour(tid))
+    for fr in tl.relabels(c):
+        ax.plot([fr * dt, fr * dt], [y - 0.5, y + 0.5], color="k", lw=1.4)
+        if numbered is not None and (int(fr), int(tl.cars[c])) in numbered:
+            ax.text(fr * dt, y + 0.42, numbered[(int(fr), int(tl.cars[c]))], fontsize=7, ha="left",
+                    va="bottom", color="k", bbox=dict(boxstyle="square,pad=0.1", fc="white", ec="none", alpha=0.8))
+
+
 def draw_timeline(tl: Timeline, path: str | Path, rate_hz: float, title: str = "",
                   colours: dict[int, np.ndarray] | None = None, events=None) -> Path:
     """Draw ``tl`` into ``path`` (PNG): car bars (upper panel, time [s] across) and position errors (lower).
@@ -136,30 +159,9 @@ def draw_timeline(tl: Timeline, path: str | Path, rate_hz: float, title: str = "
                                   gridspec_kw=dict(height_ratios=[h_bars, 3.0]))
     labels = []
     last = max([int(f[-1]) for f in tl.frames if len(f)] + [1])
-    span_s = (last + 1) * dt
     for r, c in enumerate(shown):
-        y = -r
-        f, vis, a = tl.frames[c], tl.visible[c], tl.assigned[c]
-        for s, e in _runs(vis, f):
-            ax.broken_barh([(s * dt, (e - s) * dt)], (y - 0.35, 0.7), color="0.85", lw=0)
-        for tid in np.unique(a[a >= 0]):
-            good = tl.correct.get(int(tid)) == int(tl.cars[c])
-            for s, e in _runs(a == tid, f):
-                ax.broken_barh([(s * dt, (e - s) * dt)], (y - 0.35, 0.7), color=_colour(tid), lw=0,
-                               hatch=None if good else "////", edgecolor="k" if not good else None)
-                if len(shown) <= 40 and (e - s) * dt >= span_s / 40:  # room for the label
-                    ax.text(s * dt, y, f" T{int(tid)}", va="center", ha="left", fontsize=7)
-        for fr in tl.relabels(c):
-            ax.plot([fr * dt, fr * dt], [y - 0.5, y + 0.5], color="k", lw=1.4)
-            if numbered is not None and (int(fr), int(tl.cars[c])) in numbered:
-                ax.text(fr * dt, y + 0.42, numbered[(int(fr), int(tl.cars[c]))], fontsize=7, ha="left",
-                        va="bottom", color="k", bbox=dict(boxstyle="square,pad=0.1", fc="white", ec="none",
-                                                          alpha=0.8))
+        _car_row(ax, ax2, tl, c, -r, dt, _colour, numbered, len(shown) <= 40, (last + 1) * dt)
         labels.append(f"car {int(tl.cars[c])}")
-        for tid in np.unique(a[a >= 0]):  # one line per stretch of one track on this car
-            for s, e in _runs(a == tid, f):
-                sel = (f >= s) & (f < e)
-                ax2.plot(f[sel] * dt, tl.err[c][sel], "-", lw=0.9, color=_colour(tid))
     for k, (tid, fr) in enumerate((t, tl.false_tracks[t]) for t in sorted(false_shown)):
         y = -(len(shown) + k)
         for s, e in _runs(np.ones(len(fr), bool), fr):
