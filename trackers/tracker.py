@@ -470,7 +470,6 @@ class Tracker:
         [D]). A candidate keeps its position in x[:d]. With the measurements' own covariances R (M, m, m) a new
         track's position covariance is its measurement's."""
         mp, flt, meas = self.management, self.filter, self.filter.measurement
-        Rj = (lambda j: None) if R is None else (lambda j: R[j])  # noqa: E731 - a detection's own covariance
         lam, pd = self.association.clutter_density, self.association.pd
         score0 = initial_score(mp, lam, pd)
         claims = inp.gated
@@ -491,7 +490,7 @@ class Tracker:
 
         if mp.initiation == "single":
             for j in free:
-                out.append(new(flt.initial_state(*single_point(Z[j], meas, mp.v_max, Rj(j))), score0, int(next_id), 1))
+                out.append(new(flt.initial_state(*single_point(Z[j], meas, mp.v_max, None if R is None else R[j])), score0, int(next_id), 1))
                 next_id += 1
             return out, next_id
         positions = [meas.position_of(Z[j]) if R is None else (Z[j], R[j]) for j in free]
@@ -504,7 +503,7 @@ class Tracker:
             C = np.array([c.state.x[:d] for c in candidates])
             for c, f in pair_candidates(C, np.array([p for p, _ in positions]), reach):
                 used.add(f)
-                x0, P0 = two_point(C[c], Z[free[f]], dt, meas, Rj(free[f]))
+                x0, P0 = two_point(C[c], Z[free[f]], dt, meas, None if R is None else R[free[f]])
                 out.append(new(flt.initial_state(x0, P0), score0 + inc, int(next_id), 2))
                 next_id += 1
         for f, (p, Rp) in enumerate(positions):
