@@ -235,7 +235,7 @@ def test_ctrl_c_keeps_the_tables_and_a_readable_recording(tmp_path):
     from rerun.chunk import RrdReader
 
     out = tmp_path / "r"
-    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli.main", *_run(out, duration=20.0)], cwd=REPO,
+    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli.main", *_run(out, duration=60.0)], cwd=REPO,
                             env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     rrd = tmp_path / f".r.partial-{proc.pid}" / "run.rrd"
     from testbed.recording.recorder import static_size
