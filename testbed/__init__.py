@@ -2,8 +2,9 @@
 recording. The public API (docs/api.md), small enough to remember:
 
     load_scenario(name_or_path, overrides=None) -> Scenario
-    sense(scenario)                       -> iterator of SensedFrame (truth, scan, detections, visibility, pd)
+    sense(scenario, sensing_cache=None, light=False) -> iterator of SensedFrame (truth, detections, visibility, pd)
     track(frames, tracker, scenario)      -> iterator of (SensedFrame, TrackSet)
+    score_frames(pairs, scenario)         -> Evaluation of what track yields (the same as run's scores)
     run(scenario, tracker=None, out=None, sensing_cache=None) -> RunResult (tables, scores, MOT metrics)
     read_run(folder)                      -> RunData (the tables as DataFrames, scores.json, the scenario)
     score(truth, tracks, scoring=None)    -> Evaluation (thesis scores and MOT metrics of plain tables)
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-__all__ = ["Frame", "TrackSet", "load_scenario", "read_run", "run", "score", "sense", "track"]
+__all__ = ["Frame", "TrackSet", "load_scenario", "read_run", "run", "score", "score_frames", "sense", "track"]
 
 if TYPE_CHECKING:
     from .scoring.evaluate import score
@@ -23,12 +24,14 @@ if TYPE_CHECKING:
     from .tracking import Frame, TrackSet
 
 
-def sense(scenario, policy=None):
+def sense(scenario, policy=None, *, sensing_cache=None, light: bool = False):
     """The frames of ``scenario`` (a Scenario, a shipped scenario's name or a file) sensed one by one
-    (testbed.sensing.SensedFrame); ``policy``: the ego's policy for a scenario with ``[env]``."""
-    from .sensing import sense as _sense
+    (testbed.sensing.SensedFrame); ``policy``: the ego's policy for a scenario with ``[env]``. ``sensing_cache``
+    (a folder, the one ``run`` takes): each traffic is sensed once into it, then streamed from it.
+    ``light``: frames without the point cloud (tens of kB each instead of megabytes; testbed.sensing.light)."""
+    from .sensing.stream import sensed_frames
 
-    return _sense(_scenario(scenario), policy)
+    return sensed_frames(_scenario(scenario), policy, sensing_cache, light)
 
 
 def track(frames, tracker, scenario):
@@ -37,6 +40,15 @@ def track(frames, tracker, scenario):
     from .pipeline.run import track as _track
 
     return _track(frames, tracker, _scenario(scenario))
+
+
+def score_frames(pairs, scenario):
+    """The thesis scores and MOT metrics (an Evaluation, as ``score`` gives) of the (SensedFrame, TrackSet) pairs
+    ``track`` yields for ``scenario``: the same as ``run(scenario, tracker).scores`` and ``.metrics`` on the same
+    frames, with no table built by hand (testbed.pipeline.frames_score)."""
+    from .pipeline.frames_score import score_frames as _score_frames
+
+    return _score_frames(pairs, _scenario(scenario))
 
 
 def run(scenario, tracker=None, out=None, record: bool = True, policy=None, on_frame=None, sensing_cache=None):

@@ -20,6 +20,7 @@ from trackers.management import ManagementParams, initial_score, score_decide, s
 from trackers.models import (ConstantVelocity, CoordinatedTurn, PositionMeasurement, RangeBearing, cv_noise_gain,
                              cv_process_noise, cv_transition, measurement_noise, position_measurement_matrix)
 from trackers.params import ParamError
+from trackers.plugins import register_associator, register_filter
 from trackers.registry import (PAPER_TRACKERS, WRAPPERS, available_trackers, describe_tracker, make_tracker,
                                named_trackers, parse_tracker_name, plugin_trackers, preset)
 from trackers.state import FilterState
@@ -33,7 +34,7 @@ __all__ = [
     "available_trackers", "describe_tracker", "cv_noise_gain", "cv_process_noise", "cv_transition", "gate", "gate_probability",
     "global_nearest_neighbour", "initial_score", "innovations", "jpda", "log_gaussian", "mahalanobis2",
     "mahalanobis2_and_log_gaussian", "make_filter", "make_tracker", "measurement_noise", "named_trackers", "nearest_neighbour",
-    "parse_tracker_name", "pda", "plugin_trackers", "pda_covariance", "position_measurement_matrix", "preset", "score_decide",
+    "parse_tracker_name", "pda", "plugin_trackers", "pda_covariance", "position_measurement_matrix", "preset", "register_associator", "register_filter", "score_decide",
     "score_increment",
 ]
 

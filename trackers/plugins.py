@@ -8,6 +8,7 @@ A package adds a filter by declaring, in its ``pyproject.toml``::
     [project.entry-points."roadtrack.associators"]
     mine = "my_package.assoc:MINE"     # a trackers.association.AssociatorKind (or a function returning one)
 
+A script or notebook adds one in its own process with :func:`register_filter` and :func:`register_associator`.
 Once it is installed (``pip install my-package``) the entry point's name is a registered kind: ``jpda-ab``,
 ``imm-pda-ab``, ``mine-kf`` ... are tracker names, listed by ``testbed trackers`` and ``testbed keys``, and its
 parameters are loaded and bounded like the built-ins' (trackers.params). A plug-in that cannot be loaded, is
@@ -17,6 +18,7 @@ not of the right type, has an invalid name or takes a built-in's name is skipped
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import warnings
 from importlib import metadata
@@ -80,7 +82,49 @@ def register(registry: dict[str, Any], role: str, kind: type, taken: set[str]) -
 
 
 PLUGINS: dict[str, tuple[str, ...]] = {"filter": (), "associator": ()}
-"""The plug-in names registered at import, per role (``testbed trackers`` lists their combinations)."""
+"""The plug-in names registered, per role: at import from entry points, then by :func:`register_filter` and
+:func:`register_associator` (``testbed trackers`` lists their combinations)."""
+BUILTINS: dict[str, frozenset[str]] = {"filter": frozenset(), "associator": frozenset()}
+"""The built-in names per role (and the wrappers'), which no plug-in may take."""
+_FROM_PYTHON: set[tuple[str, str]] = set()
+
+
+def register_filter(name: str, kind) -> None:
+    """Add the filter ``kind`` (a trackers.filters.FilterKind) as ``name`` in this process, as an installed
+    plug-in adds one: ``<associator>-<name>`` is then a tracker name for every associator (``jpda-<name>``) and
+    its parameters are loaded and bounded like the built-ins'. Registering a name again from Python replaces
+    it; ValueError (one line) for an invalid name, a built-in's or an installed plug-in's, TypeError for a kind
+    of the wrong type (docs/api.md, "Plug-in filters and associators")."""
+    from trackers.filters import FILTERS
+    from trackers.filters.params import FilterKind
+
+    _register("filter", name, kind, FILTERS, FilterKind)
+
+
+def register_associator(name: str, kind) -> None:
+    """Add the associator ``kind`` (a trackers.association.AssociatorKind) as ``name`` in this process:
+    ``<name>-<filter>`` is then a tracker name for every filter. Errors as :func:`register_filter`."""
+    from trackers.association.roles import ASSOCIATORS, AssociatorKind
+
+    _register("associator", name, kind, ASSOCIATORS, AssociatorKind)
+
+
+def _register(role: str, name: str, kind, registry: dict, kind_type: type) -> None:
+    if not isinstance(name, str) or not NAME.match(name):
+        raise ValueError(f"{role} name {name!r}: use lower-case letters and digits joined by single hyphens")
+    if name in BUILTINS[role]:
+        raise ValueError(f"{name!r} is a built-in {role} (or wrapper) name; choose another")
+    if name in registry and (role, name) not in _FROM_PYTHON:
+        raise ValueError(f"{name!r} is already a {role} (an installed plug-in's); choose another")
+    if not isinstance(kind, kind_type):
+        raise TypeError(f"{role} {name!r}: expected a {kind_type.__module__}.{kind_type.__name__}, got a "
+                        f"{type(kind).__name__}")
+    if not (dataclasses.is_dataclass(kind.params) and isinstance(kind.params, type)):
+        raise TypeError(f"{role} {name!r}: its params must be a dataclass (trackers.params.param fields)")
+    registry[name] = kind
+    _FROM_PYTHON.add((role, name))
+    if name not in PLUGINS[role]:
+        PLUGINS[role] = (*PLUGINS[role], name)
 
 
 def load_all(wrappers) -> None:
@@ -91,5 +135,7 @@ def load_all(wrappers) -> None:
     from trackers.filters.params import FilterKind
 
     taken = set(wrappers)
+    BUILTINS["filter"] = frozenset(taken | set(FILTERS))
+    BUILTINS["associator"] = frozenset(taken | set(ASSOCIATORS))
     PLUGINS["filter"] = tuple(register(FILTERS, "filter", FilterKind, taken | set(FILTERS)))
     PLUGINS["associator"] = tuple(register(ASSOCIATORS, "associator", AssociatorKind, taken | set(ASSOCIATORS)))

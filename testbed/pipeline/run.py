@@ -17,7 +17,7 @@ import pandas as pd
 
 import sensors
 
-from ..config import to_dict
+from ..config import ConfigError, to_dict
 from ..common.jsonio import json_text
 from ..tracking.moving import MovingTest
 from .outdir import write_atomic
@@ -184,10 +184,23 @@ def track(frames: Iterable[SensedFrame], tracker, scn: Scenario,
     """The one tracking loop: each sensed frame fed to ``tracker`` (anything :func:`run_scenario` takes, built
     once by testbed.tracking.build_tracker), yielding the frame and the tracker's TrackSet with the moving-object
     test's status ("confirmed", "tentative", "static"). ``overflows``: JPDA overflow warnings counted there
-    instead of shown one by one."""
+    instead of shown one by one. The tracker is built and ``frames`` checked at the call (a bad tracker or
+    frames is a ConfigError there, one line), the frames are tracked as the iterator is read."""
     trk = build_tracker(scn, tracker)
+    try:
+        frames = iter(frames)
+    except TypeError:
+        raise ConfigError("frames", f"expected the frames testbed.sense yields, got a {type(frames).__name__}, "
+                          f"which is not iterable") from None
+    return _tracked(frames, trk, scn, overflows)
+
+
+def _tracked(frames: Iterator, trk, scn: Scenario, overflows) -> Iterator[tuple[SensedFrame, TrackSet]]:
     moving = MovingTest(scn.moving_test)
-    for sensed in frames:
+    for k, sensed in enumerate(frames):
+        if not isinstance(sensed, SensedFrame):
+            raise ConfigError("frames", f"item {k} is a {type(sensed).__name__}, not a testbed.sensing.SensedFrame "
+                              f"(what testbed.sense yields)")
         frame = tracker_frame(sensed, scn.dt if sensed.index > 0 else 0.0)
         ts = overflows.call(trk.step, frame) if overflows is not None else trk.step(frame)
         if not isinstance(ts, TrackSet):

@@ -34,7 +34,7 @@ import pyarrow.parquet as pq
 
 import sensors
 
-from ..config import to_dict
+from ..config import ConfigError, to_dict
 from ..common.jsonio import json_text
 from ..common.safe_io import make_folder, try_lock, unlock, write_text
 from ..scenario.spec import Scenario
@@ -82,11 +82,28 @@ def sensing_key(scn: Scenario) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:24]
 
 
+def check_cache_folder(folder, key: str = "sensing_cache") -> Path:
+    """``folder`` as a Path, or ConfigError (one line naming ``key``) when it is not a path, or it or the nearest
+    existing folder above it is a file."""
+    if not isinstance(folder, (str, os.PathLike)):
+        raise ConfigError(key, f"expected a folder path, got {type(folder).__name__}")
+    path = Path(folder)
+    if not str(folder):
+        raise ConfigError(key, "expected a folder path, got an empty string")
+    for p in (path, *path.parents):
+        if p.exists() or p.is_symlink():
+            if not p.is_dir():
+                what = "is a file" if p == path else f"lies in {p}, which is a file"
+                raise ConfigError(key, f"{path} {what}, not a folder")
+            break
+    return path
+
+
 class SensingCache:
     """Sensed frames on disk under ``folder`` (created if missing; never through a symbolic link)."""
 
     def __init__(self, folder: str | Path):
-        self.folder = Path(folder)
+        self.folder = check_cache_folder(folder)
 
     def entry(self, scn: Scenario) -> Path:
         return self.folder / sensing_key(scn)
