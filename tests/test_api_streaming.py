@@ -188,3 +188,30 @@ def test_registering_a_plugin_checks_its_name_and_kind():
     with pytest.raises(ValueError, match="'jpda' is a built-in associator"):
         trackers.register_associator("jpda", trackers.ASSOCIATORS["pda"])
     assert "mine" not in FILTERS and ModelParams is kf.params
+
+
+def test_a_cache_entry_with_a_bad_range_image_is_sensed_again(scn, full, tmp_path):
+    """The range images are read a batch at a time (testbed.sensing.cache.RangeBlobs), yet checked before the
+    first frame: one of the wrong size makes the entry damaged (one warning line) and it is sensed again."""
+    import warnings
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from testbed.sensing.cache import CacheWarning
+
+    cache = tmp_path / "cache"
+    sum(1 for _ in testbed.sense(scn, sensing_cache=cache))
+    path = SensingCache(cache).entry(scn) / "ranges.parquet"
+    table = pq.read_table(path)
+    blobs = table.column("ranges").to_pylist()
+    blobs[len(blobs) // 2] = blobs[len(blobs) // 2][:-2]
+    pq.write_table(table.set_column(table.column_names.index("ranges"), "ranges", pa.array(blobs, pa.binary())),
+                   path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        again = list(testbed.sense(scn, sensing_cache=cache, light=True))
+    mine = [str(w.message) for w in caught if issubclass(w.category, CacheWarning)]
+    assert len(mine) == 1 and "a range image is not of" in mine[0] and "\n" not in mine[0]
+    _same(_rows(testbed.track(again, "jpda-kf", scn)), _rows(testbed.track(full, "jpda-kf", scn)))
+    assert SensingCache(cache).has(scn)

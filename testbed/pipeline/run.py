@@ -184,8 +184,8 @@ def track(frames: Iterable[SensedFrame], tracker, scn: Scenario,
     """The one tracking loop: each sensed frame fed to ``tracker`` (anything :func:`run_scenario` takes, built
     once by testbed.tracking.build_tracker), yielding the frame and the tracker's TrackSet with the moving-object
     test's status ("confirmed", "tentative", "static"). ``overflows``: JPDA overflow warnings counted there
-    instead of shown one by one. The tracker is built and ``frames`` checked at the call (a bad tracker or
-    frames is a ConfigError there, one line), the frames are tracked as the iterator is read."""
+    instead of shown one by one. The tracker is built and ``frames`` checked at the call (an unknown tracker or
+    frames that are not iterable fail there, in one line), the frames are tracked as the iterator is read."""
     trk = build_tracker(scn, tracker)
     try:
         frames = iter(frames)

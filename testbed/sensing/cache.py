@@ -12,7 +12,8 @@ An entry is a folder ``<key>/``: ``truth.parquet`` (the truth rows with each veh
 ``detections.parquet`` (every field of the detections), ``ranges.parquet`` (per frame the sensor pose and the
 range image the occlusion-aware P_D reads, as ``ranges_for_pd`` makes it: 2 mm steps, uint16), ``road.parquet``
 (the perception's road map, which that P_D reads too, so a cached run sets up no traffic) and ``meta.json``
-(written last: its presence marks the entry complete). Frames from the cache carry no point cloud and no
+(written last: its presence marks the entry complete). An entry is read frame by frame: its small tables
+whole, the range images a batch of frames at a time (:class:`RangeBlobs`). Frames from the cache carry no point cloud and no
 perception internals (``scan.points`` is empty, ``perception`` is None): a tracker gets exactly what it gets live
 (tests/test_sensing_cache.py checks a tracker run from the cache is identical to one from scratch), a recording
 shows no LiDAR points.
@@ -30,6 +31,7 @@ from typing import Iterator
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 import sensors
@@ -152,11 +154,11 @@ class SensingCache:
             meta = json.loads((entry / "meta.json").read_text(encoding="utf-8"))
             if meta.get("version") != CACHE_VERSION or meta.get("key") != entry.name:
                 raise ValueError("written by another version")
-            columns = None if scn.sensor.occlusion_pd else ["frame", "origin", "pose"]
             tables = {n: pq.read_table(entry / f"{n}.parquet") for n in ("truth", "detections")}
-            tables["ranges"] = pq.read_table(entry / "ranges.parquet", columns=columns)
+            tables["ranges"] = pq.read_table(entry / "ranges.parquet", columns=["frame", "origin", "pose"])
+            blobs = RangeBlobs(entry / "ranges.parquet") if scn.sensor.occlusion_pd else None
             road = _road(pq.read_table(entry / "road.parquet"))
-            frames = _decode(scn, meta, tables, road)  # checks the tables' sizes before the first frame
+            frames = _decode(scn, meta, tables, road, blobs)  # checks the tables' sizes before the first frame
         except Exception as err:  # noqa: BLE001 - any damage: sense again
             warnings.warn(CacheWarning(f"sensing cache {entry}: damaged ({type(err).__name__}: "
                                        f"{str(err).splitlines()[0] if str(err) else ''}); sensing again"),
@@ -278,9 +280,43 @@ def _fixed(col: pa.ChunkedArray, shape: tuple[int, ...], dtype) -> np.ndarray:
     return values.astype(dtype).reshape((len(flat), *shape))
 
 
-def _decode(scn: Scenario, meta: dict, tables: dict, road) -> Iterator[SensedFrame]:
-    """The frames of an entry's tables, decoded one at a time (a long run's range images are never all in memory);
-    ValueError before the first frame when the tables do not fit ``meta``."""
+class RangeBlobs:
+    """The range images of an entry's ``ranges.parquet`` read :data:`BLOB_BATCH` frames at a time (a long run's
+    range images are never all in memory): ``check(n, nbytes)`` reads them once to check their count and sizes,
+    iterating gives each image's bytes (a zero-copy buffer) in frame order."""
+
+    def __init__(self, path: Path):
+        self.path = path
+
+    def _columns(self) -> Iterator[pa.Array]:
+        for batch in pq.ParquetFile(self.path).iter_batches(batch_size=BLOB_BATCH, columns=["ranges"]):
+            yield batch.column(0)
+
+    def check(self, n: int, nbytes: int) -> None:
+        """ValueError unless there are ``n`` images of ``nbytes`` bytes each."""
+        count = 0
+        for col in self._columns():
+            sizes = pc.binary_length(col).to_numpy(zero_copy_only=False)
+            if col.null_count or np.any(sizes != nbytes):
+                raise ValueError(f"a range image is not of {nbytes} bytes")
+            count += len(col)
+        if count != n:
+            raise ValueError(f"{count} range images, expected {n}")
+
+    def __iter__(self) -> Iterator:
+        for col in self._columns():
+            for blob in col:
+                yield blob.as_buffer()
+
+
+BLOB_BATCH = 32
+"""Range images read from a cache entry at a time (32 frames of the HDL-32E: 4.6 MB as uint16)."""
+
+
+def _decode(scn: Scenario, meta: dict, tables: dict, road, blobs: RangeBlobs | None) -> Iterator[SensedFrame]:
+    """The frames of an entry's tables, decoded one at a time, the range images read a batch at a time
+    (:class:`RangeBlobs`, None when the P_D is off); ValueError before the first frame when the tables do not fit
+    ``meta``."""
     n = int(meta["frames"])
     shape = tuple(meta["shape"])
     az, el = np.asarray(meta["azimuths"], np.float64), np.asarray(meta["elevations"], np.float64)
@@ -298,10 +334,8 @@ def _decode(scn: Scenario, meta: dict, tables: dict, road) -> Iterator[SensedFra
     frames_col = rg.column("frame").to_numpy()
     if len(frames_col) != n or list(frames_col) != list(range(n)):
         raise ValueError(f"{len(frames_col)} frames, expected {n}")
-    blobs = rg.column("ranges") if "ranges" in rg.column_names else None
-    if blobs is not None and any(len(b) != int(np.prod(shape)) * dtype.itemsize
-                                 for b in blobs.combine_chunks().to_pylist()):
-        raise ValueError(f"a range image is not of shape {shape} {dtype.name}")
+    if blobs is not None:
+        blobs.check(n, int(np.prod(shape)) * dtype.itemsize)
     return _frames_of(scn, n, shape, az, el, dtype, tr, det, origins, poses, blobs, road)
 
 
@@ -311,6 +345,7 @@ def _frames_of(scn, n, shape, az, el, dtype, tr, det, origins, poses, blobs, roa
     pd_for = occlusion_pd(scn, road) if scn.sensor.occlusion_pd else None
     empty3, empty_i = np.zeros((0, 3)), np.zeros(0, np.int64)
     no_ranges = np.zeros((0, 0))
+    images = iter(blobs) if blobs is not None else None
     for f in range(n):
         a, b = t_bounds[f], t_bounds[f + 1]
         truth = TruthFrame(frame=f, time=float(tr["time"][a]), ids=tr["vehicle_id"][a:b].astype(np.int64),
@@ -324,8 +359,8 @@ def _frames_of(scn, n, shape, az, el, dtype, tr, det, origins, poses, blobs, roa
         c, e = d_bounds[f], d_bounds[f + 1]
         dets = sensors.Detections(det["z"][c:e], det["provenance"][c:e], det["n_points"][c:e], det["extent"][c:e],
                                   det["R"][c:e], det["centroid"][c:e], det["heading"][c:e], det["flags"][c:e])
-        if blobs is not None:
-            steps = np.frombuffer(blobs[f].as_py(), dtype=dtype).reshape(shape)
+        if images is not None:
+            steps = np.frombuffer(next(images), dtype=dtype).reshape(shape)
             ranges = np.where(steps == np.iinfo(dtype).max, np.inf, steps.astype(np.float64) * PD_RANGE_STEP_M)
         else:  # the P_D is off: nothing reads the range image
             ranges = no_ranges
