@@ -3,7 +3,8 @@
 A frame as sensed holds about 5 MB on a dense motorway (the LiDAR scan's points, sources and rays, the
 perception's per-point labels, and two float64 range images); a light frame keeps the truth, the detections,
 the visibility, the road map and the occlusion-aware P_D, whose range image it holds packed (2 mm steps as the
-sensing cache keeps them, zlib-compressed: about 18 kB). ``list(sense(scn, light=True))`` of a long
+sensing cache keeps them, zlib-compressed: 18 kB on cut_in_out, 25 kB on dense_motorway).
+``list(sense(scn, light=True))`` of a long
 run then fits in memory, and a tracker fed light frames gives exactly what it gives on full ones
 (tests/test_api_streaming.py).
 """
