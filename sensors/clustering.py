@@ -93,20 +93,19 @@ def numbered(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.ndarray:
     """Labels (N,) for points (N, 3) from raw labels (N,) (-1 noise) that do not depend on the point order:
     what _canonical gives on the lexicographically sorted points, for raw labels (N,) that do not depend
     on the point order: clusters under min_points dropped, the rest numbered 0.. in the lexicographic
-    (x, y, z) order of their first points. Only each cluster's lowest-x points are sorted."""
+    (x, y, z) order of their first points. Each cluster's first point is found by one compiled pass
+    (perception_jit.first_points; perception_reference.numbered_reference is the former numpy code)."""
     out = np.full(len(raw), -1, np.int64)
     valid = np.flatnonzero(raw >= 0)
     if len(valid) == 0:
         return out
     lab = raw[valid]
-    counts = np.bincount(lab)
-    x = pts[valid, 0]
-    min_x = perception_jit.group_min(lab, x, len(counts))  # np.minimum.at into inf, compiled
-    first = np.flatnonzero((x == min_x[lab]) & (counts[lab] >= min_points))  # candidates for a first point
-    order = np.lexsort((pts[valid[first], 2], pts[valid[first], 1], x[first]))
-    ids, at = np.unique(lab[first[order]], return_index=True)  # each cluster's first point in that order
+    counts, first = perception_jit.first_points(lab, valid, pts, int(lab.max()) + 1)
+    kept = np.flatnonzero((counts >= min_points) & (first >= 0))
+    f = valid[first[kept]]
+    ids = kept[np.lexsort((f, pts[f, 2], pts[f, 1], pts[f, 0]))]  # by first point, equal ones by position
     new = np.full(len(counts), -1, np.int64)
-    new[ids[np.argsort(at)]] = np.arange(len(ids))
+    new[ids] = np.arange(len(ids))
     out[valid] = new[lab]
     return out
 

@@ -301,3 +301,25 @@ def widest_gaps_reference(u: np.ndarray, starts: np.ndarray, n: np.ndarray) -> n
     step = np.diff(u_sorted, append=u_sorted[-1])
     step[starts + n - 1] = 0.0  # no gap across two objects
     return np.maximum.reduceat(step, starts)
+
+
+def numbered_reference(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.ndarray:
+    """sensors/clustering.numbered's former numpy code: labels (N,) for points (N, 3) from raw labels (N,) (-1
+    noise), clusters under min_points dropped, the rest numbered 0.. in the lexicographic (x, y, z) order of their
+    first points."""
+    out = np.full(len(raw), -1, np.int64)
+    valid = np.flatnonzero(raw >= 0)
+    if len(valid) == 0:
+        return out
+    lab = raw[valid]
+    counts = np.bincount(lab)
+    x = pts[valid, 0]
+    min_x = np.full(len(counts), np.inf)
+    np.minimum.at(min_x, lab, x)
+    first = np.flatnonzero((x == min_x[lab]) & (counts[lab] >= min_points))  # candidates for a first point
+    order = np.lexsort((pts[valid[first], 2], pts[valid[first], 1], x[first]))
+    ids, at = np.unique(lab[first[order]], return_index=True)  # each cluster's first point in that order
+    new = np.full(len(counts), -1, np.int64)
+    new[ids[np.argsort(at)]] = np.arange(len(ids))
+    out[valid] = new[lab]
+    return out

@@ -237,19 +237,42 @@ def test_the_conditioning_shortcut_decides_as_numpys_cond(monkeypatch, shipped):
 
 # --- clustering --------------------------------------------------------------------------------------------
 
-def test_group_min_equals_numpys_minimum_at(highway):
+def tie_grid(rng, n: int) -> np.ndarray:
+    """(n, 3) points on a coarse grid: many equal x, equal (x, y) and equal points; -0.0 beside 0.0."""
+    grid = np.column_stack([rng.integers(0, 3, (n, 2)).astype(float), rng.integers(0, 2, n) * 0.5])
+    grid[::7, 0] = -0.0  # -0.0 and 0.0 are equal x
+    grid[::5, 1] = -0.0
+    return grid
+
+
+def label_cases(shipped):
+    """(points (N, 3), labels (N,) with -1 noise) of every shipped frame's clustering (links included) and of
+    hand-made ties."""
+    from sensors.clustering import ORDER_FREE
+
     rng = np.random.default_rng(4)
-    cases = [(rng.integers(0, 40, len(pts)), pts[:, 0].copy()) for pts, _, _, _ in highway[::4]]
-    cases += [(np.array([0, 0, 2, 2, 2]), np.array([0.0, -0.0, -0.0, 0.0, 1.0])),  # signed zeros, label 1 empty
-              (np.array([1, 1, 1, 0]), np.array([2.0, np.nan, 1.0, np.nan])),  # NaN propagates, as np.minimum
-              (np.zeros(0, np.int64), np.zeros(0))]
-    for label, x in cases:
-        k = int(label.max()) + 3 if len(label) else 2
-        ref = np.full(k, np.inf)
-        with np.errstate(invalid="ignore"):  # the NaN case
-            np.minimum.at(ref, label, x)
-        got = perception_jit.group_min(label, x, k)
-        assert np.array_equal(got.view(np.int64), ref.view(np.int64))  # bit for bit, signs of zero included
+    cases = []
+    for _, scan, cfg, _ in shipped:
+        pts = scan.points
+        cand = pts[~segment_ground(pts, cfg.ground, scan.origin)]
+        cases.append((cand, ORDER_FREE["grid"](cand, cfg.cluster)))
+        cases.append((cand, rng.integers(-1, 60, len(cand))))
+    for n in (1, 2, 7, 300):
+        grid = tie_grid(rng, n)
+        cases += [(grid, rng.integers(-1, 4, n)), (grid, np.zeros(n, np.int64)), (grid, np.full(n, -1))]
+    return cases
+
+
+def test_numbered_equals_the_reference(shipped):
+    from sensors.clustering import numbered
+
+    n_big = 0
+    for pts, raw in label_cases(shipped):
+        for min_points in (0, 1, 3, 5):
+            got, ref = numbered(pts, raw, min_points), perception_reference.numbered_reference(pts, raw, min_points)
+            assert got.dtype == ref.dtype and np.array_equal(got, ref)
+        n_big += int(raw.max()) > 50
+    assert n_big > 10
 
 
 def test_scan_line_links_equal_the_reference_on_every_shipped_scenario(shipped):
