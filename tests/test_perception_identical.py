@@ -568,3 +568,29 @@ def test_nearest_range_of_the_object_sums_is_numpys_smallest_hypot(highway):
             ref = np.min(np.hypot(pts[o, 0] - 1.5, pts[o, 1] + 0.5))
             got = perception._stats(pts, [o], 0.0, np.array([1.5, -0.5]), None).d_min[0]
             assert got == ref
+
+
+# --- the P_D's range image (testbed.sensing.pd_scan) -----------------------------------------------------------
+
+def pd_ranges_reference(scan, is_ground: np.ndarray) -> np.ndarray:
+    """testbed.sensing.pd_scan's former range image: ground rays inf, the rest rounded to PD_RANGE_STEP_M where
+    finite (a mask of the finite entries)."""
+    from testbed.sensing import PD_RANGE_STEP_M
+
+    ranges = scan.ranges.copy()
+    ranges.reshape(-1)[scan.ray[is_ground & (scan.ray >= 0)]] = np.inf
+    finite = np.isfinite(ranges)
+    ranges[finite] = np.rint(ranges[finite] / PD_RANGE_STEP_M) * PD_RANGE_STEP_M
+    return ranges
+
+
+def test_pd_scan_ranges_equal_the_reference(shipped):
+    from testbed.sensing import pd_scan
+
+    n_inf = 0
+    for _, scan, cfg, _ in shipped:
+        is_ground = segment_ground(scan.points, cfg.ground, scan.origin)
+        got, ref = pd_scan(scan, is_ground).ranges, pd_ranges_reference(scan, is_ground)
+        assert got.dtype == ref.dtype and got.shape == ref.shape and bits(got).tobytes() == bits(ref).tobytes()
+        n_inf += int(np.isinf(got).sum())
+    assert n_inf > 1000
