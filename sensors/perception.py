@@ -416,7 +416,9 @@ def _linked(pts: np.ndarray, labels: np.ndarray, links: np.ndarray, cfg: Percept
         return labels
     links, a, b = links[cross], a[cross], b[cross]
     used = np.unique(np.concatenate([a, b]))  # the nodes some link touches, with their points' boxes and tops
-    sel = np.flatnonzero(np.isin(node, used))
+    touched = np.zeros(n_clusters + len(labels), bool)  # np.isin(node, used) by a table of the node numbers
+    touched[used] = True
+    sel = np.flatnonzero(touched[node])
     which = np.searchsorted(used, node[sel])
     order = np.argsort(which, kind="stable")
     starts = np.flatnonzero(np.r_[True, np.diff(which[order]) != 0])
