@@ -323,3 +323,22 @@ def numbered_reference(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.
     new[ids[np.argsort(at)]] = np.arange(len(ids))
     out[valid] = new[lab]
     return out
+
+
+def apply_fits_reference(fits: dict, z, heading, extent, R, centre, flags, reason, max_length, cfg) -> None:
+    """sensors/perception._apply_fits's former loop, object by object (the same arrays changed in place)."""
+    for k, fit in fits.items():
+        z[k], heading[k], extent[k, :2], R[k] = fit.centre, fit.heading, (fit.length, fit.width), fit.R
+        centre[k] = fit.centre
+        flags[k] |= 4 if fit.completed else 0  # sensors.perception.COMPLETED
+        seen = (fit.seen_length, fit.seen_width)
+        if not cfg.vehicle_like:
+            continue
+        if cfg.shape_filter and fit.shape != "vehicle":  # by the fitted axis (shape_class uses the principal one)
+            reason[k] = fit.shape
+        elif max(seen) < cfg.min_extent_m:
+            reason[k] = "too_small"
+        elif max(seen) > max_length[k]:
+            reason[k] = "too_long"
+        elif min(seen) > cfg.max_width_m:
+            reason[k] = "too_wide"

@@ -161,6 +161,44 @@ def test_the_timer_sees_the_stages_in_order_and_changes_nothing(shipped):
     assert full >= 3
 
 
+def results_equal(a, b) -> bool:
+    """Whether two PerceptionResults hold the same bits."""
+    pairs = [(getattr(x, f.name), getattr(y, f.name)) for x, y in ((a.detections, b.detections), (a.rejected, b.rejected))
+             for f in dataclasses.fields(x)]
+    pairs += [(a.labels, b.labels), (a.is_ground, b.is_ground), (a.cluster_labels, b.cluster_labels)]
+    return all(u.dtype == v.dtype and u.shape == v.shape and u.tobytes() == v.tobytes() for u, v in pairs)
+
+
+@pytest.mark.parametrize("variant", [{}, {"shape_filter": False}, {"vehicle_like": False}, {"max_length_m": 4.0}])
+def test_apply_fits_equals_the_former_loop(monkeypatch, shipped, variant):
+    from sensors import COMPLETED
+
+    assert COMPLETED == 4  # the reference's literal
+    n_fits = 0
+    for _, scan, cfg, road in shipped[::2]:
+        cfg = dataclasses.replace(cfg, **variant)
+        got = perception.perceive(scan, cfg, road)
+        calls = []
+        monkeypatch.setattr(perception, "_apply_fits",
+                            lambda fits, *a: calls.append(len(fits)) or perception_reference.apply_fits_reference(fits, *a))
+        ref = perception.perceive(scan, cfg, road)
+        monkeypatch.undo()
+        assert results_equal(got, ref)
+        n_fits += sum(calls)
+    assert n_fits > 100
+
+
+def test_prior_indices_follow_prior():
+    from sensors.boxfit import CAR, TRUCK, BoxFitConfig, SizePrior
+
+    van = SizePrior("van", 1.9, 5.5, 2.0, 0.5, 0.2)
+    tops = np.r_[np.linspace(-1.0, 5.0, 601), 0.0, -0.0, 1.9, 2.5, np.nextafter(2.5, 0.0), np.inf, -np.inf]
+    for priors in ((CAR, TRUCK), (TRUCK, CAR), (CAR, van, TRUCK), (van, TRUCK, CAR), (CAR,), (van,)):
+        cfg = BoxFitConfig(priors=priors)
+        got = cfg.prior_indices(tops)
+        assert got.dtype == np.int64 and [priors[j] for j in got] == [cfg.prior(float(t)) for t in tops]
+
+
 # --- scan-line links -------------------------------------------------------------------------------------
 
 def test_link_unions_equal_the_reference_on_every_shipped_scenario(monkeypatch, shipped):
