@@ -2,7 +2,8 @@
 
 Methods (registry CLUSTER_METHODS):
   "grid":   bird's-eye occupancy grid of `cell_m` cells, connected components with 8-connectivity
-            (scipy.ndimage.label); two points share a cluster when a chain of occupied cells joins them.
+            (scipy.ndimage.label's, compiled); two points share a cluster when a chain of occupied cells
+            joins them.
   "dbscan": open3d tensor `cluster_dbscan(eps_m, min_points)` in 3-D.
 Scan-line links (`scan_line_links`; sensors.perception joins clusters and noise points by them): consecutive
 returns of one beam (adjacent azimuths, or two apart across a ray that returned nothing) lie on one surface when
@@ -24,7 +25,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy import ndimage
 
 from sensors import checks, perception_jit
 from sensors.grid import bev_cells
@@ -126,11 +126,11 @@ def _canonical(raw: np.ndarray, min_points: int) -> np.ndarray:
 
 
 def _grid(pts: np.ndarray, cfg: ClusterConfig) -> np.ndarray:
+    """Component (N,) of each point's occupied cell, 8-connected: compiled (perception_jit.grid_components), the
+    partition of scipy.ndimage.label (perception_reference.grid_labels_reference) numbered otherwise, which
+    `numbered` makes irrelevant."""
     ix, iy, shape = bev_cells(pts, cfg.cell_m, "cluster")
-    occupied = np.zeros(shape, bool)
-    occupied[ix, iy] = True
-    cells, _ = ndimage.label(occupied, structure=np.ones((3, 3), bool))
-    return cells[ix, iy].astype(np.int64) - 1
+    return perception_jit.grid_components(ix, iy, shape[0], shape[1])
 
 
 def _dbscan(pts: np.ndarray, cfg: ClusterConfig) -> np.ndarray:

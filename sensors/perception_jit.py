@@ -867,3 +867,49 @@ def first_points(label, rows, pts, k):
         if first[c] < 0 or _lex_less(pts, rows[i], rows[first[c]]):
             first[c] = i
     return counts, first
+
+
+# --- grid clustering (sensors/clustering._grid) ---------------------------------------------------------------
+
+@njit(cache=True)
+def _find(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True)
+def grid_components(ix, iy, nx, ny):
+    """(N,) int64 component of each point's cell (ix, iy (N,) in [0, nx) x [0, ny)) among the occupied cells,
+    8-connected: the partition scipy.ndimage.label gives with a 3x3 structure (perception_reference.
+    grid_labels_reference), numbered 0.. in the order the points first reach each component (not ndimage's)."""
+    node = np.full(nx * ny, -1, np.int64)  # cell -> its node, by first point
+    cells = np.empty(len(ix), np.int64)
+    n_nodes = 0
+    for i in range(len(ix)):
+        c = ix[i] * ny + iy[i]
+        if node[c] < 0:
+            node[c] = n_nodes
+            cells[n_nodes] = c
+            n_nodes += 1
+    parent = np.arange(n_nodes)
+    for k in range(n_nodes):
+        cx, cy = cells[k] // ny, cells[k] % ny
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                x, y = cx + dx, cy + dy
+                if (dx or dy) and 0 <= x < nx and 0 <= y < ny and node[x * ny + y] >= 0:
+                    a, b = _find(parent, k), _find(parent, node[x * ny + y])
+                    if a != b:
+                        parent[max(a, b)] = min(a, b)
+    comp = np.full(n_nodes, -1, np.int64)
+    out = np.empty(len(ix), np.int64)
+    n_comp = 0
+    for i in range(len(ix)):
+        r = _find(parent, node[ix[i] * ny + iy[i]])
+        if comp[r] < 0:
+            comp[r] = n_comp
+            n_comp += 1
+        out[i] = comp[r]
+    return out

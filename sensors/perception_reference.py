@@ -342,3 +342,17 @@ def apply_fits_reference(fits: dict, z, heading, extent, R, centre, flags, reaso
             reason[k] = "too_long"
         elif min(seen) > cfg.max_width_m:
             reason[k] = "too_wide"
+
+
+def grid_labels_reference(pts: np.ndarray, cell_m: float) -> np.ndarray:
+    """sensors/clustering._grid's former code: the 8-connected component (N,) (scipy.ndimage.label, numbered 0.. in
+    raster order of the cells) of each point's bird's-eye cell of cell_m [m], for points (N, 3) [m]."""
+    from scipy import ndimage
+
+    from sensors.grid import bev_cells
+
+    ix, iy, shape = bev_cells(pts, cell_m, "cluster")
+    occupied = np.zeros(shape, bool)
+    occupied[ix, iy] = True
+    cells, _ = ndimage.label(occupied, structure=np.ones((3, 3), bool))
+    return cells[ix, iy].astype(np.int64) - 1

@@ -301,6 +301,26 @@ def label_cases(shipped):
     return cases
 
 
+def test_grid_components_are_ndimage_labels_partition(shipped):
+    from sensors.clustering import ORDER_FREE, numbered
+
+    rng = np.random.default_rng(5)
+    cases = [(scan.points[~segment_ground(scan.points, cfg.ground, scan.origin)], cfg.cluster.cell_m)
+             for _, scan, cfg, _ in shipped]
+    ring = np.array([[np.cos(a) * 5.0, np.sin(a) * 5.0, 0.0] for a in np.linspace(0.0, 2 * np.pi, 200)])
+    diagonal = np.array([[0.25 + k, 0.25 + k, 0.0] for k in range(5)] + [[0.25 + k, 4.25 - k, 1.0] for k in range(5)])
+    cases += [(ring, 0.5), (diagonal, 1.0), (rng.uniform(0.0, 20.0, (3000, 3)), 0.5), (ring[:1], 0.5)]
+    n_clusters = 0
+    for pts, cell in cases:
+        cfg = dataclasses.replace(CFG.cluster, cell_m=cell)
+        got, ref = ORDER_FREE["grid"](pts, cfg), perception_reference.grid_labels_reference(pts, cell)
+        pairs = np.unique(np.column_stack([got, ref]), axis=0)  # the same partition: a bijection of the labels
+        assert got.dtype == np.int64 and len(pairs) == len(np.unique(got)) == len(np.unique(ref))
+        assert np.array_equal(numbered(pts, got, 3), numbered(pts, ref, 3))
+        n_clusters += len(pairs)
+    assert n_clusters > 1000
+
+
 def test_numbered_equals_the_reference(shipped):
     from sensors.clustering import numbered
 
