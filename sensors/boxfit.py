@@ -243,6 +243,17 @@ class BoxFitConfig:
                 best = p
         return best
 
+    def prior_indices(self, tops_m: np.ndarray) -> np.ndarray:
+        """(K,) int64 index into priors of prior(t) for each of tops_m (K,) [m]: the same rule, on arrays."""
+        tops = np.asarray(tops_m, np.float64).reshape(-1)
+        best = np.zeros(len(tops), np.int64)
+        best_min = np.full(len(tops), self.priors[0].min_top_m)
+        for j, p in enumerate(self.priors):
+            take = (tops >= p.min_top_m) & (p.min_top_m >= best_min)
+            best[take] = j
+            best_min[take] = p.min_top_m
+        return best
+
 
 @dataclass(frozen=True)
 class BoxFit:
@@ -379,22 +390,30 @@ def fit_vehicle_boxes_unchecked(xy: np.ndarray, z: np.ndarray | None, starts: np
     None), its top tops[k] (K,) [m], its heading hint hints[k] (K,) [rad] (hints None: none), its open ends
     open_ends[k] (K, 2) bool. The same BoxFits, bit for bit (the same kernel on the same numbers)."""
     window, n_inner, refine, free = _grids(cfg.step_deg, cfg.coarse_step_deg, cfg.hint_window_deg)
-    priors = [cfg.prior(float(t)) for t in tops]
+    which = cfg.prior_indices(tops)
     rows = boxfit_jit.fit_many(
         np.ascontiguousarray(xy, np.float64), _NO_Z if z is None else np.ascontiguousarray(z, np.float64),
         np.asarray(starts, np.int64), np.asarray(n, np.int64), np.ascontiguousarray(sensor_xy, np.float64),
         np.asarray(tops, np.float64),
-        np.array([[p.length_m, p.width_m, p.length_std_m, p.width_std_m, p.min_length_m] for p in priors],
-                 np.float64).reshape(-1, 5),
+        _prior_table(cfg)[which],
         hints is not None, np.zeros(len(starts)) if hints is None else np.asarray(hints, np.float64),
         open_ends[:, 0].copy(), open_ends[:, 1].copy(), z is not None, window, n_inner, refine, free, _params(cfg))
     return [BoxFit(centre=np.array([r[0], r[1]]), heading=r[2], length=r[3], width=r[4], seen_length=r[5],
                    seen_width=r[6], faces=int(r[7]), completed=bool(r[8]), R=np.array([[r[9], r[10]], [r[10], r[11]]]),
                    shape=boxfit_jit.SHAPE_CODES[int(r[12])], size_class=p.name, seen_centre=np.array([r[13], r[14]]))
-            for r, p in zip(rows.tolist(), priors)]
+            for r, p in zip(rows.tolist(), [cfg.priors[j] for j in which.tolist()])]
 
 
 _NO_Z = np.zeros(0)
+
+
+@functools.lru_cache(maxsize=16)
+def _prior_table(cfg: BoxFitConfig) -> np.ndarray:
+    """(P, 5) per size prior of cfg: length, width, their stds and min_length_m [m] (fit_many's prior rows)."""
+    t = np.array([[p.length_m, p.width_m, p.length_std_m, p.width_std_m, p.min_length_m] for p in cfg.priors],
+                 np.float64).reshape(-1, 5)
+    t.setflags(write=False)
+    return t
 
 
 @functools.lru_cache(maxsize=16)

@@ -2,7 +2,8 @@
 
 Methods (registry CLUSTER_METHODS):
   "grid":   bird's-eye occupancy grid of `cell_m` cells, connected components with 8-connectivity
-            (scipy.ndimage.label); two points share a cluster when a chain of occupied cells joins them.
+            (scipy.ndimage.label's, compiled); two points share a cluster when a chain of occupied cells
+            joins them.
   "dbscan": open3d tensor `cluster_dbscan(eps_m, min_points)` in 3-D.
 Scan-line links (`scan_line_links`; sensors.perception joins clusters and noise points by them): consecutive
 returns of one beam (adjacent azimuths, or two apart across a ray that returned nothing) lie on one surface when
@@ -24,7 +25,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy import ndimage
 
 from sensors import checks, perception_jit
 from sensors.grid import bev_cells
@@ -93,20 +93,19 @@ def numbered(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.ndarray:
     """Labels (N,) for points (N, 3) from raw labels (N,) (-1 noise) that do not depend on the point order:
     what _canonical gives on the lexicographically sorted points, for raw labels (N,) that do not depend
     on the point order: clusters under min_points dropped, the rest numbered 0.. in the lexicographic
-    (x, y, z) order of their first points. Only each cluster's lowest-x points are sorted."""
+    (x, y, z) order of their first points. Each cluster's first point is found by one compiled pass
+    (perception_jit.first_points; perception_reference.numbered_reference is the former numpy code)."""
     out = np.full(len(raw), -1, np.int64)
     valid = np.flatnonzero(raw >= 0)
     if len(valid) == 0:
         return out
     lab = raw[valid]
-    counts = np.bincount(lab)
-    x = pts[valid, 0]
-    min_x = perception_jit.group_min(lab, x, len(counts))  # np.minimum.at into inf, compiled
-    first = np.flatnonzero((x == min_x[lab]) & (counts[lab] >= min_points))  # candidates for a first point
-    order = np.lexsort((pts[valid[first], 2], pts[valid[first], 1], x[first]))
-    ids, at = np.unique(lab[first[order]], return_index=True)  # each cluster's first point in that order
+    counts, first = perception_jit.first_points(lab, valid, pts, int(lab.max()) + 1)
+    kept = np.flatnonzero((counts >= min_points) & (first >= 0))
+    f = valid[first[kept]]
+    ids = kept[np.lexsort((f, pts[f, 2], pts[f, 1], pts[f, 0]))]  # by first point, equal ones by position
     new = np.full(len(counts), -1, np.int64)
-    new[ids[np.argsort(at)]] = np.arange(len(ids))
+    new[ids] = np.arange(len(ids))
     out[valid] = new[lab]
     return out
 
@@ -127,11 +126,11 @@ def _canonical(raw: np.ndarray, min_points: int) -> np.ndarray:
 
 
 def _grid(pts: np.ndarray, cfg: ClusterConfig) -> np.ndarray:
+    """Component (N,) of each point's occupied cell, 8-connected: compiled (perception_jit.grid_components), the
+    partition of scipy.ndimage.label (perception_reference.grid_labels_reference) numbered otherwise, which
+    `numbered` makes irrelevant."""
     ix, iy, shape = bev_cells(pts, cfg.cell_m, "cluster")
-    occupied = np.zeros(shape, bool)
-    occupied[ix, iy] = True
-    cells, _ = ndimage.label(occupied, structure=np.ones((3, 3), bool))
-    return cells[ix, iy].astype(np.int64) - 1
+    return perception_jit.grid_components(ix, iy, shape[0], shape[1])
 
 
 def _dbscan(pts: np.ndarray, cfg: ClusterConfig) -> np.ndarray:

@@ -416,7 +416,9 @@ def _linked(pts: np.ndarray, labels: np.ndarray, links: np.ndarray, cfg: Percept
         return labels
     links, a, b = links[cross], a[cross], b[cross]
     used = np.unique(np.concatenate([a, b]))  # the nodes some link touches, with their points' boxes and tops
-    sel = np.flatnonzero(np.isin(node, used))
+    touched = np.zeros(n_clusters + len(labels), bool)  # np.isin(node, used) by a table of the node numbers
+    touched[used] = True
+    sel = np.flatnonzero(touched[node])
     which = np.searchsorted(used, node[sel])
     order = np.argsort(which, kind="stable")
     starts = np.flatnonzero(np.r_[True, np.diff(which[order]) != 0])
@@ -741,21 +743,8 @@ def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: Perce
     heading = st.axis.copy()
     provenance = _plurality_vehicle(scan.source[st.members], st.n)
     max_length = cfg.max_length_for(st.top)
-    for k, fit in fits.items():
-        z[k], heading[k], extent[k, :2], R[k] = fit.centre, fit.heading, (fit.length, fit.width), fit.R
-        centre[k] = fit.centre
-        flags[k] |= COMPLETED if fit.completed else 0
-        seen = (fit.seen_length, fit.seen_width)
-        if not cfg.vehicle_like:
-            continue
-        if cfg.shape_filter and fit.shape != "vehicle":  # by the fitted axis (shape_class uses the principal one)
-            reason[k] = fit.shape
-        elif max(seen) < cfg.min_extent_m:
-            reason[k] = "too_small"
-        elif max(seen) > max_length[k]:
-            reason[k] = "too_long"
-        elif min(seen) > cfg.max_width_m:
-            reason[k] = "too_wide"
+    if fits:
+        _apply_fits(fits, z, heading, extent, R, centre, flags, reason, max_length, cfg)
     if cfg.roi and road is not None:
         on = road.on_road(np.concatenate([centre, st.centroid]), cfg.roi_margin_m)  # one query: centres, centroids
         off = (reason == "") & ~on[:k_all] & ~on[k_all:]
@@ -769,6 +758,35 @@ def _select(scan: Scan, objects: list[np.ndarray], flags: np.ndarray, cfg: Perce
     rejected = Rejected(centre[~keep], reason[~keep].astype(str), provenance[~keep], st.n[~keep], flags[~keep])
     lap("ROI and output")
     return PerceptionResult(detections, is_ground, labels, rejected, cluster_labels)
+
+
+def _apply_fits(fits: dict[int, BoxFit], z, heading, extent, R, centre, flags, reason, max_length,
+                cfg: PerceptionConfig) -> None:
+    """_select's use of the fits, in place on its (K, ...) arrays: object k's measurement z, heading, extent (length,
+    width), R and reported centre from fits[k], the COMPLETED flag, and (cfg.vehicle_like) the first failing test of
+    the fitted box: its shape (cfg.shape_filter), then "too_small" / "too_long" / "too_wide" by its seen extents
+    against min_extent_m, max_length (K,) [m] and max_width_m."""
+    keys = np.fromiter(fits.keys(), np.int64, len(fits))
+    fl = list(fits.values())
+    z[keys] = [f.centre for f in fl]
+    centre[keys] = z[keys]
+    heading[keys] = [f.heading for f in fl]
+    extent[keys, :2] = [(f.length, f.width) for f in fl]
+    R[keys] = [f.R for f in fl]
+    flags[keys[np.array([f.completed for f in fl], bool)]] |= COMPLETED
+    if not cfg.vehicle_like:
+        return
+    seen = np.array([(f.seen_length, f.seen_width) for f in fl], np.float64).reshape(-1, 2)
+    longer, shorter = seen.max(axis=1), seen.min(axis=1)
+    shape = np.array([f.shape for f in fl], dtype=object)
+    open_ = np.ones(len(fl), bool)  # no test has failed yet
+    if cfg.shape_filter:  # by the fitted axis (shape_class uses the principal one)
+        open_ = shape == "vehicle"
+        reason[keys[~open_]] = shape[~open_]
+    for failed, name in ((longer < cfg.min_extent_m, "too_small"), (longer > max_length[keys], "too_long"),
+                         (shorter > cfg.max_width_m, "too_wide")):
+        reason[keys[open_ & failed]] = name
+        open_ &= ~failed
 
 
 def _members(st: _Stats, k: int) -> np.ndarray:
@@ -958,12 +976,13 @@ def _fit_all(scan: Scan, st: _Stats, keys: np.ndarray, hinted: bool, cfg: Percep
     fits = fit_vehicle_boxes_unchecked(st.xy[rows], st.z[rows] - cfg.ground.ground_z_m, np.cumsum(n) - n, n,
                                        scan.origin[:2], st.top[keys], st.axis[keys] if hinted else None, open_ends,
                                        boxfit)
-    out = {}
-    for k, f, e in zip(keys, fits, ends):
-        if boxfit.prior(st.top[k]).min_length_m > 0 and not (e and any(e)) and pool is not None and len(pool.idx):
-            f = _truck_side(scan, _members(st, k), f, float(st.top[k]), float(st.axis[k]) if hinted else None, e,
-                            cfg, boxfit, pool)
-        out[int(k)] = f
+    out = dict(zip(keys.tolist(), fits))
+    grown = np.array([p.min_length_m > 0 for p in boxfit.priors])[boxfit.prior_indices(st.top[keys])]  # trucks
+    for j in np.flatnonzero(grown):
+        k, e = int(keys[j]), ends[j]
+        if not (e and any(e)) and pool is not None and len(pool.idx):
+            out[k] = _truck_side(scan, _members(st, k), out[k], float(st.top[k]), float(st.axis[k]) if hinted else None,
+                                 e, cfg, boxfit, pool)
     return out
 
 

@@ -721,20 +721,6 @@ def link_unions(ia, ib, pending, lo, hi, top, holds_cluster, truck_top, truck_le
     return roots
 
 
-# --- clustering (sensors/clustering.numbered) --------------------------------------------------------------
-
-@njit(cache=True)
-def group_min(label, x, k):
-    """(k,) the smallest x (N,) of each label (N,) in 0..k-1, inf for a label without points: np.minimum.at into
-    np.full(k, inf), bit for bit (np.minimum(a, b) is b when a == b, so the last of equal zeros gives the sign;
-    NaN propagates)."""
-    out = np.full(k, np.inf)
-    for i in range(len(x)):
-        if x[i] <= out[label[i]] or x[i] != x[i]:
-            out[label[i]] = x[i]
-    return out
-
-
 # --- scan-line links (sensors/clustering.scan_line_links) ----------------------------------------------------
 
 @njit(cache=True)
@@ -854,3 +840,76 @@ def take_runs(is_new, where, old_starts, new_starts, n, starts, members0, u0, xy
                 members[o + i], u[o + i], z[o + i] = members0[s + i], u0[s + i], z0[s + i]
                 xy[o + i, 0], xy[o + i, 1], rel[o + i, 0], rel[o + i, 1] = xy0[s + i, 0], xy0[s + i, 1], rel0[s + i, 0], rel0[s + i, 1]
     return members, u, xy, z, rel
+
+
+# --- cluster numbering (sensors/clustering.numbered) -----------------------------------------------------------
+
+@njit(cache=True)
+def _lex_less(pts, i, j):
+    """Whether point pts[i] comes before pts[j] (pts (N, 3)) in lexicographic (x, y, z) order (equal: neither)."""
+    for d in range(3):
+        if pts[i, d] != pts[j, d]:
+            return pts[i, d] < pts[j, d]
+    return False
+
+
+@njit(cache=True)
+def first_points(label, rows, pts, k):
+    """Per label 0..k-1 of the points pts[rows] (rows (M,) into pts (N, 3)) labelled label (M,) >= 0: its point
+    count (k,) and its first point (k,), an index into rows, in lexicographic (x, y, z) order, the earliest of
+    equal points (-1 for a label without points): what sensors/clustering.numbered's lexsort of the labels'
+    lowest-x points found (perception_reference.numbered_reference)."""
+    counts = np.zeros(k, np.int64)
+    first = np.full(k, -1, np.int64)
+    for i in range(len(label)):
+        c = label[i]
+        counts[c] += 1
+        if first[c] < 0 or _lex_less(pts, rows[i], rows[first[c]]):
+            first[c] = i
+    return counts, first
+
+
+# --- grid clustering (sensors/clustering._grid) ---------------------------------------------------------------
+
+@njit(cache=True)
+def _find(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True)
+def grid_components(ix, iy, nx, ny):
+    """(N,) int64 component of each point's cell (ix, iy (N,) in [0, nx) x [0, ny)) among the occupied cells,
+    8-connected: the partition scipy.ndimage.label gives with a 3x3 structure (perception_reference.
+    grid_labels_reference), numbered 0.. in the order the points first reach each component (not ndimage's)."""
+    node = np.full(nx * ny, -1, np.int64)  # cell -> its node, by first point
+    cells = np.empty(len(ix), np.int64)
+    n_nodes = 0
+    for i in range(len(ix)):
+        c = ix[i] * ny + iy[i]
+        if node[c] < 0:
+            node[c] = n_nodes
+            cells[n_nodes] = c
+            n_nodes += 1
+    parent = np.arange(n_nodes)
+    for k in range(n_nodes):
+        cx, cy = cells[k] // ny, cells[k] % ny
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                x, y = cx + dx, cy + dy
+                if (dx or dy) and 0 <= x < nx and 0 <= y < ny and node[x * ny + y] >= 0:
+                    a, b = _find(parent, k), _find(parent, node[x * ny + y])
+                    if a != b:
+                        parent[max(a, b)] = min(a, b)
+    comp = np.full(n_nodes, -1, np.int64)
+    out = np.empty(len(ix), np.int64)
+    n_comp = 0
+    for i in range(len(ix)):
+        r = _find(parent, node[ix[i] * ny + iy[i]])
+        if comp[r] < 0:
+            comp[r] = n_comp
+            n_comp += 1
+        out[i] = comp[r]
+    return out

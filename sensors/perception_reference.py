@@ -301,3 +301,58 @@ def widest_gaps_reference(u: np.ndarray, starts: np.ndarray, n: np.ndarray) -> n
     step = np.diff(u_sorted, append=u_sorted[-1])
     step[starts + n - 1] = 0.0  # no gap across two objects
     return np.maximum.reduceat(step, starts)
+
+
+def numbered_reference(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.ndarray:
+    """sensors/clustering.numbered's former numpy code: labels (N,) for points (N, 3) from raw labels (N,) (-1
+    noise), clusters under min_points dropped, the rest numbered 0.. in the lexicographic (x, y, z) order of their
+    first points."""
+    out = np.full(len(raw), -1, np.int64)
+    valid = np.flatnonzero(raw >= 0)
+    if len(valid) == 0:
+        return out
+    lab = raw[valid]
+    counts = np.bincount(lab)
+    x = pts[valid, 0]
+    min_x = np.full(len(counts), np.inf)
+    np.minimum.at(min_x, lab, x)
+    first = np.flatnonzero((x == min_x[lab]) & (counts[lab] >= min_points))  # candidates for a first point
+    order = np.lexsort((pts[valid[first], 2], pts[valid[first], 1], x[first]))
+    ids, at = np.unique(lab[first[order]], return_index=True)  # each cluster's first point in that order
+    new = np.full(len(counts), -1, np.int64)
+    new[ids[np.argsort(at)]] = np.arange(len(ids))
+    out[valid] = new[lab]
+    return out
+
+
+def apply_fits_reference(fits: dict, z, heading, extent, R, centre, flags, reason, max_length, cfg) -> None:
+    """sensors/perception._apply_fits's former loop, object by object (the same arrays changed in place)."""
+    for k, fit in fits.items():
+        z[k], heading[k], extent[k, :2], R[k] = fit.centre, fit.heading, (fit.length, fit.width), fit.R
+        centre[k] = fit.centre
+        flags[k] |= 4 if fit.completed else 0  # sensors.perception.COMPLETED
+        seen = (fit.seen_length, fit.seen_width)
+        if not cfg.vehicle_like:
+            continue
+        if cfg.shape_filter and fit.shape != "vehicle":  # by the fitted axis (shape_class uses the principal one)
+            reason[k] = fit.shape
+        elif max(seen) < cfg.min_extent_m:
+            reason[k] = "too_small"
+        elif max(seen) > max_length[k]:
+            reason[k] = "too_long"
+        elif min(seen) > cfg.max_width_m:
+            reason[k] = "too_wide"
+
+
+def grid_labels_reference(pts: np.ndarray, cell_m: float) -> np.ndarray:
+    """sensors/clustering._grid's former code: the 8-connected component (N,) (scipy.ndimage.label, numbered 0.. in
+    raster order of the cells) of each point's bird's-eye cell of cell_m [m], for points (N, 3) [m]."""
+    from scipy import ndimage
+
+    from sensors.grid import bev_cells
+
+    ix, iy, shape = bev_cells(pts, cell_m, "cluster")
+    occupied = np.zeros(shape, bool)
+    occupied[ix, iy] = True
+    cells, _ = ndimage.label(occupied, structure=np.ones((3, 3), bool))
+    return cells[ix, iy].astype(np.int64) - 1

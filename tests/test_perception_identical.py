@@ -161,6 +161,44 @@ def test_the_timer_sees_the_stages_in_order_and_changes_nothing(shipped):
     assert full >= 3
 
 
+def results_equal(a, b) -> bool:
+    """Whether two PerceptionResults hold the same bits."""
+    pairs = [(getattr(x, f.name), getattr(y, f.name)) for x, y in ((a.detections, b.detections), (a.rejected, b.rejected))
+             for f in dataclasses.fields(x)]
+    pairs += [(a.labels, b.labels), (a.is_ground, b.is_ground), (a.cluster_labels, b.cluster_labels)]
+    return all(u.dtype == v.dtype and u.shape == v.shape and u.tobytes() == v.tobytes() for u, v in pairs)
+
+
+@pytest.mark.parametrize("variant", [{}, {"shape_filter": False}, {"vehicle_like": False}, {"max_length_m": 4.0}])
+def test_apply_fits_equals_the_former_loop(monkeypatch, shipped, variant):
+    from sensors import COMPLETED
+
+    assert COMPLETED == 4  # the reference's literal
+    n_fits = 0
+    for _, scan, cfg, road in shipped[::2]:
+        cfg = dataclasses.replace(cfg, **variant)
+        got = perception.perceive(scan, cfg, road)
+        calls = []
+        monkeypatch.setattr(perception, "_apply_fits",
+                            lambda fits, *a: calls.append(len(fits)) or perception_reference.apply_fits_reference(fits, *a))
+        ref = perception.perceive(scan, cfg, road)
+        monkeypatch.undo()
+        assert results_equal(got, ref)
+        n_fits += sum(calls)
+    assert n_fits > 100
+
+
+def test_prior_indices_follow_prior():
+    from sensors.boxfit import CAR, TRUCK, BoxFitConfig, SizePrior
+
+    van = SizePrior("van", 1.9, 5.5, 2.0, 0.5, 0.2)
+    tops = np.r_[np.linspace(-1.0, 5.0, 601), 0.0, -0.0, 1.9, 2.5, np.nextafter(2.5, 0.0), np.inf, -np.inf]
+    for priors in ((CAR, TRUCK), (TRUCK, CAR), (CAR, van, TRUCK), (van, TRUCK, CAR), (CAR,), (van,)):
+        cfg = BoxFitConfig(priors=priors)
+        got = cfg.prior_indices(tops)
+        assert got.dtype == np.int64 and [priors[j] for j in got] == [cfg.prior(float(t)) for t in tops]
+
+
 # --- scan-line links -------------------------------------------------------------------------------------
 
 def test_link_unions_equal_the_reference_on_every_shipped_scenario(monkeypatch, shipped):
@@ -237,19 +275,62 @@ def test_the_conditioning_shortcut_decides_as_numpys_cond(monkeypatch, shipped):
 
 # --- clustering --------------------------------------------------------------------------------------------
 
-def test_group_min_equals_numpys_minimum_at(highway):
+def tie_grid(rng, n: int) -> np.ndarray:
+    """(n, 3) points on a coarse grid: many equal x, equal (x, y) and equal points; -0.0 beside 0.0."""
+    grid = np.column_stack([rng.integers(0, 3, (n, 2)).astype(float), rng.integers(0, 2, n) * 0.5])
+    grid[::7, 0] = -0.0  # -0.0 and 0.0 are equal x
+    grid[::5, 1] = -0.0
+    return grid
+
+
+def label_cases(shipped):
+    """(points (N, 3), labels (N,) with -1 noise) of every shipped frame's clustering (links included) and of
+    hand-made ties."""
+    from sensors.clustering import ORDER_FREE
+
     rng = np.random.default_rng(4)
-    cases = [(rng.integers(0, 40, len(pts)), pts[:, 0].copy()) for pts, _, _, _ in highway[::4]]
-    cases += [(np.array([0, 0, 2, 2, 2]), np.array([0.0, -0.0, -0.0, 0.0, 1.0])),  # signed zeros, label 1 empty
-              (np.array([1, 1, 1, 0]), np.array([2.0, np.nan, 1.0, np.nan])),  # NaN propagates, as np.minimum
-              (np.zeros(0, np.int64), np.zeros(0))]
-    for label, x in cases:
-        k = int(label.max()) + 3 if len(label) else 2
-        ref = np.full(k, np.inf)
-        with np.errstate(invalid="ignore"):  # the NaN case
-            np.minimum.at(ref, label, x)
-        got = perception_jit.group_min(label, x, k)
-        assert np.array_equal(got.view(np.int64), ref.view(np.int64))  # bit for bit, signs of zero included
+    cases = []
+    for _, scan, cfg, _ in shipped:
+        pts = scan.points
+        cand = pts[~segment_ground(pts, cfg.ground, scan.origin)]
+        cases.append((cand, ORDER_FREE["grid"](cand, cfg.cluster)))
+        cases.append((cand, rng.integers(-1, 60, len(cand))))
+    for n in (1, 2, 7, 300):
+        grid = tie_grid(rng, n)
+        cases += [(grid, rng.integers(-1, 4, n)), (grid, np.zeros(n, np.int64)), (grid, np.full(n, -1))]
+    return cases
+
+
+def test_grid_components_are_ndimage_labels_partition(shipped):
+    from sensors.clustering import ORDER_FREE, numbered
+
+    rng = np.random.default_rng(5)
+    cases = [(scan.points[~segment_ground(scan.points, cfg.ground, scan.origin)], cfg.cluster.cell_m)
+             for _, scan, cfg, _ in shipped]
+    ring = np.array([[np.cos(a) * 5.0, np.sin(a) * 5.0, 0.0] for a in np.linspace(0.0, 2 * np.pi, 200)])
+    diagonal = np.array([[0.25 + k, 0.25 + k, 0.0] for k in range(5)] + [[0.25 + k, 4.25 - k, 1.0] for k in range(5)])
+    cases += [(ring, 0.5), (diagonal, 1.0), (rng.uniform(0.0, 20.0, (3000, 3)), 0.5), (ring[:1], 0.5)]
+    n_clusters = 0
+    for pts, cell in cases:
+        cfg = dataclasses.replace(CFG.cluster, cell_m=cell)
+        got, ref = ORDER_FREE["grid"](pts, cfg), perception_reference.grid_labels_reference(pts, cell)
+        pairs = np.unique(np.column_stack([got, ref]), axis=0)  # the same partition: a bijection of the labels
+        assert got.dtype == np.int64 and len(pairs) == len(np.unique(got)) == len(np.unique(ref))
+        assert np.array_equal(numbered(pts, got, 3), numbered(pts, ref, 3))
+        n_clusters += len(pairs)
+    assert n_clusters > 1000
+
+
+def test_numbered_equals_the_reference(shipped):
+    from sensors.clustering import numbered
+
+    n_big = 0
+    for pts, raw in label_cases(shipped):
+        for min_points in (0, 1, 3, 5):
+            got, ref = numbered(pts, raw, min_points), perception_reference.numbered_reference(pts, raw, min_points)
+            assert got.dtype == ref.dtype and np.array_equal(got, ref)
+        n_big += int(raw.max()) > 50
+    assert n_big > 10
 
 
 def test_scan_line_links_equal_the_reference_on_every_shipped_scenario(shipped):
@@ -545,3 +626,29 @@ def test_nearest_range_of_the_object_sums_is_numpys_smallest_hypot(highway):
             ref = np.min(np.hypot(pts[o, 0] - 1.5, pts[o, 1] + 0.5))
             got = perception._stats(pts, [o], 0.0, np.array([1.5, -0.5]), None).d_min[0]
             assert got == ref
+
+
+# --- the P_D's range image (testbed.sensing.pd_scan) -----------------------------------------------------------
+
+def pd_ranges_reference(scan, is_ground: np.ndarray) -> np.ndarray:
+    """testbed.sensing.pd_scan's former range image: ground rays inf, the rest rounded to PD_RANGE_STEP_M where
+    finite (a mask of the finite entries)."""
+    from testbed.sensing import PD_RANGE_STEP_M
+
+    ranges = scan.ranges.copy()
+    ranges.reshape(-1)[scan.ray[is_ground & (scan.ray >= 0)]] = np.inf
+    finite = np.isfinite(ranges)
+    ranges[finite] = np.rint(ranges[finite] / PD_RANGE_STEP_M) * PD_RANGE_STEP_M
+    return ranges
+
+
+def test_pd_scan_ranges_equal_the_reference(shipped):
+    from testbed.sensing import pd_scan
+
+    n_inf = 0
+    for _, scan, cfg, _ in shipped:
+        is_ground = segment_ground(scan.points, cfg.ground, scan.origin)
+        got, ref = pd_scan(scan, is_ground).ranges, pd_ranges_reference(scan, is_ground)
+        assert got.dtype == ref.dtype and got.shape == ref.shape and bits(got).tobytes() == bits(ref).tobytes()
+        n_inf += int(np.isinf(got).sum())
+    assert n_inf > 1000
