@@ -3,13 +3,17 @@ temporary package in 1 module + 1 registry line (an entry point), sensed in a re
 sensing cache, which refuses in one line the data it cannot store."""
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 import textwrap
+from pathlib import Path
 import warnings
 
 import numpy as np
 import pytest
 
+import testbed
 from testbed.common import streams
 from testbed.config import ConfigError
 from testbed.sensing import SENSORS, Sensor, rng_streams, scenario_sensors, sense, sensor_registry
@@ -17,6 +21,7 @@ from testbed.sensing.cache import SensingCache
 from testbed.world import load_scenario
 from trackers.plugins import PluginWarning
 
+REPO = Path(__file__).resolve().parent.parent
 BEACON = '''
 """A toy sensor: a beacon receiver that reports each car within 40 m of the ego as its position plus noise."""
 import numpy as np
@@ -108,6 +113,20 @@ def test_an_unknown_or_repeated_sensor_is_one_line_naming_its_key():
         with pytest.raises(ConfigError, match=match) as err:
             next(iter(sense(scn)))
         assert "\n" not in str(err.value)
+
+
+def test_the_cli_refuses_an_unknown_sensor_before_writing_anything(tmp_path):
+    out = tmp_path / "run"
+    env = {**os.environ, "PYTHONPATH": str(REPO), "RERUN_ANALYTICS": "0"}
+    res = subprocess.run([sys.executable, "-m", "testbed.cli.main", "run", "cut_in_out", "--set", "duration_s=0.2",
+                          "--set", 'sensor.extra=["nope"]', "--no-record", "--quiet", "--out", str(out)],
+                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert res.returncode == 2 and not out.exists()
+    assert res.stderr.strip().splitlines() == [
+        f"error: sensor.extra[0]: 'nope' is not a sensor; allowed: none installed (nothing was written ({out} is "
+        "unchanged))"]
+    with pytest.raises(ConfigError, match=r"^sensor\.extra\[0\]: 'nope' is not a sensor"):
+        testbed.sense(load_scenario("cut_in_out", {"duration_s": 0.2, "sensor.extra": ["nope"]}))  # at the call
 
 
 def test_a_toy_sensor_from_a_temporary_package_is_sensed_on_its_own_stream(beacon):
