@@ -174,6 +174,9 @@ def test_the_cache_stores_the_toy_sensor_and_refuses_data_it_cannot_store(beacon
             np.testing.assert_array_equal(x.data[col], y.data[col])
         for u, v in zip(x.visibility, y.visibility):
             np.testing.assert_array_equal(u, v)
+    module = tmp_path / "toy_beacon.py"
+    module.write_text(module.read_text() + "# edited\n")  # the plug-in's code is part of the key: no stale entry
+    assert not cache.has(scn)
     bad = load_scenario("cut_in_out", {"duration_s": 0.3, "sensor.extra": ["listy"]})
     with pytest.raises(ConfigError, match=r"^sensing_cache: cannot store the data of sensor 'listy': it is a list, "
                                           r"not a dict") as err:

@@ -89,8 +89,12 @@ def sensor_fingerprint(scn: Scenario) -> dict[str, str]:
     :func:`code_fingerprint`), by sensor name; empty without ``sensor.extra``."""
     out = {}
     for sensor in scenario_sensors(scn)[1:]:
-        path = inspect.getsourcefile(sensor.sense)
-        out[sensor.name] = hashlib.sha256(Path(path).read_bytes()).hexdigest() if path else sensor.sense.__module__
+        try:
+            path = inspect.getsourcefile(sensor.sense)
+        except TypeError:  # a built-in function: no source file
+            path = None
+        out[sensor.name] = (hashlib.sha256(Path(path).read_bytes()).hexdigest() if path
+                            else f"{getattr(sensor.sense, '__module__', None)}.{getattr(sensor.sense, '__qualname__', None)}")
     return out
 
 
