@@ -23,7 +23,8 @@ from .registry import scenario_sensors
 from .sensor import SensingContext, SensorReading
 
 STREAMS = ("roadside", "lidar", "clutter")
-"""The streams the LiDAR's sensing draws from, made up front by :func:`rng_streams` (every other is made on use)."""
+"""The streams of the sensing setup and the LiDAR (roadside objects, LiDAR noise, added clutter), made up front by
+:func:`rng_streams`; every other name is made on first use."""
 
 
 @dataclass(frozen=True, eq=False)
