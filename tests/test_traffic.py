@@ -15,8 +15,8 @@ from testbed.pipeline.run import run_scenario
 from testbed.sensing import rng_streams
 from testbed.scenario.spec import RoadsideSpec, RoadSpec, TrafficSpec, load_scenario, parse_scenario
 from testbed.world.simulation import Simulation, build_network, road_edges
-from testbed.world.traffic import (IDM_C, TRAFFIC_STREAM, TrafficNetwork, TrafficRoad, entry_flux, idm_fit_speed,
-                             sample_entry)
+from testbed.world.traffic import (IDM_C, TrafficNetwork, TrafficRoad, entry_flux, idm_fit_speed,
+                             sample_entry, traffic_rngs)
 
 
 def _scenario(traffic: dict, seed: int = 0, duration_s: float = 10.0, vehicles: tuple = (), road: dict | None = None,
@@ -56,13 +56,14 @@ def _bumper_gaps(frame, same_direction_lanes: bool = True) -> np.ndarray:
 DENSE = dict(density_per_km_lane=12.0, speed_mps=[23.0, 31.0], mobil_share=0.5, idm_spread=0.1, truck_share=0.2)
 
 
-def test_traffic_stream_is_the_fourth_child_of_the_seed_and_leaves_run_streams_alone():
-    # run.py's streams are SeedSequence(seed).spawn(3); ours is spawn(4)[3]: children 0..2 are identical.
+def test_traffic_streams_are_the_fourth_child_of_the_seed_and_leave_run_streams_alone():
+    # the run's streams are SeedSequence(seed).spawn(3); traffic's are spawn(4)[3].spawn(2): children 0..2 identical.
     seed = 12345
     for i, name in enumerate(("roadside", "lidar", "clutter")):
         child = np.random.default_rng(np.random.SeedSequence(seed).spawn(4)[i])
         np.testing.assert_array_equal(child.random(5), rng_streams(seed)[name].random(5))
-    assert TRAFFIC_STREAM == 3
+    for got, child in zip(traffic_rngs(seed), np.random.SeedSequence(seed).spawn(4)[3].spawn(2)):
+        np.testing.assert_array_equal(got.random(5), np.random.default_rng(child).random(5))
 
 
 def test_no_traffic_by_default_keeps_highway_env_road():

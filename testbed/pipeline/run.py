@@ -24,7 +24,7 @@ from .outdir import write_atomic
 from ..scenario.spec import Scenario
 from ..scoring.events import run_events
 from ..scoring.rates import Scores
-from ..sensing import SensedFrame, rng_streams, sense_simulation, sensing_setup
+from ..sensing import SensedFrame, rng_streams, scenario_sensors, sense_simulation, sensing_setup
 from ..common.errors import interruption_behind
 from ..sensing.cache import SensingCache
 from ..world.simulation import lane_polylines
@@ -101,6 +101,7 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
     ``frames(watch) -> iterator of SensedFrame``."""
     name = label or tracker_label(tracker, scn)
     trk = build_tracker(scn, tracker)  # before the traffic is set up: a bad tracker fails at once
+    scenario_sensors(scn)  # so does an unknown sensor of sensor.extra
     rngs = rng_streams(scn.seed)
     setup = _Setup(scn, rngs, policy)  # the traffic is set up when needed: not for a run read from the cache
     cache = SensingCache(sensing_cache) if sensing_cache is not None and policy is None and source is None else None

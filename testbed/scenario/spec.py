@@ -273,6 +273,9 @@ class SensorSpec:
                                           "measured on dense_motorway, docs/perception.md); 0: a step at min_points",
                                           check=(lambda v: 0 <= v <= 1000, "in [0, 1000]"))
     clutter: ClutterSpec = field(ClutterSpec(), doc="added Poisson clutter")
+    extra: tuple[str, ...] = field((), doc="further sensors by name, sensed beside the LiDAR (testbed/sensing/"
+                                   "registry.py, plug-ins of the entry point group roadtrack.sensors); their data "
+                                   "is in each sensed frame's others (default: none)")
     outages: tuple[OutageSpec, ...] = field((), doc="forced sensor outages (default: none), e.g. "
                                             "[{ start_s = 8.0, end_s = 20.0, vehicles = [\"right\"] }]: the "
                                             "named cars vanish from the scan, or with vehicles = [] the whole "

@@ -12,7 +12,9 @@ An entry is a folder ``<key>/``: ``truth.parquet`` (the truth rows with each veh
 ``detections.parquet`` (every field of the detections), ``ranges.parquet`` (per frame the sensor pose and the
 range image the occlusion-aware P_D reads, as ``ranges_for_pd`` makes it: 2 mm steps, uint16), ``road.parquet``
 (the perception's road map, which that P_D reads too, so a cached run sets up no traffic) and ``meta.json``
-(written last: its presence marks the entry complete). An entry is read frame by frame: its small tables
+(written last: its presence marks the entry complete), and per further sensor (``sensor.extra``) ``others-<name>.parquet``
+(its data table, one row per detection: testbed/sensing/sensor.py; data of another form is refused in one line,
+never dropped; its visibility and P_D are computed again from the stored data when read). An entry is read frame by frame: its small tables
 whole, the range images a batch of frames at a time (:class:`RangeBlobs`). Frames from the cache carry no point cloud and no
 perception internals (``scan.points`` is empty, ``perception`` is None): a tracker gets exactly what it gets live
 (tests/test_sensing_cache.py checks a tracker run from the cache is identical to one from scratch), a recording
@@ -20,7 +22,9 @@ shows no LiDAR points.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import inspect
 import json
 import os
 import shutil
@@ -42,8 +46,11 @@ from ..common.safe_io import make_folder, try_lock, unlock, write_text
 from ..scenario.spec import Scenario
 from ..world.simulation import TruthFrame
 from .frames import PD_RANGE_STEP_M, SensedFrame, occlusion_pd, rng_streams, sense_simulation, sensing_setup
+from .cache_others import OtherRows, others_decoder
+from .registry import scenario_sensors
+from .sensor import SensingContext
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 NOT_SENSING = ("tracker", "scoring", "record", "moving_test", "name", "description")
 """Scenario keys that do not change what is sensed."""
 
@@ -77,10 +84,25 @@ def sensing_settings(scn: Scenario) -> dict:
     return {k: v for k, v in to_dict(scn).items() if k not in NOT_SENSING}
 
 
+def sensor_fingerprint(scn: Scenario) -> dict[str, str]:
+    """sha256 of the source file of each further sensor's ``sense`` (a plug-in's code is not in
+    :func:`code_fingerprint`), by sensor name; empty without ``sensor.extra``."""
+    out = {}
+    for sensor in scenario_sensors(scn)[1:]:
+        try:
+            path = inspect.getsourcefile(sensor.sense)
+        except TypeError:  # a built-in function: no source file
+            path = None
+        out[sensor.name] = (hashlib.sha256(Path(path).read_bytes()).hexdigest() if path
+                            else f"{getattr(sensor.sense, '__module__', None)}.{getattr(sensor.sense, '__qualname__', None)}")
+    return out
+
+
 def sensing_key(scn: Scenario) -> str:
-    """24 hex digits naming what ``scn`` senses (its sensing settings, the sensing code, the cache version)."""
-    text = json.dumps(dict(v=CACHE_VERSION, code=code_fingerprint(), scenario=sensing_settings(scn)), sort_keys=True,
-                      default=str)
+    """24 hex digits naming what ``scn`` senses (its sensing settings, the sensing code and that of its further
+    sensors, the cache version)."""
+    text = json.dumps(dict(v=CACHE_VERSION, code=code_fingerprint(), scenario=sensing_settings(scn),
+                           sensors=sensor_fingerprint(scn)), sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:24]
 
 
@@ -159,6 +181,11 @@ class SensingCache:
             blobs = RangeBlobs(entry / "ranges.parquet") if scn.sensor.occlusion_pd else None
             road = _road(pq.read_table(entry / "road.parquet"))
             frames = _decode(scn, meta, tables, road, blobs)  # checks the tables' sizes before the first frame
+            extra = scenario_sensors(scn)[1:]
+            if extra:
+                decode = others_decoder(extra, SensingContext(scn, None, road), {
+                    s.name: pq.read_table(entry / f"others-{s.name}.parquet") for s in extra}, meta["others"])
+                frames = (dataclasses.replace(sf, others=decode(sf.truth)) for sf in frames)
         except Exception as err:  # noqa: BLE001 - any damage: sense again
             warnings.warn(CacheWarning(f"sensing cache {entry}: damaged ({type(err).__name__}: "
                                        f"{str(err).splitlines()[0] if str(err) else ''}); sensing again"),
@@ -171,19 +198,21 @@ class SensingCache:
 
     def _sense_and_store(self, scn, entry: Path, sim, static, road, watch) -> Iterator[SensedFrame]:
         rows = _Rows(range_dtype(scn.sensor.lidar.max_range_m))
+        others = OtherRows([s.name for s in scenario_sensors(scn)[1:]])
         rngs = rng_streams(scn.seed)  # the lidar and clutter streams as sensing_setup left them (it draws roadside)
         for sf in sense_simulation(scn, sim, static, road, rngs, watch):
+            others.add(sf.index, sf.others)  # refuses (one line) what it cannot store
             rows.add(sf)
             yield sf
         tmp = self.folder / f".{entry.name}.partial-{os.getpid()}"
         shutil.rmtree(tmp, ignore_errors=True)
         make_folder(tmp, "sensing cache entry")
         try:
-            for name, table in {**rows.tables(), "road": _road_table(road)}.items():
+            for name, table in {**rows.tables(), "road": _road_table(road), **others.tables()}.items():
                 pq.write_table(table, tmp / f"{name}.parquet", compression="zstd")
             meta = dict(version=CACHE_VERSION, key=entry.name, frames=rows.n, settings=sensing_settings(scn),
                         azimuths=rows.azimuths, elevations=rows.elevations, shape=rows.shape,
-                        range_step_m=PD_RANGE_STEP_M, dtype=rows.dtype.name)
+                        range_step_m=PD_RANGE_STEP_M, dtype=rows.dtype.name, others=others.schema)
             write_text(tmp / "meta.json", json_text(meta, default=str))
             shutil.rmtree(entry, ignore_errors=True)
             os.replace(tmp, entry)

@@ -83,4 +83,4 @@ def lighten(frames: Iterable[SensedFrame], scn: Scenario) -> Iterator[SensedFram
             pd = LightPD(pd_for, PackedRanges(scan.ranges, dtype), scan.origin, scan.pose, angles)
         bare = sensors.Scan(points=empty3, source=empty_i, origin=scan.origin, ranges=no_ranges, ray=empty_i,
                             azimuths=angles[0], elevations=angles[1], pose=scan.pose)
-        yield SensedFrame(sf.truth, bare, None, sf.detections, sf.visibility, pd, None, sf.road)
+        yield SensedFrame(sf.truth, bare, None, sf.detections, sf.visibility, pd, None, sf.road, sf.others)

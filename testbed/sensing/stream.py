@@ -11,6 +11,7 @@ from ..scenario.spec import Scenario
 from .cache import SensingCache, check_cache_folder
 from .frames import SensedFrame, sense
 from .light import lighten
+from .registry import scenario_sensors
 
 
 def sensed_frames(scn: Scenario, policy: Callable | None = None, sensing_cache: str | Path | None = None,
@@ -28,6 +29,7 @@ def sensed_frames(scn: Scenario, policy: Callable | None = None, sensing_cache: 
     if policy is not None and not callable(policy):
         raise ConfigError("policy", f"expected a function f(observation, info) -> action, got "
                           f"{type(policy).__name__}")
+    scenario_sensors(scn)  # an unknown sensor of sensor.extra fails at the call
     cache = None
     if sensing_cache is not None:
         if policy is not None:

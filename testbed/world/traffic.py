@@ -30,11 +30,9 @@ leaves and a vehicle that enters are distinct cars for scoring.
 Positions along a carriageway are *chain coordinates* S [m]: the arc length along lane 0 of its chain of
 road segments, in its driving direction.
 
-Randomness: one generator, a child of the scenario seed that no other consumer uses,
-``SeedSequence(seed).spawn(4)[3]`` (``testbed.pipeline.run.rng_streams`` spawns its ``roadside``, ``lidar`` and
-``clutter`` streams as ``spawn(3)``, i.e. children 0..2, so adding traffic changes none of them; a fourth
-stream added there must be this one, ``traffic``). It is split once more: ``spawn(2)`` gives the jitter of
-the scripted vehicles and the background traffic, so switching on jitter does not change the traffic.
+Randomness: two named streams of the scenario seed (testbed/common/streams.py, the one table of every stream),
+``traffic.jitter`` for the jitter of the scripted vehicles and ``traffic.background`` for the background traffic,
+so switching on jitter does not change the traffic and no other consumer draws from them.
 """
 from __future__ import annotations
 
@@ -46,10 +44,10 @@ from highway_env.road.lane import StraightLane
 from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 
+from ..common import streams
 from ..scenario.spec import TrafficSpec, VehicleSpec
 from .stepping import BatchRoad, BumperGapIDM, LaneTable
 
-TRAFFIC_STREAM = 3  # child index of SeedSequence(seed) (run.py's STREAMS use 0..2)
 IDM_C = 2.0 * float(np.sqrt(IDMVehicle.COMFORT_ACC_MAX * -IDMVehicle.COMFORT_ACC_MIN))  # 2 sqrt(a b) [m/s]
 REMOVE_MARGIN_M = 20.0  # a vehicle is removed this far outside the window [m]
 MAX_PENDING = 4  # entries waiting for room, per lane edge and vehicle kind
@@ -58,10 +56,8 @@ PLACE_TRIES = 50  # random positions tried per vehicle at the start
 
 
 def traffic_rngs(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
-    """(jitter, background traffic) generators, children of ``SeedSequence(seed).spawn(4)[3]``."""
-    seq = np.random.SeedSequence(seed).spawn(TRAFFIC_STREAM + 1)[TRAFFIC_STREAM]
-    jitter, background = seq.spawn(2)
-    return np.random.default_rng(jitter), np.random.default_rng(background)
+    """(jitter, background traffic) generators: the streams ``traffic.jitter`` and ``traffic.background``."""
+    return streams.generator(seed, "traffic.jitter"), streams.generator(seed, "traffic.background")
 
 
 def jitter_specs(specs: tuple[VehicleSpec, ...], spec: TrafficSpec, road_length_m: float,
