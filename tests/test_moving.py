@@ -62,3 +62,28 @@ def test_bad_pipeline_and_moving_keys_are_one_line_errors():
         load_scenario("cut_in_out", {"sensor.pipeline": "paper"})
     with pytest.raises(ConfigError, match=r"^moving_test.window_s: 0.0 is not allowed; must be > 0$"):
         load_scenario("cut_in_out", {"moving_test.window_s": 0})
+
+
+def test_a_jump_onto_the_next_static_object_and_coasting_on_is_not_motion():
+    """A bush's track jumps 3.4 m in two scans onto a neighbouring object and coasts on at 2.7 m/s (measured on
+    cut_in_out with roadside objects): over the whole 0.8 s window that is above 4 m/s, over each quarter not."""
+    xs = [0.0] * 8 + [2.2, 3.4] + [3.4 + 0.27 * k for k in range(1, 9)]
+    whole = MovingTest(MovingTestSpec(min_speed_mps=4.0, window_s=0.8, parts=1))
+    quarters = MovingTest(MovingTestSpec(min_speed_mps=4.0, window_s=0.8))
+    assert any(whole.update(np.array([1]), np.array([[x, 0.0]]), 0.1 * k)[0] for k, x in enumerate(xs))
+    assert not any(quarters.update(np.array([1]), np.array([[x, 0.0]]), 0.1 * k)[0] for k, x in enumerate(xs))
+
+
+@pytest.mark.parametrize("speed", [4.5, 25.0])
+def test_a_car_at_a_steady_speed_is_reported_after_one_window_whatever_the_parts(speed):
+    rng = np.random.default_rng(1)
+    for parts in (1, 2, 4, 8, 20):
+        test = MovingTest(MovingTestSpec(min_speed_mps=4.0, window_s=0.8, parts=parts))
+        out = [test.update(np.array([1]), np.array([[speed * 0.1 * k, 0.0]]) + rng.normal(0, 0.01, 2), 0.1 * k)[0]
+               for k in range(12)]
+        assert not any(out[:8]) and all(out[8:]), (parts, out)
+
+
+def test_parts_out_of_range_is_a_one_line_error():
+    with pytest.raises(ConfigError, match=r"^moving_test.parts: 0 is not allowed; must be in \[1, 20\]$"):
+        load_scenario("cut_in_out", {"moving_test.parts": 0})

@@ -212,3 +212,44 @@ def test_the_issue_scenarios_keep_their_ids(name, check):
     res = run_scenario(load_scenario(name), record=False)
     assert res.scores.to_dict()[check] == 0
     assert res.scores.tp_pct == 100.0
+
+
+def _exit_path(v=16.0, t_exit=20, n=60, jump=0.25, rate=1.3, tau=0.4):
+    """A car at v [m/s] on a counter-clockwise 20 m ring for t_exit scans, then its exit: the heading turned out by
+    `jump` [rad] in one scan and turning out further at `rate` [rad/s], decaying with `tau` [s] (highway-env's
+    roundabout exit as measured on the shipped roundabout, seed 0: -0.97 -> -0.73 rad in one scan, then 1.3 rad/s)."""
+    xy, h, p = np.zeros((n, 2)), np.pi / 2, np.array([20.0, 0.0])
+    for k in range(n):
+        xy[k] = p
+        turn = (-jump if k == t_exit else 0.0) - rate * np.exp(-(k - t_exit) * DT / tau) * DT
+        h += v / 20.0 * DT if k < t_exit else turn
+        p = p + v * DT * np.array([np.cos(h), np.sin(h)])
+    return xy
+
+
+def test_a_car_leaving_a_roundabout_keeps_its_id_when_the_curvature_input_is_uncertain():
+    """Before the spread, the ring's input held the track on the ring while its car took the exit (the map has no
+    exit lane within reach yet): relabelled, as every such car on the shipped roundabout (break-ups 50 %, seed 0)."""
+    truth, ring = _exit_path(), circle_map(20.0)
+    ids, _ = _follow(make_tracker("jpda-kf", sigma_w=0.5, sigma_v=4.0), truth, np.ones(len(truth), bool),
+                     ring.lane_frame)
+    assert ids[10] > 0 and (ids[10:] == ids[10]).all(), ids
+    exact = make_tracker("jpda-kf", sigma_w=0.5, sigma_v=4.0, road_curvature_spread=False)
+    before, _ = _follow(exact, truth, np.ones(len(truth), bool), ring.lane_frame)
+    assert (before[10:] != before[10]).any()  # the input taken as exact: lost at the exit
+
+
+def test_the_spread_grows_the_covariance_by_the_shift_s_outer_product():
+    kf = make_tracker("jpda-kf").filter
+    s = kf.initial_state(np.array([1.0, 2.0, 3.0, 4.0]), np.eye(4) * 0.25)
+    d = np.array([[0.01, -0.02, 0.2, -0.4]])
+    exact, = kf.shift_many([s], d)
+    spread, = kf.shift_many([s], d, True)
+    assert np.array_equal(exact.P, s.P) and np.allclose(exact.x, s.x + d[0], rtol=0, atol=1e-15)
+    assert np.allclose(spread.P - s.P, np.outer(d[0], d[0]), rtol=0, atol=1e-15)
+    imm = make_tracker("imm-pda-kf").filter  # its turn-rate mode is the alternative: the linear modes take u exact
+    m = imm.initial_state(np.array([1.0, 2.0, 3.0, 4.0]), np.eye(4) * 0.25)
+    out, = imm.shift_many([m], d, True)
+    cv = [i for i, f in enumerate(imm.filters) if f.motion.linear]
+    assert cv and all(np.array_equal(out.modes[i].P, m.modes[i].P) for i in cv)
+    assert all(np.allclose(out.modes[i].x[:4] - m.modes[i].x[:4], d[0], rtol=0, atol=1e-15) for i in cv)

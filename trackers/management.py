@@ -117,6 +117,10 @@ class ManagementParams:
                                  check=POSITIVE, bounds=(1, WINDOW_MAX))
     road_curvature: bool = param(True, "with a road from the caller: the lane's centripetal acceleration "
                                  "v_t^2 kappa enters each prediction as a known input (trackers.road) [D]")
+    road_curvature_spread: bool = param(True, "the curvature input is uncertain by its own size: its shift B u "
+                                        "adds (B u)(B u)^T to the predicted covariance, so a car that leaves the "
+                                        "lane's bend (a roundabout's exit) is not held on it; an IMM's linear modes take the input "
+                                        "exact, its turn-rate mode being the alternative (trackers.road) [D]")
     road_lane_keeping: bool = param(True, "with a road from the caller: a confirmed track with no gated measurement "
                                     "is updated with the pseudo-measurement 'in its nearest lane' (cross-lane offset "
                                     "0, variance w^2/3 for half width w; trackers.road) [D]")

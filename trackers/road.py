@@ -16,6 +16,12 @@ direction), its half width and its signed curvature (> 0: the lane turns left). 
   lags its car by v^2 kappa / beta-scale velocity errors (2.7 m/s at 11 m/s, sigma_v = 4 m/s^2, 10 Hz) and, when
   the car is hidden in the bend, coasts straight off the road. Modes of an IMM with a turn-rate state (a
   nonlinear motion model, the CT model) model the turn themselves and get no input.
+  **Spread** (`road_curvature_spread`, on by default): the input is uncertain by its own size, Sigma_u = u u^T, so
+  the prediction's covariance grows by B Sigma_u B^T = (B u)(B u)^T. Where the lane bends the gate widens across
+  it: a car that leaves the bend (a roundabout's exit, whose lane the map reaches only metres later) pulls its
+  track off the ring, where with the input exact its detections were weighed as clutter while the input held the
+  track on the ring (shipped roundabout, jpda-kf, 3 seeds: 5 of 12 cars relabelled exact, 0 with the spread).
+  An IMM's linear modes take the input exact: its turn-rate mode is the alternative hypothesis.
 * **Lane keeping** (`road_lane_keeping`): a confirmed track with no gated measurement in a scan (hidden, or
   missed) is updated with the pseudo-measurement "the car is in the lane it is nearest to": its cross-lane
   offset is 0 with the variance of a uniform position across the lane, (2 w)^2 / 12 = w^2 / 3 for half width w

@@ -230,7 +230,8 @@ class Tracker:
         if road is not None and self.management.road_curvature and live and dt > 0 and hasattr(flt, "shift_many"):
             kin, _ = self.kinematics(live)
             if kin.shape[1] == 4:  # the road input of trackers.road, at the previous estimates
-                states = flt.shift_many(states, input_shift(centripetal_input(road, kin[:, :2], kin[:, 2:]), dt))
+                shift = input_shift(centripetal_input(road, kin[:, :2], kin[:, 2:]), dt)
+                states = flt.shift_many(states, shift, self.management.road_curvature_spread)
         z_hat, S = batch_predicted_measurements(flt, states)
         T = len(live)
         layers = np.full((T, m), np.nan)

@@ -16,3 +16,6 @@ class MovingTestSpec:
                                  **positive())
     window_s: float = field(0.8, doc="the window: the speed is the net displacement of the track's position "
                             "over this time divided by it [s]", **positive())
+    parts: int = field(4, doc="the speed must also be reached over each of this many equal parts of the window, so a "
+                       "track that jumps between static objects is not taken for a moving one (1: over the "
+                       "whole window only)", check=(lambda v: 1 <= v <= 20, "in [1, 20]"))

@@ -158,18 +158,26 @@ class ModelFilter:
 
 
     # Road-map hooks (trackers/road.py): a known input added to the prediction and a scalar pseudo-measurement.
-    def shift_many(self, states: list[FilterState], dkin: np.ndarray) -> list[FilterState]:
-        """States with [px, py, vx, vy] moved by dkin (T, 4) (a known input B u, trackers.road): for a linear
-        motion model with 2-D positions and velocities; any other model's states are returned unchanged."""
+    def shift_many(self, states: list[FilterState], dkin: np.ndarray, spread: bool = False) -> list[FilterState]:
+        """States with [px, py, vx, vy] moved by dkin (T, 4) (a known input B u, trackers.road), and with
+        ``spread`` their covariance on those entries grown by dkin dkin^T (the input uncertain by its own size):
+        for a linear motion model with 2-D positions and velocities; any other model's states are returned
+        unchanged."""
         mot = self.motion
         if not states or not mot.linear or len(mot.position) < 2 or len(mot.velocity) < 2:
             return list(states)
         idx = list(mot.position[:2]) + list(mot.velocity[:2])
+        block = np.ix_(idx, idx)
         out = []
         for s, d in zip(states, dkin):
             x = s.x.copy()
             x[idx] += d
-            out.append(derive(s, x=x))
+            if spread:
+                P = s.P.copy()
+                P[block] += np.outer(d, d)  # Q_u = B Sigma_u B^T with Sigma_u = u u^T [D]
+                out.append(derive(s, x=x, P=P))
+            else:
+                out.append(derive(s, x=x))
         return out
 
     def pseudo_update_many(self, states: list[FilterState], h: np.ndarray, y: np.ndarray,

@@ -355,9 +355,11 @@ class IMMFilter:
             out[t] = s
         return out
 
-    def shift_many(self, states: list[IMMState], dkin: np.ndarray) -> list[IMMState]:
+    def shift_many(self, states: list[IMMState], dkin: np.ndarray, spread: bool = False) -> list[IMMState]:
         """Road-map input (trackers.road): each mode's own `shift_many` (a mode with a nonlinear motion model, the
-        CT model, models the turn itself and is unchanged), the combined output recomputed, mu kept."""
+        CT model, models the turn itself and is unchanged), the combined output recomputed, mu kept. ``spread`` is
+        not passed on: a linear mode is the hypothesis "the car follows its lane" and takes the input as exact, the
+        turn-rate mode is the alternative (with the spread, imm-pda-kf relabelled a u_turn car, seed 2)."""
         return self._per_mode(states, lambda f, ms: f.shift_many(ms, dkin) if hasattr(f, "shift_many") else ms)
 
     def pseudo_update_many(self, states: list[IMMState], h: np.ndarray, y: np.ndarray,
