@@ -1,10 +1,14 @@
-"""Shared fixtures: one short recorded run of the real pipeline, reused by the tests of its outputs."""
+"""Shared fixtures: one short recorded run of the real pipeline, reused by the tests of its outputs (made once per
+test session, also when pytest-xdist spreads the tests over several worker processes: see :func:`made_once`)."""
 from __future__ import annotations
 
+import fcntl
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Callable
 
 import pytest
 
@@ -17,12 +21,39 @@ def cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
                           timeout=timeout, env=dict(os.environ, RERUN_ANALYTICS="0"))
 
 
+def session_folder(tmp_path_factory) -> Path:
+    """The temporary folder of the whole test session: with pytest-xdist, the one above every worker's own
+    (``.../pytest-N/popen-gw0`` -> ``.../pytest-N``); without it, the session's base folder."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+def made_once(tmp_path_factory, name: str, make: Callable[[Path], dict]) -> tuple[Path, dict]:
+    """``make(folder)`` run once per test session in ``<session folder>/shared-<name>``, whichever worker asks
+    first; the others wait on a file lock and reuse the folder. ``make`` returns JSON-able facts about what it
+    made (kept beside it in ``made.json``). If ``make`` raises, nothing is kept and the next caller tries again.
+    (The folder, the facts.)"""
+    folder = session_folder(tmp_path_factory) / f"shared-{name}"
+    folder.mkdir(exist_ok=True)
+    with open(folder / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        done = folder / "made.json"
+        if not done.is_file():
+            done.write_text(json.dumps(make(folder)))
+        return folder, json.loads(done.read_text())
+
+
+def _record_short_run(folder: Path) -> dict:
+    proc = cli("run", "cut_in_out", "--tracker", "nn-kf", "--set", "duration_s=8", "--out", str(folder / "run"),
+               "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    return {"args": proc.args, "returncode": proc.returncode, "stdout": proc.stdout, "stderr": proc.stderr}
+
+
 @pytest.fixture(scope="session")
 def short_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
     """cut_in_out with nn-kf for 8 s (about 10 s to run): the cutting-in car's track T2 loses the car to T3 at
     7.1 s and takes it back at 7.2 s (two relabels, cause merge); recorded, with timeline.png. (The run folder,
     the finished ``testbed run`` process.)"""
-    out = tmp_path_factory.mktemp("short_run") / "run"
-    proc = cli("run", "cut_in_out", "--tracker", "nn-kf", "--set", "duration_s=8", "--out", str(out), "--quiet")
-    assert proc.returncode == 0, proc.stderr
-    return out, proc
+    folder, facts = made_once(tmp_path_factory, "short_run", _record_short_run)
+    return folder / "run", subprocess.CompletedProcess(**facts)

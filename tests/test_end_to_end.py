@@ -6,8 +6,6 @@ from __future__ import annotations
 import collections
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +18,6 @@ from testbed.pipeline.run import run_scenario
 from testbed.scenario.spec import load_scenario
 
 BASELINE = Path(__file__).parent / "baselines" / "cut_in_out_10s.json"
-REPO = Path(__file__).resolve().parent.parent
 DURATION = 10.0
 # Scores are deterministic on one machine; the tolerance covers float32 ray casting and BLAS differences
 # between machines. Counts may move by one event, RMSE by a few centimetres.
@@ -180,16 +177,14 @@ def test_another_seed_changes_the_noise_not_the_traffic(recorded):
     assert not np.array_equal(da.array("x"), db.array("x"))
 
 
-def test_cli_run_prints_the_score_table(tmp_path):
-    out = tmp_path / "cli"
-    proc = subprocess.run([sys.executable, "-m", "testbed.cli.main", "run", "cut_in_out", "--set", "duration_s=2",
-                           "--out", str(out), "--quiet"], capture_output=True, text=True, cwd=REPO, timeout=300,
-                          env=dict(os.environ, RERUN_ANALYTICS="0"))
+def test_cli_run_prints_the_score_table(short_run):
+    """``testbed run`` on the command line (the shared run of conftest: cut_in_out, nn-kf, 8 s, recorded)."""
+    out, proc = short_run
     assert proc.returncode == 0, proc.stderr
-    assert "TP %" in proc.stdout and "cut_in_out/jpda-kf" in proc.stdout
+    assert "TP %" in proc.stdout and "cut_in_out/nn-kf" in proc.stdout
     assert (out / "run.rrd").is_file() and (out / "scores.json").is_file()
     doc = json.loads((out / "scores.json").read_text())
-    assert doc["frames"] == 21
+    assert doc["frames"] == 81
 
 
 def test_visibility_columns_agree_with_the_detections(recorded):

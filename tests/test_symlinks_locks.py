@@ -109,8 +109,9 @@ def test_a_link_in_an_earlier_runs_folder_is_refused(capsys, tmp_path, no_simula
     assert sorted(p.name for p in out.iterdir()) == ["scores.json", "truth.parquet"]
 
 
-@pytest.mark.parametrize("name", [".r.lock", f".r.partial-{os.getpid()}", f".r.old-{os.getpid()}"])
+@pytest.mark.parametrize("name", [".r.lock", ".r.partial-{pid}", ".r.old-{pid}"])  # {pid}: this process's, at run
 def test_a_link_at_the_lock_or_staged_folder_name_is_refused(capsys, tmp_path, no_simulation, name):
+    name = name.format(pid=os.getpid())  # (not in the test's id: pytest-xdist's workers must collect the same ids)
     victim = tmp_path / "victim"
     victim.mkdir()
     (victim / "keep.txt").write_text(VICTIM_TEXT)
@@ -206,11 +207,12 @@ def folder(finished, tmp_path) -> Path:
     (store.LOCK_FILE, None),
     (store.RESULTS_FILE, None),
     (f"{store.RUNS_DIR}/{UNRECORDED}.parquet", None),
-    (f"{store.RUNS_DIR}/.{UNRECORDED}.parquet.tmp-{os.getpid()}", UNRECORDED),  # the temporary of a run to redo
+    (f"{store.RUNS_DIR}/.{UNRECORDED}.parquet.tmp-{{pid}}", UNRECORDED),  # the temporary of a run to redo
     (f"{store.RECORDINGS_DIR}/{RECORDED}/run.rrd", RECORDED),  # rerun would truncate it
     (f"{store.RECORDINGS_DIR}/{RECORDED}/scores.json", RECORDED),
 ])
 def test_resume_refuses_a_link_in_the_campaign_folder(capsys, folder, tmp_path, name, redo):
+    name = name.format(pid=os.getpid())  # {pid}: this process's (not in the id, which every xdist worker must share)
     victim = _victim(tmp_path)
     if redo:  # a run to do again: its run file gone
         store.run_path(folder, redo).unlink()
