@@ -1,6 +1,6 @@
 """Compare run folders of two code versions bit for bit (issue 32: "every earlier command gives identical outputs").
 
-    python benchmarks/compare_runs.py BASE_DIR NEW_DIR
+    python bin/compare_runs.py BASE_DIR NEW_DIR
 
 BASE_DIR and NEW_DIR each hold one run folder per case (``testbed run ... --out DIR/<case>``). Every parquet table
 must be equal (schema and values); scores.json must be equal but for ``timings_ms_per_frame`` (wall-clock) and
