@@ -9,8 +9,6 @@ from __future__ import annotations
 import functools
 import warnings
 
-from trackers.plugins import NAME, PluginWarning, entry_points, origin
-
 from ..common import streams
 from ..config import ConfigError
 from ..scenario.spec import Scenario
@@ -28,6 +26,9 @@ SENSOR_GROUP = "roadtrack.sensors"
 
 def _plugin(ep, taken: dict[str, Sensor]) -> Sensor:
     """The Sensor of entry point ``ep``; ValueError/TypeError (one line) when it cannot join ``taken``."""
+    from trackers.plugins import NAME  # not at import: importing trackers loads its plug-ins, whose warnings the
+    # CLI shows as one line only once its commands run (testbed/cli/main.py)
+
     if not NAME.match(ep.name):
         raise ValueError("its name must be lower-case letters and digits joined by single hyphens")
     if ep.name in taken:
@@ -49,6 +50,8 @@ def _plugin(ep, taken: dict[str, Sensor]) -> Sensor:
 def sensor_registry() -> dict[str, Sensor]:
     """Built-in and installed sensors by name (read once per process; ``sensor_registry.cache_clear()`` re-reads
     the installed ones). Do not modify the dict."""
+    from trackers.plugins import PluginWarning, entry_points, origin  # see _plugin
+
     out = dict(SENSORS)
     for ep in entry_points(SENSOR_GROUP):
         try:
