@@ -22,8 +22,8 @@ from trackers.management import (ManagementParams, duplicate_counts, initial_sco
                                  position_std, score_decide, score_increment)
 from trackers.road import RoadInput, centripetal_input, cross_lane_std, input_shift, lane_pseudo_measurement
 from trackers.state import FilterState
-from trackers.trackloss.regime import (RegimeState, advance, alpha_of, assess_windows, gamma_best_fast, initial_state,
-                                      windows_from_histories)
+from trackers.trackloss.regime import (ROW_FIXED, WINDOW_LOW, RegimeState, advance, alpha_of, assess_rolled,
+                                      initial_state, roll_windows, window_of_records, window_rows, with_window)
 
 PdInput = np.ndarray | float | Callable[[np.ndarray], np.ndarray] | None
 CREDIBLE_GATE_ALPHA = 16.0
@@ -136,6 +136,16 @@ def _evolve(tr: Track, **fields: Any) -> Track:
     new.__dict__.update(tr.__dict__)
     new.__dict__.update(fields)
     return new
+
+
+def _window(tr: Track, state: RegimeState, capacity: int) -> np.ndarray | None:
+    """The track's rolled KS window before this scan: its state's if that holds the last min(len(history),
+    capacity) scans, else rebuilt from the history (a track made outside Tracker.step)."""
+    length = min(len(tr.history), capacity)
+    w = state.window
+    if w is not None and len(w) == length and w.shape[1] == ROW_FIXED + WINDOW_LOW:
+        return w
+    return window_of_records(tr.history[len(tr.history) - length:], WINDOW_LOW) if length else None
 
 
 def gate_volume(S: np.ndarray, alpha: float) -> np.ndarray:
@@ -351,7 +361,7 @@ class Tracker:
                                misses)
         keep = max(mp.history_length, mp.regime_config.longest)
         histories = [(tr.history + (records[t],))[-keep:] for t, tr in enumerate(live)]
-        regimes = self._regimes(live, histories, diag)
+        regimes = self._regimes(live, histories, inp.d2, diag)
         lost = np.array([r.label == "track-lost" for r in regimes], dtype=bool).reshape(T)
         if mp.deletion == "ks":  # paper 002: a confirmed track goes when its KS regime is track-lost
             delete = np.where(confirmed, lost, delete)
@@ -402,22 +412,29 @@ class Tracker:
             out |= ~updated & (d2 <= mp.credible_d2).any(axis=1)
         return out
 
-    def _regimes(self, live, histories, diag: dict[str, np.ndarray]) -> list[RegimeState]:
-        """Each track's KS regime after this scan (paper 002 §V) from its history, with the manager's clutter
-        density for the regime (default: the associator's) and the per-scan P_D; gamma_best in one batch.
-        Adds the diagnostics ks_regime (1 tracking, 0 ambiguous, -1 track-lost), ks_D_T, ks_D_L, ks_d_n, ks_n
-        (NaN while unknown)."""
+    def _regimes(self, live, histories, d2: np.ndarray, diag: dict[str, np.ndarray]) -> list[RegimeState]:
+        """Each track's KS regime after this scan (paper 002 §V) from its rolled window (this scan's row from the
+        new record and d2 (T, M), the distances of every measurement), with the manager's clutter density for the
+        regime (default: the associator's) and the per-scan P_D; one batch per window length. The same tests as
+        on the histories (trackers.trackloss.regime.assess_rolled). Adds the diagnostics ks_regime (1 tracking,
+        0 ambiguous, -1 track-lost), ks_D_T, ks_D_L, ks_d_n, ks_n (NaN while unknown)."""
         mp, T, nz = self.management, len(live), self.filter.measurement.ndim
         cfg = mp.regime_config
         lam = mp.regime_clutter_density or self.association.clutter_density
+        new = [h[-1] for h in histories]
+        rows = window_rows(np.array([r.root_det for r in new], dtype=np.float64).reshape(T),
+                           np.array([r.pd for r in new], dtype=np.float64).reshape(T), d2, WINDOW_LOW)
         states = [tr.regime_state or initial_state(cfg) for tr in live]
-        ready = [t for t in range(T) if len(histories[t]) >= states[t].n]
+        windows = roll_windows([_window(tr, s, cfg.longest) for tr, s in zip(live, states)], rows, cfg.longest)
+        states = [with_window(s, w) for s, w in zip(states, windows)]
+        ready = [t for t in range(T) if len(windows[t]) >= states[t].n]
         out = [advance(s, None, cfg) for s in states]
         for n in sorted({states[t].n for t in ready}):  # one batch per window length (several when adaptive)
             group = [t for t in ready if states[t].n == n]
-            root_det, d2_scans, pd = windows_from_histories([histories[t] for t in group], n)
-            gammas = np.atleast_1d(gamma_best_fast(lam * root_det.mean(axis=1), nz))
-            tests = assess_windows(root_det, d2_scans, pd, lam, nz, [alpha_of(states[t], cfg) for t in group], gammas)
+            hs = [histories[t] for t in group]
+            tests = assess_rolled(np.stack([windows[t][len(windows[t]) - n:] for t in group]), lam, nz,
+                                  [alpha_of(states[t], cfg) for t in group],
+                                  lambda i, j, hs=hs, n=n: hs[i][len(hs[i]) - n + j].d2)
             for t, test in zip(group, tests):
                 out[t] = advance(states[t], test, cfg)
         code = {"tracking": 1.0, "ambiguous": 0.0, "track-lost": -1.0}

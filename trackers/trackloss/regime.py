@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, replace
-from typing import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.special import gammainc, gammaln, pdtr, xlogy
@@ -231,12 +231,25 @@ def assess_windows(root_det: np.ndarray, d2_scans: Sequence[Sequence[np.ndarray]
     T, n = root_det.shape
     if T == 0:
         return []
-    sigma_n = root_det.mean(axis=1)  # paper 002 (8): Sigma_n = mean |S(j)|^(1/2), per track
-    volume = unit_ball_volume(nz) * g ** (0.5 * nz) * sigma_n  # paper 002 (8): V_c = c gamma^(nz/2) Sigma_n
-    thr_cg = g[:, None] / constant_gate_scale(root_det, sigma_n[:, None], nz)  # paper 002 (9): CG gate
+    sigma_n, volume, thr_cg = _window_gates(root_det, g, nz)
     flat, owner = _flatten([a for scans in d2_scans for a in scans])  # owner = t * n + j
     ng = np.bincount(owner[flat <= g[owner // n]], minlength=T * n).reshape(T, n)  # paper 002 (10): NG gate
     cg = np.bincount(owner[flat <= thr_cg.ravel()[owner]], minlength=T * n).reshape(T, n)
+    return _window_tests(ng, cg, g, sigma_n, volume, pd, lam, nz, alphas)
+
+
+def _window_gates(root_det: np.ndarray, g: np.ndarray, nz: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sigma_n (T,), V_c (T,) and the CG thresholds (T, n) of T windows root_det (T, n) with TRD gates g (T,)."""
+    sigma_n = root_det.mean(axis=1)  # paper 002 (8): Sigma_n = mean |S(j)|^(1/2), per track
+    volume = unit_ball_volume(nz) * g ** (0.5 * nz) * sigma_n  # paper 002 (8): V_c = c gamma^(nz/2) Sigma_n
+    thr_cg = g[:, None] / constant_gate_scale(root_det, sigma_n[:, None], nz)  # paper 002 (9): CG gate
+    return sigma_n, volume, thr_cg
+
+
+def _window_tests(ng: np.ndarray, cg: np.ndarray, g: np.ndarray, sigma_n: np.ndarray, volume: np.ndarray,
+                  pd: np.ndarray, lam: float, nz: int, alphas) -> list[RegimeTest]:
+    """The RegimeTests of T windows from their NG and CG counts (T, n) (paper 002 §V steps 4-6)."""
+    n = ng.shape[1]
     mu, pd_mean = lam * volume, pd.mean(axis=1)
     pdpg = pd_mean * gate_probability(g, nz)  # F_T is linear in P_D: the window's mixture uses mean P_D
     m = np.arange(int(max(ng.max(), cg.max())) + 1)[None, :]
@@ -245,6 +258,81 @@ def assess_windows(root_det: np.ndarray, d2_scans: Sequence[Sequence[np.ndarray]
     return [RegimeTest(n=n, alpha=float(a), d_n=critical_value(n, float(a)), D_T=float(D_T[t]), D_L=float(D_L[t]),
                        gamma=float(g[t]), sigma_n=float(sigma_n[t]), volume=float(volume[t]), lam=lam,
                        pd=float(pd_mean[t]), counts_ng=ng[t], counts_cg=cg[t]) for t, a in enumerate(alphas)]
+
+
+# ------------------------------------------------------------------------------------------ rolled windows
+WINDOW_LOW = 8
+"""Smallest distances kept per scan in a rolled window [D]: a gate count below it is exact from them alone; a
+count that reaches it in a scan with more measurements is recounted on the scan's full distances."""
+ROW_FIXED = 3  # a rolled-window row: [|S|^(1/2), P_D, M, the WINDOW_LOW smallest d2 ascending]
+
+
+def window_rows(root_det: np.ndarray, pd: np.ndarray, d2: np.ndarray, k: int = WINDOW_LOW) -> np.ndarray:
+    """This scan's rolled-window row of T tracks, (T, 3 + k): |S|^(1/2) [m^n_z], P_D, the measurement count M and
+    the k smallest squared distances of d2 (T, M) ascending (+inf where M < k)."""
+    d2 = np.asarray(d2, dtype=np.float64)
+    T, M = d2.shape
+    rows = np.full((T, ROW_FIXED + k), np.inf)
+    rows[:, 0], rows[:, 1], rows[:, 2] = root_det, pd, M
+    if M:
+        low = np.partition(d2, k - 1, axis=1)[:, :k] if M > k else d2
+        rows[:, ROW_FIXED:ROW_FIXED + min(M, k)] = np.sort(low, axis=1)
+    return rows
+
+
+def roll_windows(windows: Sequence[np.ndarray | None], rows: np.ndarray, capacity: int) -> list[np.ndarray]:
+    """Each of T windows (L_t, 3 + k) (None: empty) with its row of rows (T, 3 + k) appended, the oldest dropped
+    beyond `capacity` scans: T new arrays, batched over the windows of one length (inputs untouched)."""
+    out: list = [None] * len(windows)
+    by_length: dict[int, list[int]] = {}
+    for t, w in enumerate(windows):
+        by_length.setdefault(0 if w is None else len(w), []).append(t)
+    for length, idx in by_length.items():
+        keep = min(length, capacity - 1)
+        new = rows[idx, None, :]
+        if keep > 0:
+            new = np.concatenate([np.stack([windows[t][length - keep:] for t in idx]), new], axis=1)
+        for i, t in enumerate(idx):
+            out[t] = new[i]
+    return out
+
+
+def window_of_records(records: Sequence, k: int = WINDOW_LOW) -> np.ndarray:
+    """The rolled window (L, 3 + k) of L trackers.tracker ScanRecords (fields root_det or S, pd, d2), oldest first."""
+    if not records:
+        return np.zeros((0, ROW_FIXED + k))
+    root_det, _, pd = window_from_history(records, len(records))
+    stored = np.array([np.nan if r.root_det is None else r.root_det for r in records], dtype=np.float64)
+    root_det = np.where(np.isnan(stored), root_det, stored)
+    return np.concatenate([window_rows(root_det[i:i + 1], pd[i:i + 1], np.asarray(r.d2)[None, :], k)
+                           for i, r in enumerate(records)])
+
+
+def assess_rolled(windows: np.ndarray, lam: float, nz: int, alphas, d2_of: Callable[[int, int], np.ndarray]
+                  ) -> list[RegimeTest]:
+    """assess_windows of T rolled windows of n scans, windows (T, n, 3 + k) (rows of window_rows), with the TRD
+    gates gamma_best: the same RegimeTests, bit for bit. The gates are counted on each scan's k smallest distances;
+    a count that reaches k in a scan with more measurements is recounted on that scan's full distances d2_of(t, j)
+    (window t, scan j = 0..n-1, oldest first)."""
+    root_det = np.ascontiguousarray(windows[:, :, 0])
+    pd = np.ascontiguousarray(windows[:, :, 1])
+    if len(root_det) == 0:
+        return []
+    g = np.atleast_1d(gamma_best_fast(lam * root_det.mean(axis=1), nz))
+    sigma_n, volume, thr_cg = _window_gates(root_det, g, nz)
+    ng = _low_counts(windows, np.broadcast_to(g[:, None], root_det.shape), d2_of)  # paper 002 (10): NG gate
+    cg = _low_counts(windows, thr_cg, d2_of)  # paper 002 (9): CG gate
+    return _window_tests(ng, cg, g, sigma_n, volume, pd, lam, nz, alphas)
+
+
+def _low_counts(windows: np.ndarray, thr: np.ndarray, d2_of: Callable[[int, int], np.ndarray]) -> np.ndarray:
+    """(T, n) int64 measurements with d2 <= thr (T, n) per scan of rolled windows (T, n, 3 + k)."""
+    low, size = windows[:, :, ROW_FIXED:], windows[:, :, 2].astype(np.int64)
+    k = low.shape[2]
+    counts = np.minimum(np.count_nonzero(low <= thr[:, :, None], axis=2), size).astype(np.int64)
+    for t, j in zip(*np.nonzero((counts == k) & (size > k))):  # the k kept are all in: count the scan's full d2
+        counts[t, j] = np.count_nonzero(np.asarray(d2_of(int(t), int(j))) <= thr[t, j])
+    return counts
 
 
 # ------------------------------------------------------------------------------------------ per track
@@ -277,7 +365,9 @@ class RegimeConfig:
 @dataclass(frozen=True)
 class RegimeState:
     """A track's detector state: label in LABELS; n and level (index into RegimeConfig.alphas) for the next
-    test; flips and unique_run: the adaptive rule's counters; last: the latest RegimeTest (None before one)."""
+    test; flips and unique_run: the adaptive rule's counters; last: the latest RegimeTest (None before one);
+    window: in a tracker, the track's rolled window (L, 3 + k) of its last L <= RegimeConfig.longest scans
+    (rows of window_rows, oldest first; None elsewhere)."""
 
     label: str = "unknown"
     n: int = 0
@@ -285,6 +375,7 @@ class RegimeState:
     flips: int = 0
     unique_run: int = 0
     last: RegimeTest | None = None
+    window: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 def initial_state(cfg: RegimeConfig) -> RegimeState:
@@ -302,6 +393,11 @@ def advance(state: RegimeState, test: RegimeTest | None, cfg: RegimeConfig) -> R
     previous = state.last.verdict if state.last is not None else None
     state = _with(state, label=test.label, last=test)
     return _adapt(state, test.verdict, previous, cfg) if cfg.adaptive else state
+
+
+def with_window(state: RegimeState, window: np.ndarray) -> RegimeState:
+    """The state holding the rolled window `window` (L, 3 + k) (roll_windows)."""
+    return _with(state, window=window)
 
 
 def _with(state: RegimeState, **fields) -> RegimeState:
