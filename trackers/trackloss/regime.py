@@ -255,9 +255,19 @@ def _window_tests(ng: np.ndarray, cg: np.ndarray, g: np.ndarray, sigma_n: np.nda
     m = np.arange(int(max(ng.max(), cg.max())) + 1)[None, :]
     D_T = ks_distances_counts(ng, tracking_cdf(m, mu[:, None], pdpg[:, None]))  # paper 002 §V step 4: NG vs F_T
     D_L = ks_distances_counts(cg, lost_cdf(m, mu[:, None]))  # paper 002 §V step 4: CG counts vs F_L(V_c)
-    return [RegimeTest(n=n, alpha=float(a), d_n=critical_value(n, float(a)), D_T=float(D_T[t]), D_L=float(D_L[t]),
-                       gamma=float(g[t]), sigma_n=float(sigma_n[t]), volume=float(volume[t]), lam=lam,
-                       pd=float(pd_mean[t]), counts_ng=ng[t], counts_cg=cg[t]) for t, a in enumerate(alphas)]
+    alphas = [float(a) for a in alphas]
+    d_n = {a: critical_value(n, a) for a in set(alphas)}
+    return [_test(n=n, alpha=a, d_n=d_n[a], D_T=dt, D_L=dl, gamma=gt, sigma_n=st, volume=vt, lam=lam, pd=pt,
+                  counts_ng=ng[t], counts_cg=cg[t])
+            for t, (a, dt, dl, gt, st, vt, pt) in enumerate(zip(
+                alphas, D_T.tolist(), D_L.tolist(), g.tolist(), sigma_n.tolist(), volume.tolist(), pd_mean.tolist()))]
+
+
+def _test(**fields) -> RegimeTest:
+    """A RegimeTest of checked fields without running the frozen dataclass's __init__ (a tracker makes T per scan)."""
+    new = object.__new__(RegimeTest)
+    new.__dict__.update(fields)
+    return new
 
 
 # ------------------------------------------------------------------------------------------ rolled windows
@@ -383,21 +393,18 @@ def initial_state(cfg: RegimeConfig) -> RegimeState:
     return RegimeState(n=cfg.n)
 
 
-def advance(state: RegimeState, test: RegimeTest | None, cfg: RegimeConfig) -> RegimeState:
-    """The state after `test` (None: too little history, label 'unknown'); with cfg.adaptive the paper's rule
-    (§V-F): both accepted -> n + step; neither -> n - step; one -> keep n; `cfg.flips` failures in a row
-    (both and neither alternating, or a bound of n reached) -> the next CI of cfg.alphas [D]; a unique verdict
-    held for n scans -> back one CI level [D]."""
+def advance(state: RegimeState, test: RegimeTest | None, cfg: RegimeConfig,
+            window: np.ndarray | None = None) -> RegimeState:
+    """The state after `test` (None: too little history, label 'unknown'), holding the rolled `window` (L, 3 + k)
+    (roll_windows; None: the state's own); with cfg.adaptive the paper's rule (§V-F): both accepted -> n + step;
+    neither -> n - step; one -> keep n; `cfg.flips` failures in a row (both and neither alternating, or a bound
+    of n reached) -> the next CI of cfg.alphas [D]; a unique verdict held for n scans -> back one CI level [D]."""
+    held = {} if window is None else {"window": window}
     if test is None:
-        return state if state.label == "unknown" else _with(state, label="unknown")
+        return state if state.label == "unknown" and not held else _with(state, label="unknown", **held)
     previous = state.last.verdict if state.last is not None else None
-    state = _with(state, label=test.label, last=test)
+    state = _with(state, label=test.label, last=test, **held)
     return _adapt(state, test.verdict, previous, cfg) if cfg.adaptive else state
-
-
-def with_window(state: RegimeState, window: np.ndarray) -> RegimeState:
-    """The state holding the rolled window `window` (L, 3 + k) (roll_windows)."""
-    return _with(state, window=window)
 
 
 def _with(state: RegimeState, **fields) -> RegimeState:
