@@ -14,7 +14,10 @@ Inputs for a window of n scans j = 0..n-1 (oldest first): root_det (n,) = |S(j)|
 arrays: the squared Mahalanobis distances nu' S(j)^-1 nu of EVERY measurement of each scan (not only the gated
 ones: the CG gate can be larger than the tracker's gate); pd (n,) P_D per scan; lam the clutter density
 [1/m^n_z]. `window_from_history` reads them from a trackers.tracker Track.history (any filter, any associator);
-`regime_series` runs the detector scan by scan over a recorded series.
+`regime_series` runs the detector scan by scan over a recorded series. A tracker does not rebuild the windows
+from the histories every scan: it rolls each track's window in its RegimeState (`window_rows`, `roll_windows`:
+per scan |S|^(1/2), P_D, M and the WINDOW_LOW smallest distances) and tests them with `assess_rolled`, which gives
+assess_windows' tests bit for bit (a count that reaches WINDOW_LOW is recounted on the record's full d2).
 """
 
 from __future__ import annotations
