@@ -75,7 +75,9 @@ def test_rolled_windows_give_the_tests_of_the_rebuilt_windows_bit_for_bit(case):
     rolled = [None] * T
     for s in range(K):
         rolled = rg.roll_windows(rolled, rg.window_rows(root_det[s], pd[s], d2[s], k), capacity)
-        assert all(len(w) == min(s + 1, capacity) for w in rolled)
+        assert rolled.shape == (T, capacity, 3 + k)
+        assert all(rg.window_holds(w, min(s + 1, capacity)) and not rg.window_holds(w, min(s + 1, capacity) - 1)
+                   for w in rolled)
         if s + 1 < n:
             continue
         a = s + 1 - n
@@ -110,10 +112,12 @@ def test_distances_on_the_gates_themselves_are_counted_as_the_rebuilt_windows_co
 
 
 def test_a_window_rebuilt_from_records_equals_the_rolled_one():
+    """Full (capacity 5 after 9 scans) and padded (capacity 12): window_of_records gives the rolled window, padding
+    included; window_holds knows how many scans it holds."""
     from trackers.tracker import ScanRecord
 
     rng = np.random.default_rng(4)
-    recs, rolled = [], [None]
+    recs, rolled = [], {5: [None], 12: [None]}
     for _ in range(9):
         a = rng.normal(size=(2, 2))
         S = a @ a.T + np.eye(2)
@@ -121,8 +125,16 @@ def test_a_window_rebuilt_from_records_equals_the_rolled_one():
         rd = float(np.sqrt(np.linalg.det(S)))
         recs.append(ScanRecord(nu_c=np.zeros(2), S=S, n_gated=0, gate_volume=1.0, nis=0.0, detected=False,
                                pd=float(rng.uniform()), d2=d2, root_det=rd if rng.random() < 0.5 else None))
-        rolled = rg.roll_windows(rolled, rg.window_rows(np.array([rd]), np.array([recs[-1].pd]), d2[None]), 5)
-    np.testing.assert_array_equal(rg.window_of_records(recs[-5:]), rolled[0])
+        for cap in rolled:
+            rolled[cap] = rg.roll_windows(rolled[cap], rg.window_rows(np.array([rd]), np.array([recs[-1].pd]),
+                                                                     d2[None]), cap)
+    np.testing.assert_array_equal(rg.window_of_records(recs[-5:], capacity=5), rolled[5][0])
+    np.testing.assert_array_equal(rg.window_of_records(recs, capacity=12), rolled[12][0])
+    assert rg.window_holds(rolled[5][0], 5) and rg.window_holds(rolled[12][0], 9)
+    assert not any(rg.window_holds(rolled[12][0], L) for L in (0, 3, 8, 10, 12, 13))
+    assert rg.window_holds(rg.window_of_records((), capacity=4), 0)
+    with pytest.raises(ValueError, match="exceed the capacity"):
+        rg.window_of_records(recs, capacity=3)
 
 
 # ------------------------------------------------------------------------------------------ real runs

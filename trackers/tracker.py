@@ -23,7 +23,7 @@ from trackers.management import (ManagementParams, duplicate_counts, initial_sco
 from trackers.road import RoadInput, centripetal_input, cross_lane_std, input_shift, lane_pseudo_measurement
 from trackers.state import FilterState
 from trackers.trackloss.regime import (ROW_FIXED, WINDOW_LOW, RegimeState, advance, alpha_of, assess_rolled,
-                                      initial_state, roll_windows, window_of_records, window_rows)
+                                      initial_state, roll_windows, window_holds, window_of_records, window_rows)
 
 PdInput = np.ndarray | float | Callable[[np.ndarray], np.ndarray] | None
 CREDIBLE_GATE_ALPHA = 16.0
@@ -140,12 +140,12 @@ def _evolve(tr: Track, **fields: Any) -> Track:
 
 def _window(tr: Track, state: RegimeState, capacity: int) -> np.ndarray | None:
     """The track's rolled KS window before this scan: its state's if that holds the last min(len(history),
-    capacity) scans, else rebuilt from the history (a track made outside Tracker.step)."""
+    capacity) scans, else rebuilt from the history (a track made outside Tracker.step); None before any scan."""
     length = min(len(tr.history), capacity)
     w = state.window
-    if w is not None and len(w) == length and w.shape[1] == ROW_FIXED + WINDOW_LOW:
+    if w is not None and w.shape == (capacity, ROW_FIXED + WINDOW_LOW) and window_holds(w, length):
         return w
-    return window_of_records(tr.history[len(tr.history) - length:], WINDOW_LOW) if length else None
+    return window_of_records(tr.history[len(tr.history) - length:], WINDOW_LOW, capacity) if length else None
 
 
 def gate_volume(S: np.ndarray, alpha: float) -> np.ndarray:
@@ -453,13 +453,14 @@ class Tracker:
         rows = window_rows(np.array([r.root_det for r in new], dtype=np.float64).reshape(T),
                            np.array([r.pd for r in new], dtype=np.float64).reshape(T), d2, WINDOW_LOW)
         states = [tr.regime_state or initial_state(cfg) for tr in live]
-        windows = roll_windows([_window(tr, s, cfg.longest) for tr, s in zip(live, states)], rows, cfg.longest)
-        ready = [len(w) >= s.n for s, w in zip(states, windows)]
+        cap = cfg.longest
+        windows = roll_windows([_window(tr, s, cap) for tr, s in zip(live, states)], rows, cap)  # (T, cap, 3 + k)
+        ready = [min(len(h), cap) >= s.n for s, h in zip(states, histories)]
         out = [None if ok else advance(s, None, cfg, w) for s, w, ok in zip(states, windows, ready)]
         for n in sorted({s.n for s, ok in zip(states, ready) if ok}):  # one batch per window length (adaptive: several)
             group = [t for t in range(T) if ready[t] and states[t].n == n]
             hs = [histories[t] for t in group]
-            tests = assess_rolled(np.stack([windows[t][len(windows[t]) - n:] for t in group]), lam, nz,
+            tests = assess_rolled(windows[np.array(group), cap - n:], lam, nz,
                                   [alpha_of(states[t], cfg) for t in group],
                                   lambda i, j, hs=hs, n=n: hs[i][len(hs[i]) - n + j].d2)
             for t, test in zip(group, tests):

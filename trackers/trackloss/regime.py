@@ -293,32 +293,48 @@ def window_rows(root_det: np.ndarray, pd: np.ndarray, d2: np.ndarray, k: int = W
     return rows
 
 
-def roll_windows(windows: Sequence[np.ndarray | None], rows: np.ndarray, capacity: int) -> list[np.ndarray]:
-    """Each of T windows (L_t, 3 + k) (None: empty) with its row of rows (T, 3 + k) appended, the oldest dropped
-    beyond `capacity` scans: T new arrays, batched over the windows of one length (inputs untouched)."""
-    out: list = [None] * len(windows)
-    by_length: dict[int, list[int]] = {}
-    for t, w in enumerate(windows):
-        by_length.setdefault(0 if w is None else len(w), []).append(t)
-    for length, idx in by_length.items():
-        keep = min(length, capacity - 1)
-        new = rows[idx, None, :]
-        if keep > 0:
-            new = np.concatenate([np.stack([windows[t][length - keep:] for t in idx]), new], axis=1)
-        for i, t in enumerate(idx):
-            out[t] = new[i]
-    return out
+def roll_windows(windows: Sequence[np.ndarray | None], rows: np.ndarray, capacity: int) -> np.ndarray:
+    """T windows (capacity, 3 + k) (None: no scan yet) with their rows of rows (T, 3 + k) appended and their oldest
+    row dropped: (T, capacity, 3 + k), one new array (inputs untouched). A window's scans are its last rows, oldest
+    first; the rows before them are padding (NaN |S|^(1/2), see `window_of_records`)."""
+    T, width = rows.shape
+    if T == 0:
+        return np.zeros((0, capacity, width))
+    empty = None
+    old = []
+    for w in windows:
+        if w is None:
+            empty = window_of_records((), width - ROW_FIXED, capacity) if empty is None else empty
+            w = empty
+        old.append(w)
+    return np.concatenate([np.stack(old)[:, 1:], rows[:, None, :]], axis=1)
 
 
-def window_of_records(records: Sequence, k: int = WINDOW_LOW) -> np.ndarray:
-    """The rolled window (L, 3 + k) of L trackers.tracker ScanRecords (fields root_det or S, pd, d2), oldest first."""
+def window_holds(window: np.ndarray, length: int) -> bool:
+    """True if a rolled window (capacity, 3 + k) holds exactly `length` scans: the row `length` from the end is a
+    scan and the row before it padding (or there is none)."""
+    first = len(window) - length
+    return 0 <= first and (first == len(window) or not math.isnan(window[first, 0])) and \
+        (first == 0 or math.isnan(window[first - 1, 0]))
+
+
+def window_of_records(records: Sequence, k: int = WINDOW_LOW, capacity: int | None = None) -> np.ndarray:
+    """The rolled window (capacity, 3 + k) of L <= capacity trackers.tracker ScanRecords (fields root_det or S, pd,
+    d2), oldest first, after capacity - L padding rows (|S|^(1/2) and P_D NaN, M = 0, distances +inf); capacity
+    None: L."""
+    L = len(records)
+    capacity = L if capacity is None else capacity
+    if L > capacity:
+        raise ValueError(f"window_of_records: {L} records exceed the capacity {capacity}")
+    pad = np.full((capacity - L, ROW_FIXED + k), np.inf)
+    pad[:, 0], pad[:, 1], pad[:, 2] = np.nan, np.nan, 0.0
     if not records:
-        return np.zeros((0, ROW_FIXED + k))
-    root_det, _, pd = window_from_history(records, len(records))
+        return pad
+    root_det, _, pd = window_from_history(records, L)
     stored = np.array([np.nan if r.root_det is None else r.root_det for r in records], dtype=np.float64)
     root_det = np.where(np.isnan(stored), root_det, stored)
-    return np.concatenate([window_rows(root_det[i:i + 1], pd[i:i + 1], np.asarray(r.d2)[None, :], k)
-                           for i, r in enumerate(records)])
+    return np.concatenate([pad] + [window_rows(root_det[i:i + 1], pd[i:i + 1], np.asarray(r.d2)[None, :], k)
+                                   for i, r in enumerate(records)])
 
 
 def assess_rolled(windows: np.ndarray, lam: float, nz: int, alphas, d2_of: Callable[[int, int], np.ndarray]
@@ -379,8 +395,8 @@ class RegimeConfig:
 class RegimeState:
     """A track's detector state: label in LABELS; n and level (index into RegimeConfig.alphas) for the next
     test; flips and unique_run: the adaptive rule's counters; last: the latest RegimeTest (None before one);
-    window: in a tracker, the track's rolled window (L, 3 + k) of its last L <= RegimeConfig.longest scans
-    (rows of window_rows, oldest first; None elsewhere)."""
+    window: in a tracker, the track's rolled window (RegimeConfig.longest, 3 + k): its last scans (rows of
+    window_rows, oldest first) after padding rows (roll_windows); None elsewhere."""
 
     label: str = "unknown"
     n: int = 0
@@ -398,10 +414,11 @@ def initial_state(cfg: RegimeConfig) -> RegimeState:
 
 def advance(state: RegimeState, test: RegimeTest | None, cfg: RegimeConfig,
             window: np.ndarray | None = None) -> RegimeState:
-    """The state after `test` (None: too little history, label 'unknown'), holding the rolled `window` (L, 3 + k)
-    (roll_windows; None: the state's own); with cfg.adaptive the paper's rule (§V-F): both accepted -> n + step;
-    neither -> n - step; one -> keep n; `cfg.flips` failures in a row (both and neither alternating, or a bound
-    of n reached) -> the next CI of cfg.alphas [D]; a unique verdict held for n scans -> back one CI level [D]."""
+    """The state after `test` (None: too little history, label 'unknown'), holding the rolled `window`
+    (capacity, 3 + k) (roll_windows; None: the state's own); with cfg.adaptive the paper's rule (§V-F): both
+    accepted -> n + step; neither -> n - step; one -> keep n; `cfg.flips` failures in a row (both and neither
+    alternating, or a bound of n reached) -> the next CI of cfg.alphas [D]; a unique verdict held for n scans ->
+    back one CI level [D]."""
     held = {} if window is None else {"window": window}
     if test is None:
         return state if state.label == "unknown" and not held else _with(state, label="unknown", **held)
