@@ -255,3 +255,39 @@ def test_kind_sub_tables_apply_only_to_their_kind_and_reach_imm_modes():
         make_tracker("jpda-svsf", filter={"svsf": {"psi": -1.0}})
     lenient = make_tracker("jpda-kf", filter={"psi": 0.2, "sigma_v": 1.0}, associator={"form": "thesis"}, lenient=True)
     assert lenient.filter.motion.sigma_v == 1.0  # keys of another tracker dropped, its own kept
+
+
+@pytest.mark.parametrize("case", ["same", "sizes", "keys", "empty", "scalar-vs-1"])
+def test_info_diagnostics_equal_the_track_by_track_expansion(case):
+    """The tracker's batched `info` columns equal the per-track expansion (values, NaNs, column order) whether the
+    states share keys and sizes or not."""
+    from types import SimpleNamespace
+
+    from trackers.tracker import _expand, info_diagnostics
+
+    rng = np.random.default_rng(7)
+
+    def info(t):
+        if case == "empty":
+            return {}
+        d = {"mu": rng.uniform(size=2), "cv.psi_z": rng.uniform(size=(2,)), "step": float(rng.uniform())}
+        if case == "sizes" and t == 2:
+            d["mu"] = rng.uniform(size=3)
+        if case == "keys" and t % 2:
+            d = {"step": d["step"], "extra": rng.uniform(size=2)}
+        if case == "keys" and t == 3:
+            d = {"late": 1.0, **d}
+        if case == "scalar-vs-1" and t == 1:
+            d["step"] = np.array([0.25])
+        return d
+
+    states = [SimpleNamespace(info=info(t)) for t in range(5)]
+    got, ref = {"pd": np.ones(5)}, {"pd": np.ones(5)}
+    info_diagnostics(states, got)
+    for t, s in enumerate(states):
+        for name, v in s.info.items():
+            _expand(name, v, 5, ref, t)
+    assert list(got) == list(ref)
+    for k in ref:
+        np.testing.assert_array_equal(got[k], ref[k])
+    assert case == "empty" or len(ref) > 3

@@ -192,13 +192,39 @@ class CoordinatedTurn:
         F[:, 4] = [vx * a - vy * b, vx * b + vy * a, -dt * (sw * vx + cw * vy), dt * (cw * vx - sw * vy), 1.0]
         return F
 
-    # ---- batched forms: X (T, 5) -> (T, 5) and (T, 5, 5), built from the per-track ones entry by entry, so A and F
-    # are bit-identical to them (the closed forms and their small-|w dt| series switch per track; numpy's
-    # vectorised sin / cos need not round as libm's do, and an ulp in cos(w dt) is amplified near the switch).
+    # ---- batched forms: X (T, 5) -> (T, 5) and (T, 5, 5), from the per-track scalars (libm sin / cos, the series
+    # switch) computed track by track, then placed and combined entry by entry with the same float operations, so
+    # A and F are bit-identical to the per-track ones (numpy's vectorised sin / cos need not round as libm's do,
+    # and an ulp in cos(w dt) is amplified near the switch).
     def transition_many(self, dt: float, omega: np.ndarray) -> np.ndarray:
         """A_CT(omega_t) of T turn rates omega (T,): (T, 5, 5)."""
-        w = np.asarray(omega, dtype=np.float64).reshape(-1)
-        return np.array([self.transition(dt, float(v)) for v in w], dtype=np.float64).reshape(-1, 5, 5)
+        return self._assemble(self._turns(dt, omega)[:, :4])
+
+    def _turns(self, dt: float, omega: np.ndarray) -> np.ndarray:
+        """Per turn rate the scalars of `transition` and `jacobian`, (T, 6): sin(w dt) / w, (1 - cos(w dt)) / w,
+        cos(w dt), sin(w dt), and df/domega's a, b; by the per-track code (libm, the series switch) track by track."""
+        out = []
+        for w in np.asarray(omega, dtype=np.float64).reshape(-1).tolist():
+            s, c1 = self._terms(w, dt)
+            t = w * dt
+            sw, cw = math.sin(t), math.cos(t)
+            if abs(t) < SERIES_BELOW:
+                t2 = t * t
+                a, b = dt * dt * t * taylor(DSINC, t2), dt * dt * taylor(DVERSINE, t2)  # series form of a, b
+            else:
+                a, b = (w * dt * cw - sw) / w ** 2, (w * dt * sw - (1.0 - cw)) / w ** 2
+            out.append((s, c1, cw, sw, a, b))
+        return np.array(out, dtype=np.float64).reshape(-1, 6)
+
+    @staticmethod
+    def _assemble(turns: np.ndarray) -> np.ndarray:
+        """A_CT (T, 5, 5) from the scalars (T, >= 4) of `_turns`, entry by entry as `transition` places them."""
+        s, c1, co, si = turns[:, 0], turns[:, 1], turns[:, 2], turns[:, 3]
+        A = np.zeros((len(turns), 5, 5))
+        A[:, 0, 0] = A[:, 1, 1] = A[:, 4, 4] = 1.0
+        A[:, 0, 2], A[:, 0, 3], A[:, 1, 2], A[:, 1, 3] = s, -c1, c1, s  # thesis §1.3 [R]: A_CT(omega)
+        A[:, 2, 2], A[:, 2, 3], A[:, 3, 2], A[:, 3, 3] = co, -si, si, co
+        return A
 
     def f_many(self, X: np.ndarray, dt: float) -> np.ndarray:
         """`f` of T states X (T, 5): (T, 5)."""
@@ -206,8 +232,13 @@ class CoordinatedTurn:
 
     def jacobian_many(self, X: np.ndarray, dt: float) -> np.ndarray:
         """`jacobian` of T states X (T, 5): (T, 5, 5)."""
-        return np.array([self.jacobian(x, dt) for x in np.asarray(X, dtype=np.float64)],
-                        dtype=np.float64).reshape(-1, 5, 5)
+        X = np.asarray(X, dtype=np.float64).reshape(-1, 5)
+        turns = self._turns(dt, X[:, 4])
+        F = self._assemble(turns)
+        vx, vy, cw, sw, a, b = X[:, 2], X[:, 3], turns[:, 2], turns[:, 3], turns[:, 4], turns[:, 5]
+        F[:, 0, 4], F[:, 1, 4] = vx * a - vy * b, vx * b + vy * a  # (1.39)-(1.40) [R]: df/domega
+        F[:, 2, 4], F[:, 3, 4] = -dt * (sw * vx + cw * vy), dt * (cw * vx - sw * vy)
+        return F
 
     def process_noise(self, dt: float, x: np.ndarray | None = None) -> np.ndarray:
         """Q = B diag(sigma_v^2, sigma_v^2, sigma_omega^2) B^T (5, 5) (§1.3 [R/D]); the same for every x."""

@@ -22,8 +22,8 @@ from trackers.management import (ManagementParams, duplicate_counts, initial_sco
                                  position_std, score_decide, score_increment)
 from trackers.road import RoadInput, centripetal_input, cross_lane_std, input_shift, lane_pseudo_measurement
 from trackers.state import FilterState
-from trackers.trackloss.regime import (RegimeState, advance, alpha_of, assess_windows, gamma_best_fast, initial_state,
-                                      windows_from_histories)
+from trackers.trackloss.regime import (ROW_FIXED, WINDOW_LOW, RegimeState, advance, alpha_of, assess_rolled,
+                                      initial_state, roll_windows, window_holds, window_of_records, window_rows)
 
 PdInput = np.ndarray | float | Callable[[np.ndarray], np.ndarray] | None
 CREDIBLE_GATE_ALPHA = 16.0
@@ -138,6 +138,16 @@ def _evolve(tr: Track, **fields: Any) -> Track:
     return new
 
 
+def _window(tr: Track, state: RegimeState, capacity: int) -> np.ndarray | None:
+    """The track's rolled KS window before this scan: its state's if that holds the last min(len(history),
+    capacity) scans, else rebuilt from the history (a track made outside Tracker.step); None before any scan."""
+    length = min(len(tr.history), capacity)
+    w = state.window
+    if w is not None and w.shape == (capacity, ROW_FIXED + WINDOW_LOW) and window_holds(w, length):
+        return w
+    return window_of_records(tr.history[len(tr.history) - length:], WINDOW_LOW, capacity) if length else None
+
+
 def gate_volume(S: np.ndarray, alpha: float) -> np.ndarray:
     """V = c_m alpha^(m/2) sqrt|S| (T,), c_m the unit-ball volume (thesis §4.1 [R]; c_2 = pi)."""
     m = S.shape[-1]
@@ -150,6 +160,34 @@ def _expand(name: str, v: Any, T: int, out: dict[str, np.ndarray], t: int) -> No
     keys = [name] if a.size == 1 else [f"{name}_{i}" for i in range(a.size)]
     for k, x in zip(keys, a.reshape(-1)):
         out.setdefault(k, np.full(T, np.nan))[t] = x
+
+
+def info_diagnostics(states: list, out: dict[str, np.ndarray]) -> None:
+    """The filters' `info` of T states into `out` as (T,) float64 columns, vector entries as name_0, name_1, ...,
+    NaN where a track has no such entry (in the order the entries first appear over the tracks): entry by entry
+    at once over the tracks that have it, or track by track if an entry's size differs between tracks."""
+    T = len(states)
+    by_name: dict[str, tuple[list[int], list]] = {}
+    for t, s in enumerate(states):
+        for name, v in s.info.items():
+            rows = by_name.get(name)
+            if rows is None:
+                by_name[name] = rows = ([], [])
+            rows[0].append(t)
+            rows[1].append(v)
+    cols = []
+    for name, (rows, values) in by_name.items():
+        try:
+            cols.append((name, rows, np.array(values, dtype=np.float64).reshape(len(rows), -1)))
+        except ValueError:  # sizes differ between tracks: their columns interleave, as the per-track loop makes them
+            for t, s in enumerate(states):
+                for key, v in s.info.items():
+                    _expand(key, v, T, out, t)
+            return
+    for name, rows, a in cols:
+        keys = [name] if a.shape[1] == 1 else [f"{name}_{i}" for i in range(a.shape[1])]
+        for k, col in zip(keys, a.T):
+            out.setdefault(k, np.full(T, np.nan))[rows] = col
 
 
 @dataclass(frozen=True)
@@ -352,7 +390,7 @@ class Tracker:
                                misses)
         keep = max(mp.history_length, mp.regime_config.longest)
         histories = [(tr.history + (records[t],))[-keep:] for t, tr in enumerate(live)]
-        regimes = self._regimes(live, histories, diag)
+        regimes = self._regimes(live, histories, inp.d2, diag)
         lost = np.array([r.label == "track-lost" for r in regimes], dtype=bool).reshape(T)
         if mp.deletion == "ks":  # paper 002: a confirmed track goes when its KS regime is track-lost
             delete = np.where(confirmed, lost, delete)
@@ -403,29 +441,37 @@ class Tracker:
             out |= ~updated & (d2 <= mp.credible_d2).any(axis=1)
         return out
 
-    def _regimes(self, live, histories, diag: dict[str, np.ndarray]) -> list[RegimeState]:
-        """Each track's KS regime after this scan (paper 002 §V) from its history, with the manager's clutter
-        density for the regime (default: the associator's) and the per-scan P_D; gamma_best in one batch.
-        Adds the diagnostics ks_regime (1 tracking, 0 ambiguous, -1 track-lost), ks_D_T, ks_D_L, ks_d_n, ks_n
-        (NaN while unknown)."""
+    def _regimes(self, live, histories, d2: np.ndarray, diag: dict[str, np.ndarray]) -> list[RegimeState]:
+        """Each track's KS regime after this scan (paper 002 §V) from its rolled window (this scan's row from the
+        new record and d2 (T, M), the distances of every measurement), with the manager's clutter density for the
+        regime (default: the associator's) and the per-scan P_D; one batch per window length. The same tests as
+        on the histories (trackers.trackloss.regime.assess_rolled). Adds the diagnostics ks_regime (1 tracking,
+        0 ambiguous, -1 track-lost), ks_D_T, ks_D_L, ks_d_n, ks_n (NaN while unknown)."""
         mp, T, nz = self.management, len(live), self.filter.measurement.ndim
         cfg = mp.regime_config
         lam = mp.regime_clutter_density or self.association.clutter_density
+        new = [h[-1] for h in histories]
+        rows = window_rows(np.array([r.root_det for r in new], dtype=np.float64).reshape(T),
+                           np.array([r.pd for r in new], dtype=np.float64).reshape(T), d2, WINDOW_LOW)
         states = [tr.regime_state or initial_state(cfg) for tr in live]
-        ready = [t for t in range(T) if len(histories[t]) >= states[t].n]
-        out = [advance(s, None, cfg) for s in states]
-        for n in sorted({states[t].n for t in ready}):  # one batch per window length (several when adaptive)
-            group = [t for t in ready if states[t].n == n]
-            root_det, d2_scans, pd = windows_from_histories([histories[t] for t in group], n)
-            gammas = np.atleast_1d(gamma_best_fast(lam * root_det.mean(axis=1), nz))
-            tests = assess_windows(root_det, d2_scans, pd, lam, nz, [alpha_of(states[t], cfg) for t in group], gammas)
+        cap = cfg.longest
+        windows = roll_windows([_window(tr, s, cap) for tr, s in zip(live, states)], rows, cap)  # (T, cap, 3 + k)
+        ready = [min(len(h), cap) >= s.n for s, h in zip(states, histories)]
+        out = [None if ok else advance(s, None, cfg, w) for s, w, ok in zip(states, windows, ready)]
+        for n in sorted({s.n for s, ok in zip(states, ready) if ok}):  # one batch per window length (adaptive: several)
+            group = [t for t in range(T) if ready[t] and states[t].n == n]
+            hs = [histories[t] for t in group]
+            tests = assess_rolled(windows[np.array(group), cap - n:], lam, nz,
+                                  [alpha_of(states[t], cfg) for t in group],
+                                  lambda i, j, hs=hs, n=n: hs[i][len(hs[i]) - n + j].d2)
             for t, test in zip(group, tests):
-                out[t] = advance(states[t], test, cfg)
+                out[t] = advance(states[t], test, cfg, windows[t])
         code = {"tracking": 1.0, "ambiguous": 0.0, "track-lost": -1.0}
-        for name, get in (("ks_regime", lambda r: code.get(r.label, np.nan)), ("ks_D_T", lambda r: r.last.D_T),
-                          ("ks_D_L", lambda r: r.last.D_L), ("ks_d_n", lambda r: r.last.d_n),
-                          ("ks_n", lambda r: r.last.n)):
-            diag[name] = np.array([get(r) if r.label != "unknown" else np.nan for r in out], dtype=np.float64)
+        rows = [(code[r.label], r.last.D_T, r.last.D_L, r.last.d_n, r.last.n) if r.label != "unknown"
+                else (np.nan,) * 5 for r in out]
+        cols = np.array(rows, dtype=np.float64).reshape(T, 5)
+        for i, name in enumerate(("ks_regime", "ks_D_T", "ks_D_L", "ks_d_n", "ks_n")):
+            diag[name] = cols[:, i].copy()
         return out
 
     def _windows(self, live, hit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -459,9 +505,7 @@ class Tracker:
                               root_det=float(root_det[t])) for t in range(T)]
         diag = {"nis": nis, "n_gated": n_gated.astype(np.float64), "gate_volume": inp.gate_volume.astype(np.float64),
                 "pd": inp.pd.astype(np.float64)}
-        for t, s in enumerate(states):
-            for name, v in s.info.items():
-                _expand(name, v, T, diag, t)
+        info_diagnostics(states, diag)
         return records, diag
 
     def _initiate(self, candidates, live, Z: np.ndarray, inp: AssociationInput, dt: float, next_id: int,

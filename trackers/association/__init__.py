@@ -7,6 +7,7 @@ Two layers:
   `run(inp: AssociationInput, params) -> (W, w0)` or `(W, w0, info)`; `info` maps names to per-track
   (T,) arrays reported as diagnostics. The tracker builds the AssociationInput once per scan (it also
   carries innovations, S, per-track P_D and the filters' boundary layers for APDA).
+The associators' log-sum-exp is `logsum.logsumexp` (scipy's, bit for bit, without its dispatch cost).
 
 Adding an associator = one module, one line here; the registry contract tests then run it."""
 

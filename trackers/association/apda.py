@@ -46,8 +46,8 @@ import itertools
 import math
 
 import numpy as np
-from scipy.special import logsumexp
 
+from trackers.association.logsum import logsumexp
 from trackers.association.params import AssociationParams
 from trackers.association.pda import pda
 

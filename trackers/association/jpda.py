@@ -33,10 +33,10 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from scipy.special import logsumexp
 
 from trackers.association.ehm import net_marginals
 from trackers.association.kbest import k_best_marginals
+from trackers.association.logsum import logsumexp
 from trackers.association.params import AssociationParams, check_inputs, joint_event_terms, track_pd
 from trackers.association.pda import pda
 from trackers.errors import JPDAOverflowError, JPDAOverflowWarning

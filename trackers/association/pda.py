@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import logsumexp
 
+from trackers.association.logsum import logsumexp
 from trackers.association.params import AssociationParams, check_inputs, track_pd
 
 

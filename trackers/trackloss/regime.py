@@ -14,15 +14,18 @@ Inputs for a window of n scans j = 0..n-1 (oldest first): root_det (n,) = |S(j)|
 arrays: the squared Mahalanobis distances nu' S(j)^-1 nu of EVERY measurement of each scan (not only the gated
 ones: the CG gate can be larger than the tracker's gate); pd (n,) P_D per scan; lam the clutter density
 [1/m^n_z]. `window_from_history` reads them from a trackers.tracker Track.history (any filter, any associator);
-`regime_series` runs the detector scan by scan over a recorded series.
+`regime_series` runs the detector scan by scan over a recorded series. A tracker does not rebuild the windows
+from the histories every scan: it rolls each track's window in its RegimeState (`window_rows`, `roll_windows`:
+per scan |S|^(1/2), P_D, M and the WINDOW_LOW smallest distances) and tests them with `assess_rolled`, which gives
+assess_windows' tests bit for bit (a count that reaches WINDOW_LOW is recounted on the record's full d2).
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, replace
-from typing import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.special import gammainc, gammaln, pdtr, xlogy
@@ -231,20 +234,134 @@ def assess_windows(root_det: np.ndarray, d2_scans: Sequence[Sequence[np.ndarray]
     T, n = root_det.shape
     if T == 0:
         return []
-    sigma_n = root_det.mean(axis=1)  # paper 002 (8): Sigma_n = mean |S(j)|^(1/2), per track
-    volume = unit_ball_volume(nz) * g ** (0.5 * nz) * sigma_n  # paper 002 (8): V_c = c gamma^(nz/2) Sigma_n
-    thr_cg = g[:, None] / constant_gate_scale(root_det, sigma_n[:, None], nz)  # paper 002 (9): CG gate
+    sigma_n, volume, thr_cg = _window_gates(root_det, g, nz)
     flat, owner = _flatten([a for scans in d2_scans for a in scans])  # owner = t * n + j
     ng = np.bincount(owner[flat <= g[owner // n]], minlength=T * n).reshape(T, n)  # paper 002 (10): NG gate
     cg = np.bincount(owner[flat <= thr_cg.ravel()[owner]], minlength=T * n).reshape(T, n)
+    return _window_tests(ng, cg, g, sigma_n, volume, pd, lam, nz, alphas)
+
+
+def _window_gates(root_det: np.ndarray, g: np.ndarray, nz: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sigma_n (T,), V_c (T,) and the CG thresholds (T, n) of T windows root_det (T, n) with TRD gates g (T,)."""
+    sigma_n = root_det.mean(axis=1)  # paper 002 (8): Sigma_n = mean |S(j)|^(1/2), per track
+    volume = unit_ball_volume(nz) * g ** (0.5 * nz) * sigma_n  # paper 002 (8): V_c = c gamma^(nz/2) Sigma_n
+    thr_cg = g[:, None] / constant_gate_scale(root_det, sigma_n[:, None], nz)  # paper 002 (9): CG gate
+    return sigma_n, volume, thr_cg
+
+
+def _window_tests(ng: np.ndarray, cg: np.ndarray, g: np.ndarray, sigma_n: np.ndarray, volume: np.ndarray,
+                  pd: np.ndarray, lam: float, nz: int, alphas) -> list[RegimeTest]:
+    """The RegimeTests of T windows from their NG and CG counts (T, n) (paper 002 §V steps 4-6)."""
+    n = ng.shape[1]
     mu, pd_mean = lam * volume, pd.mean(axis=1)
     pdpg = pd_mean * gate_probability(g, nz)  # F_T is linear in P_D: the window's mixture uses mean P_D
     m = np.arange(int(max(ng.max(), cg.max())) + 1)[None, :]
     D_T = ks_distances_counts(ng, tracking_cdf(m, mu[:, None], pdpg[:, None]))  # paper 002 §V step 4: NG vs F_T
     D_L = ks_distances_counts(cg, lost_cdf(m, mu[:, None]))  # paper 002 §V step 4: CG counts vs F_L(V_c)
-    return [RegimeTest(n=n, alpha=float(a), d_n=critical_value(n, float(a)), D_T=float(D_T[t]), D_L=float(D_L[t]),
-                       gamma=float(g[t]), sigma_n=float(sigma_n[t]), volume=float(volume[t]), lam=lam,
-                       pd=float(pd_mean[t]), counts_ng=ng[t], counts_cg=cg[t]) for t, a in enumerate(alphas)]
+    alphas = [float(a) for a in alphas]
+    d_n = {a: critical_value(n, a) for a in set(alphas)}
+    return [_test(n=n, alpha=a, d_n=d_n[a], D_T=dt, D_L=dl, gamma=gt, sigma_n=st, volume=vt, lam=lam, pd=pt,
+                  counts_ng=ng[t], counts_cg=cg[t])
+            for t, (a, dt, dl, gt, st, vt, pt) in enumerate(zip(
+                alphas, D_T.tolist(), D_L.tolist(), g.tolist(), sigma_n.tolist(), volume.tolist(), pd_mean.tolist()))]
+
+
+def _test(**fields) -> RegimeTest:
+    """A RegimeTest of checked fields without running the frozen dataclass's __init__ (a tracker makes T per scan)."""
+    new = object.__new__(RegimeTest)
+    new.__dict__.update(fields)
+    return new
+
+
+# ------------------------------------------------------------------------------------------ rolled windows
+WINDOW_LOW = 8
+"""Smallest distances kept per scan in a rolled window [D]: a gate count below it is exact from them alone; a
+count that reaches it in a scan with more measurements is recounted on the scan's full distances."""
+ROW_FIXED = 3  # a rolled-window row: [|S|^(1/2), P_D, M, the WINDOW_LOW smallest d2 ascending]
+
+
+def window_rows(root_det: np.ndarray, pd: np.ndarray, d2: np.ndarray, k: int = WINDOW_LOW) -> np.ndarray:
+    """This scan's rolled-window row of T tracks, (T, 3 + k): |S|^(1/2) [m^n_z], P_D, the measurement count M and
+    the k smallest squared distances of d2 (T, M) ascending (+inf where M < k)."""
+    d2 = np.asarray(d2, dtype=np.float64)
+    T, M = d2.shape
+    rows = np.full((T, ROW_FIXED + k), np.inf)
+    rows[:, 0], rows[:, 1], rows[:, 2] = root_det, pd, M
+    if M:
+        low = np.partition(d2, k - 1, axis=1)[:, :k] if M > k else d2
+        rows[:, ROW_FIXED:ROW_FIXED + min(M, k)] = np.sort(low, axis=1)
+    return rows
+
+
+def roll_windows(windows: Sequence[np.ndarray | None], rows: np.ndarray, capacity: int) -> np.ndarray:
+    """T windows (capacity, 3 + k) (None: no scan yet) with their rows of rows (T, 3 + k) appended and their oldest
+    row dropped: (T, capacity, 3 + k), one new array (inputs untouched). A window's scans are its last rows, oldest
+    first; the rows before them are padding (NaN |S|^(1/2), see `window_of_records`)."""
+    T, width = rows.shape
+    if T == 0:
+        return np.zeros((0, capacity, width))
+    empty = None
+    old = []
+    for w in windows:
+        if w is None:
+            empty = window_of_records((), width - ROW_FIXED, capacity) if empty is None else empty
+            w = empty
+        old.append(w)
+    return np.concatenate([np.stack(old)[:, 1:], rows[:, None, :]], axis=1)
+
+
+def window_holds(window: np.ndarray, length: int) -> bool:
+    """True if a rolled window (capacity, 3 + k) holds exactly `length` scans: the row `length` from the end is a
+    scan and the row before it padding (or there is none)."""
+    first = len(window) - length
+    return 0 <= first and (first == len(window) or not math.isnan(window[first, 0])) and \
+        (first == 0 or math.isnan(window[first - 1, 0]))
+
+
+def window_of_records(records: Sequence, k: int = WINDOW_LOW, capacity: int | None = None) -> np.ndarray:
+    """The rolled window (capacity, 3 + k) of L <= capacity trackers.tracker ScanRecords (fields root_det or S, pd,
+    d2), oldest first, after capacity - L padding rows (|S|^(1/2) and P_D NaN, M = 0, distances +inf); capacity
+    None: L."""
+    L = len(records)
+    capacity = L if capacity is None else capacity
+    if L > capacity:
+        raise ValueError(f"window_of_records: {L} records exceed the capacity {capacity}")
+    pad = np.full((capacity - L, ROW_FIXED + k), np.inf)
+    pad[:, 0], pad[:, 1], pad[:, 2] = np.nan, np.nan, 0.0
+    if not records:
+        return pad
+    root_det, _, pd = window_from_history(records, L)
+    stored = np.array([np.nan if r.root_det is None else r.root_det for r in records], dtype=np.float64)
+    root_det = np.where(np.isnan(stored), root_det, stored)
+    return np.concatenate([pad] + [window_rows(root_det[i:i + 1], pd[i:i + 1], np.asarray(r.d2)[None, :], k)
+                                   for i, r in enumerate(records)])
+
+
+def assess_rolled(windows: np.ndarray, lam: float, nz: int, alphas, d2_of: Callable[[int, int], np.ndarray]
+                  ) -> list[RegimeTest]:
+    """assess_windows of T rolled windows of n scans, windows (T, n, 3 + k) (rows of window_rows), with the TRD
+    gates gamma_best: the same RegimeTests, bit for bit. The gates are counted on each scan's k smallest distances;
+    a count that reaches k in a scan with more measurements is recounted on that scan's full distances d2_of(t, j)
+    (window t, scan j = 0..n-1, oldest first)."""
+    root_det = np.ascontiguousarray(windows[:, :, 0])
+    pd = np.ascontiguousarray(windows[:, :, 1])
+    if len(root_det) == 0:
+        return []
+    g = np.atleast_1d(gamma_best_fast(lam * root_det.mean(axis=1), nz))
+    sigma_n, volume, thr_cg = _window_gates(root_det, g, nz)
+    ng = _low_counts(windows, np.broadcast_to(g[:, None], root_det.shape), d2_of)  # paper 002 (10): NG gate
+    cg = _low_counts(windows, thr_cg, d2_of)  # paper 002 (9): CG gate
+    return _window_tests(ng, cg, g, sigma_n, volume, pd, lam, nz, alphas)
+
+
+def _low_counts(windows: np.ndarray, thr: np.ndarray, d2_of: Callable[[int, int], np.ndarray]) -> np.ndarray:
+    """(T, n) int64 measurements with d2 <= thr (T, n) per scan of rolled windows (T, n, 3 + k)."""
+    low, size = windows[:, :, ROW_FIXED:], windows[:, :, 2].astype(np.int64)
+    k = low.shape[2]
+    counts = np.minimum(np.count_nonzero(low <= thr[:, :, None], axis=2), size).astype(np.int64)
+    for t, j in zip(*np.nonzero((counts == k) & (size > k))):  # the k kept are all in: count the scan's full d2
+        counts[t, j] = np.count_nonzero(np.asarray(d2_of(int(t), int(j))) <= thr[t, j])
+    return counts
 
 
 # ------------------------------------------------------------------------------------------ per track
@@ -277,7 +394,9 @@ class RegimeConfig:
 @dataclass(frozen=True)
 class RegimeState:
     """A track's detector state: label in LABELS; n and level (index into RegimeConfig.alphas) for the next
-    test; flips and unique_run: the adaptive rule's counters; last: the latest RegimeTest (None before one)."""
+    test; flips and unique_run: the adaptive rule's counters; last: the latest RegimeTest (None before one);
+    window: in a tracker, the track's rolled window (RegimeConfig.longest, 3 + k): its last scans (rows of
+    window_rows, oldest first) after padding rows (roll_windows); None elsewhere."""
 
     label: str = "unknown"
     n: int = 0
@@ -285,6 +404,7 @@ class RegimeState:
     flips: int = 0
     unique_run: int = 0
     last: RegimeTest | None = None
+    window: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 def initial_state(cfg: RegimeConfig) -> RegimeState:
@@ -292,15 +412,18 @@ def initial_state(cfg: RegimeConfig) -> RegimeState:
     return RegimeState(n=cfg.n)
 
 
-def advance(state: RegimeState, test: RegimeTest | None, cfg: RegimeConfig) -> RegimeState:
-    """The state after `test` (None: too little history, label 'unknown'); with cfg.adaptive the paper's rule
-    (§V-F): both accepted -> n + step; neither -> n - step; one -> keep n; `cfg.flips` failures in a row
-    (both and neither alternating, or a bound of n reached) -> the next CI of cfg.alphas [D]; a unique verdict
-    held for n scans -> back one CI level [D]."""
+def advance(state: RegimeState, test: RegimeTest | None, cfg: RegimeConfig,
+            window: np.ndarray | None = None) -> RegimeState:
+    """The state after `test` (None: too little history, label 'unknown'), holding the rolled `window`
+    (capacity, 3 + k) (roll_windows; None: the state's own); with cfg.adaptive the paper's rule (§V-F): both
+    accepted -> n + step; neither -> n - step; one -> keep n; `cfg.flips` failures in a row (both and neither
+    alternating, or a bound of n reached) -> the next CI of cfg.alphas [D]; a unique verdict held for n scans ->
+    back one CI level [D]."""
+    held = {} if window is None else {"window": window}
     if test is None:
-        return state if state.label == "unknown" else _with(state, label="unknown")
+        return state if state.label == "unknown" and not held else _with(state, label="unknown", **held)
     previous = state.last.verdict if state.last is not None else None
-    state = _with(state, label=test.label, last=test)
+    state = _with(state, label=test.label, last=test, **held)
     return _adapt(state, test.verdict, previous, cfg) if cfg.adaptive else state
 
 
