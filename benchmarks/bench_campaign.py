@@ -26,9 +26,9 @@ from pathlib import Path
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from testbed.campaign import store  # noqa: E402
-from testbed.campaign.engine import EngineOptions, make_backend, run_campaign, usable_cores  # noqa: E402
-from testbed.campaign.spec import parse_campaign  # noqa: E402
+from roadtrack.testbed.campaign import store  # noqa: E402
+from roadtrack.testbed.campaign.engine import EngineOptions, make_backend, run_campaign, usable_cores  # noqa: E402
+from roadtrack.testbed.campaign.spec import parse_campaign  # noqa: E402
 
 TRACKERS = ["jpda-kf", "gnn-kf"]
 

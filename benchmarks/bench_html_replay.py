@@ -33,7 +33,7 @@ def main() -> int:
     args = ap.parse_args()
     page = Path(args.run) / "replay.html"
     if not page.is_file():
-        subprocess.run([sys.executable, "-m", "testbed.cli", "export", args.run, "--format", "html"], cwd=REPO,
+        subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli", "export", args.run, "--format", "html"], cwd=REPO,
                        check=True)
     frag = f"#event={args.event}" if args.event else f"#t={args.at}" if args.at is not None else ""
     url = page.resolve().as_uri() + frag

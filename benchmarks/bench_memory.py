@@ -42,7 +42,7 @@ def peak_mb() -> float:
 
 def scenario(name: str, duration_s: float, longest_s: float):
     """``name`` lasting ``duration_s``, on a straight road long enough for ``longest_s`` of driving."""
-    from testbed.scenario.spec import load_scenario
+    from roadtrack.testbed.scenario.spec import load_scenario
 
     base = load_scenario(name)
     speed = max(max(v.speed_mps, v.target_speed_mps or 0.0) for v in base.all_vehicles())
@@ -53,7 +53,7 @@ def scenario(name: str, duration_s: float, longest_s: float):
 
 def child(args: argparse.Namespace) -> None:
     """One measured run in this process; prints a JSON line of its memory figures."""
-    from testbed.pipeline.run import run_scenario
+    from roadtrack.testbed.pipeline.run import run_scenario
 
     scn = scenario(args.scenario, args.duration, args.longest)
     samples: list[tuple[int, float]] = [(0, rss_mb())]

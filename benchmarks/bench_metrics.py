@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from testbed.scoring.mot_metrics import trackeval_metrics, mot_metrics
+from roadtrack.testbed.scoring.mot_metrics import trackeval_metrics, mot_metrics
 
 
 def make_case(n_frames: int, n_truth: int, n_tracks: int, seed: int = 0):

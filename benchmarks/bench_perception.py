@@ -46,10 +46,10 @@ import time
 
 import numpy as np
 
-import sensors
-from testbed.world.roadside import roadside_boxes
-from testbed.pipeline.run import run_scenario
-from testbed.scenario.spec import RoadsideSpec, load_scenario
+from roadtrack import sensors
+from roadtrack.testbed.world.roadside import roadside_boxes
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.scenario.spec import RoadsideSpec, load_scenario
 
 BUDGET_MS = 100.0
 LANE = 4.0

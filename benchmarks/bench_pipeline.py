@@ -37,17 +37,17 @@ import time
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 # the dense columns put 1,000-4,000 vehicles on the benchmark's whole road (docs/limits.md: 500 by default)
 os.environ.setdefault("ROADTRACK_MAX_VEHICLES", "20000")
-from testbed.common.threads import one_thread_per_process  # noqa: E402 - before numpy, as `testbed` does
+from roadtrack.testbed.common.threads import one_thread_per_process  # noqa: E402 - before numpy, as `testbed` does
 
 one_thread_per_process()
 
 import numpy as np  # noqa: E402
 
-import sensors
-from testbed.pipeline.run import run_scenario
-from testbed.scenario.spec import load_scenario
-from testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
-from testbed.world.simulation import Simulation
+from roadtrack import sensors
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.scenario.spec import load_scenario
+from roadtrack.testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
+from roadtrack.testbed.world.simulation import Simulation
 
 BUDGET_MS = 100.0
 

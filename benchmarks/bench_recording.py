@@ -11,12 +11,12 @@ import tempfile
 from pathlib import Path
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
-from testbed.common.threads import one_thread_per_process  # noqa: E402 - before numpy, as `testbed` does
+from roadtrack.testbed.common.threads import one_thread_per_process  # noqa: E402 - before numpy, as `testbed` does
 
 one_thread_per_process()
 
-from testbed.pipeline.run import run_scenario  # noqa: E402
-from testbed.scenario.spec import RECORD_LEVELS, load_scenario  # noqa: E402
+from roadtrack.testbed.pipeline.run import run_scenario  # noqa: E402
+from roadtrack.testbed.scenario.spec import RECORD_LEVELS, load_scenario  # noqa: E402
 
 
 def main() -> None:

@@ -40,10 +40,10 @@ def rss() -> int:
 
 def child(variant: str, scenario: str, duration: float) -> dict:
     """One measured variant in this process (see the module docstring)."""
-    from testbed.common.threads import one_thread_per_process
+    from roadtrack.testbed.common.threads import one_thread_per_process
 
     one_thread_per_process()
-    import testbed
+    from roadtrack import testbed
 
     scn = testbed.load_scenario(scenario, {"duration_s": duration})
     next(iter(testbed.sense(testbed.load_scenario(scenario, {"duration_s": 0.1}))))  # imports and kernels warm

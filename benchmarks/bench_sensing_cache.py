@@ -27,12 +27,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import pandas as pd  # noqa: E402
 
-from testbed.campaign import store  # noqa: E402
-from testbed.campaign.engine import EngineOptions, run_campaign  # noqa: E402
-from testbed.campaign.spec import load_campaign  # noqa: E402
-from testbed.pipeline.run import run_scenario  # noqa: E402
-from testbed.scenario.spec import load_scenario  # noqa: E402
-from testbed.sensing.cache import SensingCache  # noqa: E402
+from roadtrack.testbed.campaign import store  # noqa: E402
+from roadtrack.testbed.campaign.engine import EngineOptions, run_campaign  # noqa: E402
+from roadtrack.testbed.campaign.spec import load_campaign  # noqa: E402
+from roadtrack.testbed.pipeline.run import run_scenario  # noqa: E402
+from roadtrack.testbed.scenario.spec import load_scenario  # noqa: E402
+from roadtrack.testbed.sensing.cache import SensingCache  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
-from testbed.scoring.events import CAUSES, breakup_events
-from testbed.scoring.rates import assign_frames
+from roadtrack.testbed.scoring.events import CAUSES, breakup_events
+from roadtrack.testbed.scoring.rates import assign_frames
 
 GATE_BOUND_M2 = 1000.0
 WELL_DETECTED_FRAMES = 5
@@ -133,7 +133,7 @@ def consistency(truth, tracks, diag, match_m: float) -> dict:
 
 def compare(scenarios, trackers, seeds, duration, out: Path, variants=("before", "after")) -> list[dict]:
     """Run every (scenario, seed, tracker) in each variant (VARIANTS, module docstring); one diagnosed row per run."""
-    from testbed import load_scenario, run
+    from roadtrack.testbed import load_scenario, run
 
     rows = []
     for name in scenarios:
@@ -204,7 +204,7 @@ def main(argv: list[str]) -> int:
                         "detections' own covariances")
     a = p.parse_args(argv)
     if a.compare:
-        from trackers.registry import PAPER_TRACKERS
+        from roadtrack.trackers.registry import PAPER_TRACKERS
 
         trackers = list(PAPER_TRACKERS) if a.trackers == ["named"] else a.trackers
         rows = compare(a.scenarios, trackers, a.seeds, a.duration, a.out, a.variants)

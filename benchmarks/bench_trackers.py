@@ -78,14 +78,14 @@ from typing import Any, Callable
 import numpy as np
 from scipy.stats import chi2
 
-from trackers import (ASSOCIATORS, AssociationInput, FILTERS, JPDAOverflowWarning, ManagementParams,
+from roadtrack.trackers import (ASSOCIATORS, AssociationInput, FILTERS, JPDAOverflowWarning, ManagementParams,
                       gate, make_filter, make_tracker, mahalanobis2_and_log_gaussian, preset)
-from trackers.association.roles import JPDAParams
-from trackers.registry import PAPER_TRACKERS
-from trackers.params import load
-from trackers.state import FilterState
-from trackers.tracker import gate_volume
-from testbed.tracking.builtin import BuiltinTracker
+from roadtrack.trackers.association.roles import JPDAParams
+from roadtrack.trackers.registry import PAPER_TRACKERS
+from roadtrack.trackers.params import load
+from roadtrack.trackers.state import FilterState
+from roadtrack.trackers.tracker import gate_volume
+from roadtrack.testbed.tracking.builtin import BuiltinTracker
 
 TOL = 1e-9
 TARGET_SPEEDUP = 50.0  # x Stone Soup's JPDA, scan level
@@ -625,9 +625,9 @@ def timed_run(name: str, scene: Traffic, n_timed: int, max_warmup: int, step: Ca
 
 def stonesoup_benchmark(name: str, scene: Traffic, n_timed: int, max_warmup: int, sigma_v: float) -> TrackerResult:
     """Stone Soup's named tracker (testbed.tracking.stonesoup) on the scene, behind the tracker protocol."""
-    from testbed import load_scenario
-    from testbed.tracking import Frame
-    from testbed.tracking.stonesoup import StoneSoupTracker
+    from roadtrack.testbed import load_scenario
+    from roadtrack.testbed.tracking import Frame
+    from roadtrack.testbed.tracking.stonesoup import StoneSoupTracker
 
     scn = load_scenario("highway_benchmark", {
         "tracker.filter.sigma_w": scene.sigma_w, "tracker.filter.sigma_v": sigma_v, "rate_hz": 1.0 / scene.dt,

@@ -85,7 +85,7 @@ def state(browser: Browser) -> dict | None:
 
 def serve(run: str, port: int, at: float | None) -> tuple[subprocess.Popen, str]:
     """``testbed view RUN --web`` started, and the page address it printed."""
-    cmd = [sys.executable, "-m", "testbed.cli", "view", run, "--web", "--port", str(port),
+    cmd = [sys.executable, "-m", "roadtrack.testbed.cli", "view", run, "--web", "--port", str(port),
            *(["--at", str(at)] if at is not None else [])]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, text=True)
     line = proc.stdout.readline()

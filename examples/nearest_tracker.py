@@ -8,7 +8,7 @@ detections (``frame.z`` (M, 2) [m]) in time order. Run it from the command line:
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from testbed import TrackSet
+from roadtrack.testbed import TrackSet
 
 
 class NearestNeighbour:

@@ -9,7 +9,7 @@ import argparse
 import sys
 from pathlib import Path
 
-import testbed
+from roadtrack import testbed
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # this example's own folder, for nearest_tracker.py
 from nearest_tracker import NearestNeighbour  # noqa: E402

@@ -4,13 +4,13 @@ Only this package imports open3d (lazily, see sensors/open3d_loader.py). It does
 trackers or testbed.
 """
 
-from sensors.boxfit import SHAPES, BoxFit, BoxFitConfig, SizePrior, fit_vehicle_box, shape_class
-from sensors.clustering import CLUSTER_METHODS, ClusterConfig, cluster, scan_line_links
-from sensors.clutter import clutter_detections, poisson_clutter
-from sensors.ground import GROUND_METHODS, GroundConfig, segment_ground
-from sensors.lidar import GROUND, LIDAR_PRESETS, LidarConfig, Scan, scan
-from sensors.occlusion import OcclusionConfig, detection_probability, shadows
-from sensors.perception import (
+from roadtrack.sensors.boxfit import SHAPES, BoxFit, BoxFitConfig, SizePrior, fit_vehicle_box, shape_class
+from roadtrack.sensors.clustering import CLUSTER_METHODS, ClusterConfig, cluster, scan_line_links
+from roadtrack.sensors.clutter import clutter_detections, poisson_clutter
+from roadtrack.sensors.ground import GROUND_METHODS, GroundConfig, segment_ground
+from roadtrack.sensors.lidar import GROUND, LIDAR_PRESETS, LidarConfig, Scan, scan
+from roadtrack.sensors.occlusion import OcclusionConfig, detection_probability, shadows
+from roadtrack.sensors.perception import (
     COMPLETED,
     FITS,
     MERGED,
@@ -25,7 +25,7 @@ from sensors.perception import (
     Rejected,
     perceive,
 )
-from sensors.roi import RoadMap
+from roadtrack.sensors.roi import RoadMap
 
 __all__ = [
     "CLUSTER_METHODS",

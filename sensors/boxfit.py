@@ -68,7 +68,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from sensors import boxfit_jit, checks
+from roadtrack.sensors import boxfit_jit, checks
 
 _MIN, _MAX = np.minimum.reduce, np.maximum.reduce  # without ndarray.min's wrapper (hot loops)
 

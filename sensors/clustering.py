@@ -26,9 +26,9 @@ from typing import Callable
 
 import numpy as np
 
-from sensors import checks, perception_jit
-from sensors.grid import bev_cells
-from sensors.open3d_loader import open3d
+from roadtrack.sensors import checks, perception_jit
+from roadtrack.sensors.grid import bev_cells
+from roadtrack.sensors.open3d_loader import open3d
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sensors import checks
-from sensors.perception import Detections
+from roadtrack.sensors import checks
+from roadtrack.sensors.perception import Detections
 
 
 def poisson_clutter(

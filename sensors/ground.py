@@ -32,10 +32,10 @@ from typing import Callable
 
 import numpy as np
 
-from sensors import checks, perception_jit
-from sensors.grid import MAX_CELLS, bev_cells
-from sensors.open3d_loader import open3d
-from sensors.lidar import GROUND
+from roadtrack.sensors import checks, perception_jit
+from roadtrack.sensors.grid import MAX_CELLS, bev_cells
+from roadtrack.sensors.open3d_loader import open3d
+from roadtrack.sensors.lidar import GROUND
 
 _COARSE_BANDS_M = (1.0, 0.3, 0.1)  # road_plane: trimming schedule of the fit on the cells' lowest points
 _FINE_BAND_M = 0.05  # road_plane: the refit takes the points within this of the coarse plane

@@ -21,8 +21,8 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from sensors import checks, raycast
-from sensors.open3d_loader import open3d
+from roadtrack.sensors import checks, raycast
+from roadtrack.sensors.open3d_loader import open3d
 
 GROUND: int = -2
 """Source label of points that hit the ground plane (vehicle ids are >= 0, static objects -1)."""

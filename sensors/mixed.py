@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sensors import checks
+from roadtrack.sensors import checks
 
 MIX_MODES = {"fraction": "exactly round(fraction K) wrong steps at distinct random positions (paper 000 §IV)",
              "probability": "each step independently wrong with probability `fraction` [D]"}

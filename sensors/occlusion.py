@@ -52,8 +52,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sensors import checks
-from sensors.lidar import LidarConfig, Scan
+from roadtrack.sensors import checks
+from roadtrack.sensors.lidar import LidarConfig, Scan
 
 
 @dataclass(frozen=True)

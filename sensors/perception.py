@@ -66,8 +66,8 @@ from typing import Callable
 
 import numpy as np
 
-from sensors import checks, perception_jit, perception_reference
-from sensors.boxfit import (
+from roadtrack.sensors import checks, perception_jit, perception_reference
+from roadtrack.sensors.boxfit import (
     SHAPES,
     BoxFit,
     BoxFitConfig,
@@ -78,11 +78,11 @@ from sensors.boxfit import (
     shape_class,
     side_continuation,
 )
-from sensors.clustering import ClusterConfig, cluster, numbered, scan_line_links
-from sensors.ground import GroundConfig, segment_ground
-from sensors.lidar import Scan
-from sensors.perception_reference import hull_points_reference, union_fits_reference
-from sensors.roi import RoadMap
+from roadtrack.sensors.clustering import ClusterConfig, cluster, numbered, scan_line_links
+from roadtrack.sensors.ground import GroundConfig, segment_ground
+from roadtrack.sensors.lidar import Scan
+from roadtrack.sensors.perception_reference import hull_points_reference, union_fits_reference
+from roadtrack.sensors.roi import RoadMap
 
 MERGED: int = 1  # fragments were merged into the detection
 SPLIT: int = 2  # it was separated from a larger cluster

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from sensors.boxfit import min_area_rectangle
+from roadtrack.sensors.boxfit import min_area_rectangle
 
 
 def too_big_reference(length, width, top, cfg):
@@ -349,7 +349,7 @@ def grid_labels_reference(pts: np.ndarray, cell_m: float) -> np.ndarray:
     raster order of the cells) of each point's bird's-eye cell of cell_m [m], for points (N, 3) [m]."""
     from scipy import ndimage
 
-    from sensors.grid import bev_cells
+    from roadtrack.sensors.grid import bev_cells
 
     ix, iy, shape = bev_cells(pts, cell_m, "cluster")
     occupied = np.zeros(shape, bool)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sensors import checks
+from roadtrack.sensors import checks
 
 
 @dataclass(frozen=True, eq=False)

@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 def cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     """``testbed ARGS`` in a subprocess (this interpreter, the repository as working folder)."""
-    return subprocess.run([sys.executable, "-m", "testbed.cli", *args], capture_output=True, text=True, cwd=REPO,
+    return subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli", *args], capture_output=True, text=True, cwd=REPO,
                           timeout=timeout, env=dict(os.environ, RERUN_ANALYTICS="0"))
 
 

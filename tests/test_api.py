@@ -12,9 +12,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import testbed
-from testbed.cli.main import main
-from testbed.tracking import TrackSet
+from roadtrack import testbed
+from roadtrack.testbed.cli.main import main
+from roadtrack.testbed.tracking import TrackSet
 
 REPO = Path(__file__).resolve().parent.parent
 SHORT = {"duration_s": 2.0}
@@ -78,7 +78,7 @@ def test_a_user_tracker_gets_tables_scores_diagnostics_and_a_recording(scn, tmp_
 
 def test_run_from_the_command_line_with_a_tracker_file(tmp_path, capsys):
     src = tmp_path / "mine.py"
-    src.write_text("import numpy as np\nfrom testbed import TrackSet\n"
+    src.write_text("import numpy as np\nfrom roadtrack.testbed import TrackSet\n"
                    "class Mine:\n    def step(self, frame):\n"
                    "        return TrackSet(ids=np.arange(len(frame.z)), xy=frame.z)\n")
     out = tmp_path / "run"
@@ -138,7 +138,7 @@ def test_score_on_plain_tables_and_its_errors(scn):
     ev = testbed.score(truth, tracks)
     assert ev.scores.cars_seen == 2 and ev.scores.cars_tracked == 1 and ev.scores.false_tracks == 0
     assert ev.scores.pos_rmse_m == pytest.approx(0.1)
-    from testbed.config.strict import ConfigError
+    from roadtrack.testbed.config.strict import ConfigError
 
     with pytest.raises(ConfigError, match="tracks.x, tracks.y: 1 rows hold a non-finite position"):
         testbed.score(truth, tracks.assign(x=[0.1, np.nan]))

@@ -17,7 +17,7 @@ DOC = REPO / "docs" / "api.md"
 CHECKS = '''
 import dataclasses, json
 import numpy as np
-import trackers
+from roadtrack import trackers
 
 out = {"associators": sorted(trackers.ASSOCIATORS), "fading": {}}
 for assoc in out["associators"]:  # every associator with the page's filter, by name

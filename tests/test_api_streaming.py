@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
-import testbed
-import trackers
-from testbed.config import ConfigError
-from testbed.sensing.cache import SensingCache
-from testbed.sensing.light import LightPD, PackedRanges
+from roadtrack import testbed
+from roadtrack import trackers
+from roadtrack.testbed.config import ConfigError
+from roadtrack.testbed.sensing.cache import SensingCache
+from roadtrack.testbed.sensing.light import LightPD, PackedRanges
 
 SHORT = {"duration_s": 2.0}
 
@@ -116,7 +116,7 @@ def test_score_frames_equals_the_runs_scores(scn, full):
 
 
 def test_score_frames_of_a_scenario_name_and_of_user_pairs(scn, full):
-    from testbed.tracking import TrackSet
+    from roadtrack.testbed.tracking import TrackSet
 
     pairs = [(sf, TrackSet(ids=np.arange(1, len(sf.truth.ids)), xy=sf.truth.xy[1:])) for sf in full]
     ev = testbed.score_frames(pairs, scn)  # the truth itself as tracks: every seen car, no error
@@ -172,7 +172,7 @@ def test_bad_arguments_are_one_line_errors_at_the_call(scn, full, tmp_path):
 
 
 def test_registering_a_plugin_checks_its_name_and_kind():
-    from trackers.filters import FILTERS, FilterKind, ModelParams
+    from roadtrack.trackers.filters import FILTERS, FilterKind, ModelParams
 
     kf = FILTERS["kf"]
     with pytest.raises(ValueError, match="'kf' is a built-in filter"):
@@ -198,7 +198,7 @@ def test_a_cache_entry_with_a_bad_range_image_is_sensed_again(scn, full, tmp_pat
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from testbed.sensing.cache import CacheWarning
+    from roadtrack.testbed.sensing.cache import CacheWarning
 
     cache = tmp_path / "cache"
     sum(1 for _ in testbed.sense(scn, sensing_cache=cache))

@@ -4,14 +4,14 @@ is flagged per track and counted per cluster."""
 import numpy as np
 import pytest
 
-from trackers import JPDAOverflowError, JPDAOverflowWarning
-from trackers.association.jpda import (DEFAULT_MAX_NODES, FALLBACK_DIAGNOSTIC, fallback_clusters, jpda,
+from roadtrack.trackers import JPDAOverflowError, JPDAOverflowWarning
+from roadtrack.trackers.association.jpda import (DEFAULT_MAX_NODES, FALLBACK_DIAGNOSTIC, fallback_clusters, jpda,
                                        jpda_fallbacks)
-from trackers.association.kbest import k_best_marginals
-from trackers.association.params import AssociationParams, joint_event_terms
-from trackers.association.pda import pda
-from trackers.association.roles import ASSOCIATORS, JPDAParams
-from trackers.params import load
+from roadtrack.trackers.association.kbest import k_best_marginals
+from roadtrack.trackers.association.params import AssociationParams, joint_event_terms
+from roadtrack.trackers.association.pda import pda
+from roadtrack.trackers.association.roles import ASSOCIATORS, JPDAParams
+from roadtrack.trackers.params import load
 
 from tests.test_trackers_association import scan_input
 

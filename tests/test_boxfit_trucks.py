@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from sensors import LidarConfig, PerceptionConfig, RoadMap, perceive, scan
-from sensors.boxfit import BoxFitConfig, fit_vehicle_box, side_continuation
+from roadtrack.sensors import LidarConfig, PerceptionConfig, RoadMap, perceive, scan
+from roadtrack.sensors.boxfit import BoxFitConfig, fit_vehicle_box, side_continuation
 
 LIDAR = LidarConfig()  # HDL-32E with range noise and dropout
 LANE_M = 3.5

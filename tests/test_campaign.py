@@ -24,12 +24,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from testbed.campaign import store
-from testbed.cli.campaign import add_campaign_parser, main as campaign_main
-from testbed.campaign.engine import EngineOptions, run_campaign
-from testbed.campaign.report import fmt_ci, mean_sd_ci, paired_differences, write_report
-from testbed.campaign.spec import load_campaign, plan, run_seed
-from testbed.config.strict import ConfigError
+from roadtrack.testbed.campaign import store
+from roadtrack.testbed.cli.campaign import add_campaign_parser, main as campaign_main
+from roadtrack.testbed.campaign.engine import EngineOptions, run_campaign
+from roadtrack.testbed.campaign.report import fmt_ci, mean_sd_ci, paired_differences, write_report
+from roadtrack.testbed.campaign.spec import load_campaign, plan, run_seed
+from roadtrack.testbed.config.strict import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = dict(os.environ, RERUN_ANALYTICS="0")
@@ -270,7 +270,7 @@ def test_dask_local_cluster_gives_the_same_results_as_the_pool(reference, tmp_pa
 
 
 def _start(tmp_path: Path, *args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "testbed.cli.campaign", *args], cwd=REPO, env=ENV,
+    return subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli.campaign", *args], cwd=REPO, env=ENV,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
 
 
@@ -472,7 +472,7 @@ def test_intervals_print_with_matching_precision():
 
 
 def test_paired_differences_pair_by_seed_and_warnings_flag_identical_seeds():
-    from testbed.campaign.report import _warnings, summarize
+    from roadtrack.testbed.campaign.report import _warnings, summarize
 
     rows = []
     for seed in range(4):
@@ -535,7 +535,7 @@ def test_threads_zero_is_refused_not_ignored(tmp_path, capsys):
 def test_confidence_intervals_are_clipped_to_each_scores_range():
     import pandas as pd
 
-    from testbed.campaign.report import summarize
+    from roadtrack.testbed.campaign.report import summarize
 
     df = pd.DataFrame(dict(scenario="s", tracker="t", status="ok", tp_pct=[100.0, 100.0, 40.0],
                            fp_pct=[0.0, 0.0, 300.0], hota=[0.99, 0.2, 0.99]))

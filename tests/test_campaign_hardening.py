@@ -22,11 +22,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from testbed.campaign import store
-from testbed.cli.campaign import main as campaign_main
-from testbed.campaign.engine import EngineOptions, run_campaign
-from testbed.campaign.spec import load_campaign
-from testbed.config.strict import ConfigError
+from roadtrack.testbed.campaign import store
+from roadtrack.testbed.cli.campaign import main as campaign_main
+from roadtrack.testbed.campaign.engine import EngineOptions, run_campaign
+from roadtrack.testbed.campaign.spec import load_campaign
+from roadtrack.testbed.config.strict import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent
 CAMPAIGN = """\
@@ -224,7 +224,7 @@ def test_runs_folder_that_is_a_file(folder):
 
 
 def _hold_lock(folder: Path) -> subprocess.Popen:
-    code = ("import sys, time\nfrom testbed.campaign import store\nwith store.locked(sys.argv[1]):\n"
+    code = ("import sys, time\nfrom roadtrack.testbed.campaign import store\nwith store.locked(sys.argv[1]):\n"
             "    print('locked', flush=True)\n    time.sleep(60)\n")
     proc = subprocess.Popen([sys.executable, "-c", code, str(folder)], cwd=REPO, stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline() == "locked\n"

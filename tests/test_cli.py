@@ -8,15 +8,15 @@ from pathlib import Path
 
 import pytest
 
-from testbed.config.strict import parse_sets
-from testbed.config.strict import ConfigError
-from testbed.cli.keys import keys_markdown
+from roadtrack.testbed.config.strict import parse_sets
+from roadtrack.testbed.config.strict import ConfigError
+from roadtrack.testbed.cli.keys import keys_markdown
 
 REPO = Path(__file__).resolve().parent.parent
 
 
 def _cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "testbed.cli.main", *args], capture_output=True, text=True, cwd=REPO,
+    return subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli.main", *args], capture_output=True, text=True, cwd=REPO,
                           timeout=timeout, env=dict(os.environ, RERUN_ANALYTICS="0"))
 
 

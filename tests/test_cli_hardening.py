@@ -20,8 +20,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from testbed.pipeline import outdir
-from testbed.cli.main import main
+from roadtrack.testbed.pipeline import outdir
+from roadtrack.testbed.cli.main import main
 
 REPO = Path(__file__).resolve().parent.parent
 FAST = ["--set", "sensor.lidar.azimuth_step_deg=1.0", "--quiet"]  # 11,520 rays per scan instead of 72,000
@@ -62,7 +62,8 @@ def test_usage_errors_are_one_line_exit_2(capsys):
 
 
 def test_an_unexpected_exception_is_one_line_and_debug_shows_its_traceback(capsys, monkeypatch):
-    import testbed.scenario.spec
+    import roadtrack.testbed.scenario.spec
+    from roadtrack import testbed
 
     def broken():
         raise ZeroDivisionError("division by zero")
@@ -79,7 +80,8 @@ def test_an_unexpected_exception_is_one_line_and_debug_shows_its_traceback(capsy
 # --- output folders ------------------------------------------------------------------------------------------
 
 def test_unusable_out_is_refused_before_any_simulation(capsys, tmp_path, monkeypatch):
-    import testbed.pipeline.run
+    import roadtrack.testbed.pipeline.run
+    from roadtrack import testbed
 
     def never(*args, **kwargs):
         raise AssertionError("a simulation ran")
@@ -130,7 +132,8 @@ def test_a_rerun_replaces_the_folder_and_a_failure_marks_it_incomplete(capsys, t
 
 
 def test_failures_outside_the_frame_loop_say_what_was_kept(capsys, tmp_path, monkeypatch):
-    import testbed.pipeline.run
+    import roadtrack.testbed.pipeline.run
+    from roadtrack import testbed
 
     def boom(*args, **kwargs):
         raise RuntimeError("boom")
@@ -150,7 +153,7 @@ def test_failures_outside_the_frame_loop_say_what_was_kept(capsys, tmp_path, mon
 
 
 def test_a_full_disk_is_one_last_line_and_leaves_no_half_written_file(capsys, tmp_path, monkeypatch):
-    from testbed.pipeline.tables import TableLog
+    from roadtrack.testbed.pipeline.tables import TableLog
 
     def full(self, path):
         Path(path).write_bytes(b"PAR1 half")  # what a writer leaves when the disk fills mid-file
@@ -181,13 +184,13 @@ def test_a_full_disk_under_rerun_ends_with_our_line(tmp_path):
     is the last line and names the cause, within CLOSE_STALL_S (and the run's last frames) of rerun's first
     error: rerun 0.41 sometimes blocks forever in flush() or disconnect() once its file writer died (seen in
     fresh-clone CI), and the recording is then given up on instead of hanging the run."""
-    from testbed.recording.recorder import CLOSE_STALL_S
+    from roadtrack.testbed.recording.recorder import CLOSE_STALL_S
 
     probe = subprocess.run(["unshare", "-rm", "sh", "-c", f"mount -t tmpfs -o size=1m tmpfs {tmp_path}"],
                            capture_output=True)
     if probe.returncode != 0:
         pytest.skip("no private tmpfs mount here")
-    script = (f"mount -t tmpfs -o size=256k tmpfs {tmp_path} && cd {REPO} && {sys.executable} -m testbed.cli.main "
+    script = (f"mount -t tmpfs -o size=256k tmpfs {tmp_path} && cd {REPO} && {sys.executable} -m roadtrack.testbed.cli.main "
               f"{' '.join(_run(tmp_path / 'r', duration=1.0))}; echo rc=$?; ls -a {tmp_path}/r")
     # generous timeout: on a fresh checkout this may be the first run that compiles the numba kernels (20-60 s)
     child = subprocess.Popen(["unshare", "-rm", "sh", "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -235,10 +238,10 @@ def test_ctrl_c_keeps_the_tables_and_a_readable_recording(tmp_path):
     from rerun.chunk import RrdReader
 
     out = tmp_path / "r"
-    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli.main", *_run(out, duration=60.0)], cwd=REPO,
+    proc = subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli.main", *_run(out, duration=60.0)], cwd=REPO,
                             env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     rrd = tmp_path / f".r.partial-{proc.pid}" / "run.rrd"
-    from testbed.recording.recorder import static_size
+    from roadtrack.testbed.recording.recorder import static_size
 
     (tmp_path / "static").mkdir()
     static = static_size(tmp_path / "static")  # what the recording holds before its first frame
@@ -345,7 +348,7 @@ def test_view_leaves_no_server_behind(tmp_path, recording, signum):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli.main", "view", str(recording), "--port", str(port)],
+    proc = subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli.main", "view", str(recording), "--port", str(port)],
                             cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert _wait(lambda: _serving(port), 30), "the viewer did not start"
@@ -382,8 +385,8 @@ def test_check_validates_scenarios_and_campaigns(capsys, tmp_path):
 
 def test_jpda_overflows_are_counted_once_per_run():
     """The run's counter: warnings of each oversize cluster swallowed, one summary warning at the end."""
-    from testbed.pipeline.run import JPDAOverflows
-    from trackers import JPDAOverflowWarning
+    from roadtrack.testbed.pipeline.run import JPDAOverflows
+    from roadtrack.trackers import JPDAOverflowWarning
 
     def step(sizes):
         for t, m in sizes:
@@ -405,7 +408,7 @@ def test_jpda_overflows_are_counted_once_per_run():
 def test_a_reader_that_leaves_early_is_not_an_error():
     """`testbed trackers | head -1` (issue 31): the reader closes the pipe; the command stops quietly with exit
     code 0 instead of 'error: broken pipe' and 1."""
-    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli", "trackers"], stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli", "trackers"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     first = proc.stdout.readline()
     proc.stdout.close()  # the reader leaves after one line

@@ -6,7 +6,7 @@ import time
 
 from tqdm import tqdm
 
-from testbed.cli.main import frame_progress, main
+from roadtrack.testbed.cli.main import frame_progress, main
 
 
 def test_version_prints_the_installed_version(capsys):

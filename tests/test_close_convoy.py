@@ -11,11 +11,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-import sensors
-from sensors.clustering import ClusterConfig, scan_line_links
-from testbed.perception.characterise import detection_owners
-from testbed.pipeline.run import run_scenario
-from testbed.scenario.spec import load_scenario
+from roadtrack import sensors
+from roadtrack.sensors.clustering import ClusterConfig, scan_line_links
+from roadtrack.testbed.perception.characterise import detection_owners
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.scenario.spec import load_scenario
 
 L, W, H = 5.0, 2.0, 1.5  # the convoy scenario's cars
 ORIGIN = np.array([0.0, 0.0, 1.9])  # constructed returns at its height: on the horizontal beam

@@ -12,9 +12,9 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from testbed.pipeline.run import run_scenario
-from testbed.recording.rrd import Compaction, compact
-from testbed.scenario.spec import load_scenario
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.recording.rrd import Compaction, compact
+from roadtrack.testbed.scenario.spec import load_scenario
 
 N_SERIES, N_SENDS, ROWS = 40, 30, 5  # 1,200 chunks: rerun writes the count as "1 200"
 

@@ -15,7 +15,7 @@ from decimal import Decimal
 import numpy as np
 import pytest
 
-from trackers.models import SERIES_BELOW, CoordinatedTurn
+from roadtrack.trackers.models import SERIES_BELOW, CoordinatedTurn
 
 CTX = decimal.Context(prec=60)
 OMEGAS = np.concatenate([[0.0], np.logspace(-9, 0, 64), -np.logspace(-9, 0, 64)])

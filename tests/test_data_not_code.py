@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from testbed.cli.main import main
-from testbed.config.strict import ConfigError
-from testbed.scenario.spec import SCENARIO_DIR, apply_overrides, parse_scenario, read_toml
+from roadtrack.testbed.cli.main import main
+from roadtrack.testbed.config.strict import ConfigError
+from roadtrack.testbed.scenario.spec import SCENARIO_DIR, apply_overrides, parse_scenario, read_toml
 
 REPO = Path(__file__).resolve().parent.parent
 TESTBED = Path(sys.executable).parent / "testbed"  # the console script: sys.path[0] is its folder, not the cwd
@@ -94,8 +94,8 @@ def test_env_config_numbers_are_finite_and_bounded_and_refused_at_once(config, w
 
 
 def test_every_env_accepts_its_own_default_config():
-    from testbed.scenario.envcheck import check_env_config
-    from testbed.scenario.env import env_class, env_ids
+    from roadtrack.testbed.scenario.envcheck import check_env_config
+    from roadtrack.testbed.scenario.env import env_class, env_ids
 
     for env_id in env_ids():
         defaults = env_class(env_id).default_config()
@@ -137,7 +137,7 @@ def test_policy_option_drives_the_ego_and_a_bad_action_is_a_run_time_error(tmp_p
 
 
 def test_docs_limits_md_lists_the_env_config_bounds():
-    from testbed.scenario.envcheck import bounds_markdown
+    from roadtrack.testbed.scenario.envcheck import bounds_markdown
 
     assert bounds_markdown() in (REPO / "docs" / "limits.md").read_text(), \
         "docs/limits.md is stale: paste testbed.scenario.envcheck.bounds_markdown() into it"

@@ -9,8 +9,8 @@ import json
 import pandas as pd
 import pytest
 
-import testbed
-from trackers import JPDAOverflowError
+from roadtrack import testbed
+from roadtrack.trackers import JPDAOverflowError
 
 DENSE = {"traffic.density_per_km_lane": 100.0, "duration_s": 3.0, "tracker.associator.max_nodes": 64}
 

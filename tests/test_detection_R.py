@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import trackers
-from trackers.filters import make_filter
-from trackers.filters.base import check_detection_R, takes_detection_R
-from trackers.gating import mahalanobis2_and_log_gaussian
-from trackers.state import FilterState
+from roadtrack import trackers
+from roadtrack.trackers.filters import make_filter
+from roadtrack.trackers.filters.base import check_detection_R, takes_detection_R
+from roadtrack.trackers.gating import mahalanobis2_and_log_gaussian
+from roadtrack.trackers.state import FilterState
 
 P_PRED = np.array([[1.0, 0.0, 0.5, 0.0], [0.0, 1.0, 0.0, 0.5], [0.5, 0.0, 1.0, 0.0], [0.0, 0.5, 0.0, 1.0]])
 X_PRED = np.array([0.0, 0.0, 1.0, 0.0])

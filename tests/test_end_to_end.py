@@ -13,9 +13,9 @@ import pandas as pd
 import pytest
 from rerun.chunk import RrdReader
 
-from testbed.recording.recorder import METRICS
-from testbed.pipeline.run import run_scenario
-from testbed.scenario.spec import load_scenario
+from roadtrack.testbed.recording.recorder import METRICS
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.scenario.spec import load_scenario
 
 BASELINE = Path(__file__).parent / "baselines" / "cut_in_out_10s.json"
 DURATION = 10.0
@@ -201,7 +201,7 @@ def test_visibility_columns_agree_with_the_detections(recorded):
     assert ((truth.n_points > 0) & far).sum() == 0 and (~truth.in_range == far).all()
 
 
-@pytest.mark.parametrize("name", __import__("trackers").PAPER_TRACKERS)
+@pytest.mark.parametrize("name", __import__("roadtrack.trackers").trackers.PAPER_TRACKERS)
 def test_every_named_tracker_runs_a_scenario_and_reports_its_diagnostics(name, tmp_path):
     """Each of the papers' named trackers runs 4 s of cut_in_out through the testbed (recording included) and
     tracks at least 2 of the 3 cars it sees (with the scenario's [tracker.filter.svsf] layer psi = 0.2 m; with

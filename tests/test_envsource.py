@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed.config.strict import ConfigError
-from testbed.scenario.env import EnvSpec, env_ids
-from testbed.world.envsource import EnvSimulation, EpisodeEndWarning, env_config, vehicle_height
-from testbed.world.roadside import roadside_boxes
-from testbed.pipeline.run import run_scenario
-from testbed.sensing import rng_streams
-from testbed.scenario.spec import SCENARIO_DIR, apply_overrides, load_scenario, parse_scenario, read_toml
-from testbed import world
-from testbed.world.simulation import road_edges, roadside_objects
+from roadtrack.testbed.config.strict import ConfigError
+from roadtrack.testbed.scenario.env import EnvSpec, env_ids
+from roadtrack.testbed.world.envsource import EnvSimulation, EpisodeEndWarning, env_config, vehicle_height
+from roadtrack.testbed.world.roadside import roadside_boxes
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.sensing import rng_streams
+from roadtrack.testbed.scenario.spec import SCENARIO_DIR, apply_overrides, load_scenario, parse_scenario, read_toml
+from roadtrack.testbed import world
+from roadtrack.testbed.world.simulation import road_edges, roadside_objects
 
 REPO = Path(__file__).resolve().parent.parent
 HIGHWAY = {"id": "highway-v0", "config": {"vehicles_count": 5, "initial_lane_id": 2}}  # ego in lane 2 of 0..3
@@ -114,13 +114,13 @@ def test_callable_policy_from_the_python_api():
 
 def test_load_policy_from_a_file_path_or_a_module_name():
     """`--policy path/to/file.py:function` loads that file; `module:function` an importable module."""
-    from testbed.world.envsource import load_policy
+    from roadtrack.testbed.world.envsource import load_policy
 
     f = load_policy(str(REPO / "tests" / "test_envsource.py") + ":left_at_one_second")
     assert f(None, {"time_s": 1.0, "frame": 10}) == "LANE_LEFT"
-    assert load_policy("testbed.world.envsource:idle_action").__name__ == "idle_action"
+    assert load_policy("roadtrack.testbed.world.envsource:idle_action").__name__ == "idle_action"
     for bad, words in (("nope", "expected module:function"), ("no_such_module_x:f", "cannot import 'no_such_module_x'"),
-                       ("testbed.world.envsource:no_such_fn", "has no attribute 'no_such_fn'"),
+                       ("roadtrack.testbed.world.envsource:no_such_fn", "has no attribute 'no_such_fn'"),
                        ("missing_file.py:f", "missing_file.py: no such file")):
         with pytest.raises(ConfigError) as info:
             load_policy(bad)
@@ -193,7 +193,7 @@ def _merge_data() -> dict:
     ({"env.id": "merge-v9"}, "env.id", "allowed: exit-v0,"),
     ({"env.id": "lane-keeping-v0"}, "env.id", "takes no render_mode"),
     ({"env.policy": "drive"}, "env.policy", "must be idle or idm: a scenario file names no code"),
-    ({"env.policy": "testbed.world.envsource:idle_action"}, "env.policy", "must be idle or idm"),
+    ({"env.policy": "roadtrack.testbed.world.envsource:idle_action"}, "env.policy", "must be idle or idm"),
     ({"env.policy": "idle", "env.actions": [{"at_s": 1.0, "action": "JUMP"}]}, "env.actions[0].action",
      "'JUMP' is not an action of merge-v0; allowed: LANE_LEFT, IDLE, LANE_RIGHT, FASTER, SLOWER, 0..4"),
     ({"env.policy": "idle", "env.actions": [{"at_s": 1.0, "action": [0.5, 0.1]}]}, "env.actions[0].action",

@@ -8,9 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from testbed.config import ConfigError
-from testbed.recording.view import event_time
-from testbed.scoring.events import COLUMNS, format_events, run_events
+from roadtrack.testbed.config import ConfigError
+from roadtrack.testbed.recording.view import event_time
+from roadtrack.testbed.scoring.events import COLUMNS, format_events, run_events
 
 from conftest import cli as _cli
 
@@ -110,7 +110,7 @@ def test_a_track_and_the_track_replacing_it_have_different_colours_in_the_viewer
     ones the timeline and the exports replay from tracks.parquet (testbed.recording.slots.track_colours)."""
     from rerun.chunk import RrdReader
 
-    from testbed.recording.slots import track_colours
+    from roadtrack.testbed.recording.slots import track_colours
 
     out, _ = short_run
     col = {t: tuple(c.tolist()) for t, c in track_colours(pd.read_parquet(out / "tracks.parquet")).items()}

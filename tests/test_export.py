@@ -9,10 +9,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from testbed.config import ConfigError
-from testbed.export import FORMATS, export_run
-from testbed.export.html import thin_line
-from testbed.recording.slots import track_colours
+from roadtrack.testbed.config import ConfigError
+from roadtrack.testbed.export import FORMATS, export_run
+from roadtrack.testbed.export.html import thin_line
+from roadtrack.testbed.recording.slots import track_colours
 
 from conftest import cli
 

@@ -8,9 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from testbed.config import ConfigError
-from testbed.export import export_run
-from testbed.export.csv_tables import COV_COLUMNS
+from roadtrack.testbed.config import ConfigError
+from roadtrack.testbed.export import export_run
+from roadtrack.testbed.export.csv_tables import COV_COLUMNS
 
 from conftest import cli
 

@@ -8,8 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from testbed.config import ConfigError
-from testbed.export.mot import FOOTPRINT_M, safe_name, track_rows, trackeval_dataset
+from roadtrack.testbed.config import ConfigError
+from roadtrack.testbed.export.mot import FOOTPRINT_M, safe_name, track_rows, trackeval_dataset
 
 from conftest import cli
 

@@ -4,7 +4,7 @@ Issue 16: a recording rerun cannot finish (its file writer died on a full disk) 
 bound, and the process still exits.
 
 The campaign is tiny (cut_in_out shortened to 0.5 s, GNN, 6 seeds) and run through
-``python -m testbed.cli.campaign`` in its own session. Once a run has finished (the workers are up and busy)
+``python -m roadtrack.testbed.cli.campaign`` in its own session. Once a run has finished (the workers are up and busy)
 every descendant is recorded (pool or Dask workers and multiprocessing's resource tracker) and one worker
 is frozen with SIGSTOP: a stopped process runs no code, so only the kernel's parent-death signal
 (PR_SET_PDEATHSIG) can end it, not a watcher thread (Dask's own one would need the GIL). Then the parent
@@ -25,8 +25,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from testbed.campaign import store
-from testbed.cli.campaign import main as campaign_main
+from roadtrack.testbed.campaign import store
+from roadtrack.testbed.cli.campaign import main as campaign_main
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG and /proc are Linux's")
 
@@ -108,7 +108,7 @@ def _kill_parent_and_check_tree(tmp_path: Path, engine: list[str], workers: int)
     path = tmp_path / "faults.toml"
     path.write_text(CAMPAIGN)
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli.campaign", "run", str(path), "--out", str(out),
+    proc = subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli.campaign", "run", str(path), "--out", str(out),
                              *engine, "--quiet"], cwd=REPO, env=dict(os.environ, RERUN_ANALYTICS="0"),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     try:
@@ -165,7 +165,7 @@ STUCK = """\
 import sys, time
 import numpy as np
 import rerun as rr
-from testbed.recording import recorder as recording
+from roadtrack.testbed.recording import recorder as recording
 
 recording.CLOSE_STALL_S = {stall}
 rec = recording.Recorder("{path}", "stuck")

@@ -14,11 +14,11 @@ import math
 import numpy as np
 import pytest
 
-from testbed.config.strict import ConfigError
-from testbed.reproduce.seed002 import highway as hw
-from testbed.pipeline.run import Stopwatch, run_scenario
-from testbed.sensing import occlusion_pd, rng_streams, sense_frame, sensing_setup, visibility
-from testbed.scenario.spec import OutageSpec, load_scenario
+from roadtrack.testbed.config.strict import ConfigError
+from roadtrack.testbed.reproduce.seed002 import highway as hw
+from roadtrack.testbed.pipeline.run import Stopwatch, run_scenario
+from roadtrack.testbed.sensing import occlusion_pd, rng_streams, sense_frame, sensing_setup, visibility
+from roadtrack.testbed.scenario.spec import OutageSpec, load_scenario
 
 CAR = "right"
 T0_S = 4.0  # the car's track is confirmed and 'tracking' (a full n = 30 window) well before

@@ -29,8 +29,8 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from testbed.cli.main import main  # noqa: E402
-from testbed.perception.report import dumps_toml  # noqa: E402
+from roadtrack.testbed.cli.main import main  # noqa: E402
+from roadtrack.testbed.perception.report import dumps_toml  # noqa: E402
 
 SCENARIOS = sorted((REPO / "scenarios").glob("*.toml"))
 CAMPAIGNS = sorted((REPO / "campaigns").glob("*.toml"))

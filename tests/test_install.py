@@ -16,7 +16,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 @pytest.mark.parametrize("kind", ["scenario", "campaign"])
 def test_in_a_checkout_the_shipped_files_are_the_repository_folders(kind):
-    from testbed.config import shipped_dir, shipped_names
+    from roadtrack.testbed.config import shipped_dir, shipped_names
 
     folder = REPO / f"{kind}s"
     assert shipped_dir(kind) == folder.resolve()
@@ -27,9 +27,9 @@ def test_in_a_checkout_the_shipped_files_are_the_repository_folders(kind):
 
 
 def test_the_scenario_and_campaign_modules_use_the_one_lookup():
-    from testbed.campaign.spec import CAMPAIGN_DIR
-    from testbed.config import shipped_dir
-    from testbed.scenario.spec import SCENARIO_DIR, list_scenarios
+    from roadtrack.testbed.campaign.spec import CAMPAIGN_DIR
+    from roadtrack.testbed.config import shipped_dir
+    from roadtrack.testbed.scenario.spec import SCENARIO_DIR, list_scenarios
 
     assert SCENARIO_DIR == shipped_dir("scenario") and CAMPAIGN_DIR == shipped_dir("campaign")
     assert list_scenarios() == sorted(p.stem for p in (REPO / "scenarios").glob("*.toml"))
@@ -45,7 +45,7 @@ def test_the_package_data_covers_every_shipped_file():
 
 
 def test_an_unknown_kind_is_refused():
-    from testbed.config import shipped_dir
+    from roadtrack.testbed.config import shipped_dir
 
     with pytest.raises(ValueError, match="kind must be one of"):
         shipped_dir("tracker")
@@ -54,8 +54,8 @@ def test_an_unknown_kind_is_refused():
 def test_an_installation_without_its_shipped_files_says_so_in_one_line(tmp_path, monkeypatch, capsys):
     """A build that lost the package data: `testbed scenarios` and a run by name fail in one line naming the
     cause (before: `testbed scenarios` printed nothing and exited 0, a run said '(shipped: )')."""
-    import testbed.config.files as files
-    from testbed.cli.main import main
+    import roadtrack.testbed.config.files as files
+    from roadtrack.testbed.cli.main import main
 
     monkeypatch.setattr(files, "SHIPPED", tmp_path / "_shipped")
     for argv in (["scenarios"], ["run", "cut_in_out", "--no-record"], ["check", "smoke"]):

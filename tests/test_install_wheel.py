@@ -114,7 +114,7 @@ def test_the_wheel_carries_every_file_of_the_packages(wheel):
 
 
 def test_the_installed_package_is_what_runs(venv, tmp_path):
-    code = "import testbed, sensors, trackers; print('\\n'.join(m.__file__ for m in (testbed, sensors, trackers)))"
+    code = "from roadtrack import testbed, sensors, trackers; print('\\n'.join(m.__file__ for m in (testbed, sensors, trackers)))"
     out = subprocess.run([str(venv / "python"), "-c", code], capture_output=True, text=True, cwd=tmp_path,
                          env=_env(), timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]

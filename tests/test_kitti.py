@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from testbed.config import ConfigError
-from testbed.export import export_run
-from testbed.pipeline.replay import replay
-from testbed.pipeline.run import run_scenario
-from testbed.pipeline.runfolder import read_run
-from testbed.sensing import kitti as k
-from testbed.world import load_scenario
+from roadtrack.testbed.config import ConfigError
+from roadtrack.testbed.export import export_run
+from roadtrack.testbed.pipeline.replay import replay
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.pipeline.runfolder import read_run
+from roadtrack.testbed.sensing import kitti as k
+from roadtrack.testbed.world import load_scenario
 
 from conftest import cli
 

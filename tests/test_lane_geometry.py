@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed.scenario.spec import SCENARIO_DIR, load_scenario
-from testbed.world.envsource import make_simulation
-from testbed.world.simulation import lane_points
+from roadtrack.testbed.scenario.spec import SCENARIO_DIR, load_scenario
+from roadtrack.testbed.world.envsource import make_simulation
+from roadtrack.testbed.world.simulation import lane_points
 
 SCENARIOS = sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
 

@@ -15,11 +15,11 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from testbed.config import limits  # noqa: E402
-from testbed.campaign.spec import load_campaign, plan, run_seed  # noqa: E402
-from testbed.config.strict import ConfigError  # noqa: E402
-from testbed.config.limits import LIMITS, SEED_MAX, check_folder_name  # noqa: E402
-from testbed.scenario.spec import LANE_WIDTH_M, list_scenarios, load_scenario  # noqa: E402
+from roadtrack.testbed.config import limits  # noqa: E402
+from roadtrack.testbed.campaign.spec import load_campaign, plan, run_seed  # noqa: E402
+from roadtrack.testbed.config.strict import ConfigError  # noqa: E402
+from roadtrack.testbed.config.limits import LIMITS, SEED_MAX, check_folder_name  # noqa: E402
+from roadtrack.testbed.scenario.spec import LANE_WIDTH_M, list_scenarios, load_scenario  # noqa: E402
 
 CAMPAIGNS = sorted((REPO / "campaigns").glob("*.toml"))
 
@@ -324,7 +324,7 @@ def test_a_file_without_read_permission_gives_one_line(tmp_path):
 
 # ------------------------------------------------------------------ overlapping vehicles
 def test_lane_width_matches_the_simulation():
-    from testbed.world.simulation import LANE_WIDTH
+    from roadtrack.testbed.world.simulation import LANE_WIDTH
 
     assert LANE_WIDTH_M == LANE_WIDTH
 
@@ -364,7 +364,7 @@ def test_vehicles_that_only_touch_or_drive_side_by_side_are_accepted(over):
 
 # ------------------------------------------------------------------ through the command line: exit 2, one line
 def cli(args: list[str]) -> tuple[int, list[str]]:
-    from testbed.cli.main import main
+    from roadtrack.testbed.cli.main import main
 
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):

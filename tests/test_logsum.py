@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.special import logsumexp as scipy_logsumexp
 
-from trackers.association.logsum import logsumexp
+from roadtrack.trackers.association.logsum import logsumexp
 
 SPECIAL = [-np.inf, np.inf, np.nan, 0.0, 700.0, -745.0, 1e-300]
 

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from scipy.stats import ks_2samp
 
-from sensors.mixed import mixed_measurements, wrong_steps
-from testbed.reproduce.seed000 import convoy_points as cp
-from trackers.association.params import AssociationParams
-from trackers.association.pda import pda
-from trackers.gating import log_gaussian
-from trackers.tracker import gate_volume
-from trackers.trackloss import ks_integral as ksi
+from roadtrack.sensors.mixed import mixed_measurements, wrong_steps
+from roadtrack.testbed.reproduce.seed000 import convoy_points as cp
+from roadtrack.trackers.association.params import AssociationParams
+from roadtrack.trackers.association.pda import pda
+from roadtrack.trackers.gating import log_gaussian
+from roadtrack.trackers.tracker import gate_volume
+from roadtrack.trackers.trackloss import ks_integral as ksi
 
 ROOT = Path(__file__).resolve().parent.parent
 

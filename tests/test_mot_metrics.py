@@ -9,7 +9,7 @@ from stonesoup.metricgenerator.ospametric import GOSPAMetric
 from stonesoup.types.array import StateVector
 from stonesoup.types.state import State
 
-from testbed.scoring.mot_metrics import METRIC_KEYS, trackeval_metrics, gospa, mot_metrics, visible_truth
+from roadtrack.testbed.scoring.mot_metrics import METRIC_KEYS, trackeval_metrics, gospa, mot_metrics, visible_truth
 
 T0 = datetime.datetime(2024, 1, 1)
 N_ALPHA = 19  # HOTA alphas 0.05, 0.10, ..., 0.95

@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed.config.strict import ConfigError
-from testbed.tracking.moving import MovingTest, MovingTestSpec
-from testbed.scenario.spec import load_scenario
+from roadtrack.testbed.config.strict import ConfigError
+from roadtrack.testbed.tracking.moving import MovingTest, MovingTestSpec
+from roadtrack.testbed.scenario.spec import load_scenario
 
 
 def test_a_static_track_is_never_reported_and_a_moving_one_is_after_its_window():

@@ -17,10 +17,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from testbed.cli.main import main
-from testbed.common.jsonio import finite, json_text
-from testbed.perception.report import SETTINGS_MARK
-from testbed.scenario.spec import load_scenario
+from roadtrack.testbed.cli.main import main
+from roadtrack.testbed.common.jsonio import finite, json_text
+from roadtrack.testbed.perception.report import SETTINGS_MARK
+from roadtrack.testbed.scenario.spec import load_scenario
 
 REPO = Path(__file__).resolve().parent.parent
 FAST = ["--set", "sensor.lidar.azimuth_step_deg=1.0", "--quiet"]  # 11,520 rays per scan instead of 72,000
@@ -131,12 +131,12 @@ def test_an_empty_path_option_is_refused_not_read_as_the_default(capsys, tmp_pat
 
 def test_unencodable_output_is_escaped_not_an_internal_error(tmp_path):
     env = _env(tmp_path, PYTHONIOENCODING="ascii")
-    proc = subprocess.run([sys.executable, "-m", "testbed.cli.main", "keys"], capture_output=True, cwd=REPO, env=env,
+    proc = subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli.main", "keys"], capture_output=True, cwd=REPO, env=env,
                           timeout=120)
     assert proc.returncode == 0 and proc.stderr == b"", proc.stderr[-300:]
     text = proc.stdout.decode("ascii")  # every byte ASCII
     assert "\\xa7" in text and text.count("\n") > 100
-    proc = subprocess.run([sys.executable, "-m", "testbed.cli.main", "run", "conv\u00a7"], capture_output=True,
+    proc = subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli.main", "run", "conv\u00a7"], capture_output=True,
                           cwd=REPO, env=env, timeout=120)
     lines = proc.stderr.decode("ascii").strip().splitlines()
     assert proc.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: conv\\xa7: no such scenario")

@@ -9,8 +9,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-import sensors.perception as perception
-from sensors import PerceptionConfig, cluster, perception_jit, perception_reference, segment_ground
+import roadtrack.sensors.perception as perception
+from roadtrack.sensors import PerceptionConfig, cluster, perception_jit, perception_reference, segment_ground
 
 CFG = PerceptionConfig()
 WIDE = dataclasses.replace(CFG, max_length_m=12.0, max_width_m=5.0)  # more unions pass: both branches run
@@ -20,8 +20,8 @@ WIDE = dataclasses.replace(CFG, max_length_m=12.0, max_width_m=5.0)  # more unio
 def shipped():
     """(scene name, scan, perception config, road) of every other frame of the first second of every shipped
     scenario."""
-    from testbed.scenario.spec import list_scenarios, load_scenario
-    from testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
+    from roadtrack.testbed.scenario.spec import list_scenarios, load_scenario
+    from roadtrack.testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
 
     out = []
     for name in list_scenarios():
@@ -49,8 +49,8 @@ def kernel_calls(monkeypatch, frames, name: str) -> list[tuple]:
 def highway():
     """(points (N, 3), objects, _stats, road) of the first 1.5 s of highway_benchmark, every frame: the clusters
     before split and merge, as perceive sees them."""
-    from testbed.scenario.spec import load_scenario
-    from testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
+    from roadtrack.testbed.scenario.spec import load_scenario
+    from roadtrack.testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
 
     scn = load_scenario("highway_benchmark", {"duration_s": 1.5})
     rngs = rng_streams(scn.seed)
@@ -171,7 +171,7 @@ def results_equal(a, b) -> bool:
 
 @pytest.mark.parametrize("variant", [{}, {"shape_filter": False}, {"vehicle_like": False}, {"max_length_m": 4.0}])
 def test_apply_fits_equals_the_former_loop(monkeypatch, shipped, variant):
-    from sensors import COMPLETED
+    from roadtrack.sensors import COMPLETED
 
     assert COMPLETED == 4  # the reference's literal
     n_fits = 0
@@ -189,7 +189,7 @@ def test_apply_fits_equals_the_former_loop(monkeypatch, shipped, variant):
 
 
 def test_prior_indices_follow_prior():
-    from sensors.boxfit import CAR, TRUCK, BoxFitConfig, SizePrior
+    from roadtrack.sensors.boxfit import CAR, TRUCK, BoxFitConfig, SizePrior
 
     van = SizePrior("van", 1.9, 5.5, 2.0, 0.5, 0.2)
     tops = np.r_[np.linspace(-1.0, 5.0, 601), 0.0, -0.0, 1.9, 2.5, np.nextafter(2.5, 0.0), np.inf, -np.inf]
@@ -243,7 +243,7 @@ def test_ground_columns_and_band_equal_numpy_on_every_shipped_scenario(monkeypat
 
 
 def test_the_conditioning_shortcut_decides_as_numpys_cond(monkeypatch, shipped):
-    import sensors.ground as ground
+    import roadtrack.sensors.ground as ground
 
     normals, conds = [], []
     ill = ground._ill_conditioned
@@ -286,7 +286,7 @@ def tie_grid(rng, n: int) -> np.ndarray:
 def label_cases(shipped):
     """(points (N, 3), labels (N,) with -1 noise) of every shipped frame's clustering (links included) and of
     hand-made ties."""
-    from sensors.clustering import ORDER_FREE
+    from roadtrack.sensors.clustering import ORDER_FREE
 
     rng = np.random.default_rng(4)
     cases = []
@@ -302,7 +302,7 @@ def label_cases(shipped):
 
 
 def test_grid_components_are_ndimage_labels_partition(shipped):
-    from sensors.clustering import ORDER_FREE, numbered
+    from roadtrack.sensors.clustering import ORDER_FREE, numbered
 
     rng = np.random.default_rng(5)
     cases = [(scan.points[~segment_ground(scan.points, cfg.ground, scan.origin)], cfg.cluster.cell_m)
@@ -322,7 +322,7 @@ def test_grid_components_are_ndimage_labels_partition(shipped):
 
 
 def test_numbered_equals_the_reference(shipped):
-    from sensors.clustering import numbered
+    from roadtrack.sensors.clustering import numbered
 
     n_big = 0
     for pts, raw in label_cases(shipped):
@@ -334,7 +334,7 @@ def test_numbered_equals_the_reference(shipped):
 
 
 def test_scan_line_links_equal_the_reference_on_every_shipped_scenario(shipped):
-    from sensors.clustering import scan_line_links
+    from roadtrack.sensors.clustering import scan_line_links
 
     n_links = 0
     for _, s, cfg, _ in shipped:
@@ -487,7 +487,7 @@ def test_box_gap_bound_is_a_lower_bound_of_the_points_distance():
 # --- selection and fit ----------------------------------------------------------------------------------
 
 def test_batched_box_fits_equal_one_by_one_fits(highway):
-    from sensors.boxfit import fit_vehicle_box_unchecked, fit_vehicle_boxes_unchecked
+    from roadtrack.sensors.boxfit import fit_vehicle_box_unchecked, fit_vehicle_boxes_unchecked
 
     n_fits = 0
     for pts, objects, st, _ in highway[::2]:
@@ -511,8 +511,8 @@ def test_batched_box_fits_equal_one_by_one_fits(highway):
 
 
 def test_open_ends_equal_the_reference(shipped):
-    from testbed.scenario.spec import load_scenario
-    from testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
+    from roadtrack.testbed.scenario.spec import load_scenario
+    from roadtrack.testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
 
     scn = load_scenario("highway_benchmark", {"duration_s": 0.5})
     rngs = rng_streams(scn.seed)
@@ -535,7 +535,7 @@ def test_open_ends_equal_the_reference(shipped):
 
 
 def test_min_area_rectangle_with_the_compiled_hull_equals_qhull(highway):
-    from sensors.boxfit import min_area_rectangle
+    from roadtrack.sensors.boxfit import min_area_rectangle
 
     sets = [pts[o, :2] for pts, objects, _, _ in highway[::3] for o in objects]
     rng = np.random.default_rng(1)
@@ -633,7 +633,7 @@ def test_nearest_range_of_the_object_sums_is_numpys_smallest_hypot(highway):
 def pd_ranges_reference(scan, is_ground: np.ndarray) -> np.ndarray:
     """testbed.sensing.pd_scan's former range image: ground rays inf, the rest rounded to PD_RANGE_STEP_M where
     finite (a mask of the finite entries)."""
-    from testbed.sensing import PD_RANGE_STEP_M
+    from roadtrack.testbed.sensing import PD_RANGE_STEP_M
 
     ranges = scan.ranges.copy()
     ranges.reshape(-1)[scan.ray[is_ground & (scan.ray >= 0)]] = np.inf
@@ -643,7 +643,7 @@ def pd_ranges_reference(scan, is_ground: np.ndarray) -> np.ndarray:
 
 
 def test_pd_scan_ranges_equal_the_reference(shipped):
-    from testbed.sensing import pd_scan
+    from roadtrack.testbed.sensing import pd_scan
 
     n_inf = 0
     for _, scan, cfg, _ in shipped:

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from testbed.perception.characterise import characterise, merge_curve
-from testbed.cli.main import main
-from testbed.pipeline.run import run_scenario
-from testbed.sensing import rng_streams
-from testbed.scenario.spec import load_scenario
-from testbed.world.simulation import Simulation, roadside_objects
+from roadtrack.testbed.perception.characterise import characterise, merge_curve
+from roadtrack.testbed.cli.main import main
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.sensing import rng_streams
+from roadtrack.testbed.scenario.spec import load_scenario
+from roadtrack.testbed.world.simulation import Simulation, roadside_objects
 
 # A straight 3-lane road lined with bushes, trees and signs; the sensor car and two cars drive past them.
 ROADSIDE = {"duration_s": 8.0, "seed": 3, "roadside.bushes_per_km": 60.0, "roadside.trees_per_km": 40.0,

@@ -18,7 +18,7 @@ import pandas as pd
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-TESTBED = [sys.executable, "-m", "testbed.cli.main"]
+TESTBED = [sys.executable, "-m", "roadtrack.testbed.cli.main"]
 
 
 @pytest.fixture(scope="module")

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from testbed.cli.main import main
-from testbed.config import ConfigError
-from testbed.pipeline.run import run_scenario
-from testbed.recording.levels import OBJECT_POINTS, OTHER_EVERY, content, lidar_step, thinned
-from testbed.recording.scene import TRAIL_EVERY_S
-from testbed.scenario.spec import RECORD_LEVELS, load_scenario
+from roadtrack.testbed.cli.main import main
+from roadtrack.testbed.config import ConfigError
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.recording.levels import OBJECT_POINTS, OTHER_EVERY, content, lidar_step, thinned
+from roadtrack.testbed.recording.scene import TRAIL_EVERY_S
+from roadtrack.testbed.scenario.spec import RECORD_LEVELS, load_scenario
 
 DURATION = 3.0
 MB_PER_FRAME = 0.1  # the issue-20 target for the default level

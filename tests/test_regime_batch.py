@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from trackers.trackloss.regime import assess_window, assess_windows, gamma_best_fast
+from roadtrack.trackers.trackloss.regime import assess_window, assess_windows, gamma_best_fast
 
 
 @pytest.mark.parametrize("nz", [1, 2, 3])
@@ -44,8 +44,8 @@ def test_windows_without_any_measurement_count_zero_everywhere():
 
 
 def test_windows_from_histories_read_the_stored_root_det_or_compute_it_from_S():
-    from trackers.tracker import ScanRecord
-    from trackers.trackloss.regime import window_from_history, windows_from_histories
+    from roadtrack.trackers.tracker import ScanRecord
+    from roadtrack.trackers.trackloss.regime import window_from_history, windows_from_histories
 
     rng = np.random.default_rng(5)
 
@@ -74,7 +74,7 @@ def test_mismatched_windows_are_one_clear_error():
 
 
 def test_the_batched_ks_distance_equals_the_single_one():
-    from trackers.trackloss.ks import ks_distance_counts, ks_distances_counts
+    from roadtrack.trackers.trackloss.ks import ks_distance_counts, ks_distances_counts
 
     rng = np.random.default_rng(2)
     counts = rng.integers(0, 6, (7, 20))

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import trackers.tracker as tracker_module
-from trackers import make_tracker
-from trackers.trackloss import regime as rg
+import roadtrack.trackers.tracker as tracker_module
+from roadtrack.trackers import make_tracker
+from roadtrack.trackers.trackloss import regime as rg
 
 FIELDS = ("n", "alpha", "d_n", "D_T", "D_L", "gamma", "sigma_n", "volume", "lam", "pd")
 
@@ -114,7 +114,7 @@ def test_distances_on_the_gates_themselves_are_counted_as_the_rebuilt_windows_co
 def test_a_window_rebuilt_from_records_equals_the_rolled_one():
     """Full (capacity 5 after 9 scans) and padded (capacity 12): window_of_records gives the rolled window, padding
     included; window_holds knows how many scans it holds."""
-    from trackers.tracker import ScanRecord
+    from roadtrack.trackers.tracker import ScanRecord
 
     rng = np.random.default_rng(4)
     recs, rolled = [], {5: [None], 12: [None]}
@@ -141,7 +141,7 @@ def test_a_window_rebuilt_from_records_equals_the_rolled_one():
 @pytest.fixture(scope="module")
 def frames():
     """Sensed frames of two real scenarios (highway-env traffic, LiDAR, perception)."""
-    import testbed
+    from roadtrack import testbed
 
     out = {}
     for name, seconds in (("cut_in_out", 10.0), ("highway_benchmark", 4.0)):
@@ -153,7 +153,7 @@ def frames():
 def _checked_run(monkeypatch, frames, scenario: str, tracker) -> int:
     """Run `tracker` on the scenario's frames through the testbed, checking after every Tracker.step each live
     input track's new regime state against reference_regimes on its new history. Returns the tests compared."""
-    import testbed
+    from roadtrack import testbed
 
     compared = [0]
     step = tracker_module.Tracker.step
@@ -208,7 +208,7 @@ def test_the_recount_on_full_distances_is_exercised_and_exact_on_a_real_run(monk
 
 def test_an_adaptive_window_is_rolled_exactly(monkeypatch, frames):
     """Adaptive n (paper 002 §V-F): windows of several lengths in one scan, capacity regime_n_max."""
-    from testbed.tracking.builtin import BuiltinTracker
+    from roadtrack.testbed.tracking.builtin import BuiltinTracker
 
     trk = make_tracker("pda-kf", sigma_w=0.3, clutter_density=1e-3, management={
         "regime_adaptive": True, "regime_n": 10, "regime_n_min": 5, "regime_n_max": 40})

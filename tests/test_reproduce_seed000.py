@@ -20,7 +20,7 @@ import re
 import numpy as np
 import pytest
 
-from testbed.reproduce.seed000 import points as s0
+from roadtrack.testbed.reproduce.seed000 import points as s0
 
 FULL = bool(os.environ.get("ROADTRACK_FULL"))
 

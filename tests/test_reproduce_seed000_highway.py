@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed.reproduce.seed000 import highway as h
-from trackers.filters.kalman import KalmanFilter
-from trackers.models import ConstantVelocity, PositionMeasurement
+from roadtrack.testbed.reproduce.seed000 import highway as h
+from roadtrack.trackers.filters.kalman import KalmanFilter
+from roadtrack.trackers.models import ConstantVelocity, PositionMeasurement
 
 
 @pytest.fixture(scope="module")

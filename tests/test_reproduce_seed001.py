@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed.reproduce import REPRODUCTIONS, entry
-from testbed.reproduce.seed001 import study
-from testbed.reproduce.seed001 import targets as tg
-from trackers.filters import make_filter
+from roadtrack.testbed.reproduce import REPRODUCTIONS, entry
+from roadtrack.testbed.reproduce.seed001 import study
+from roadtrack.testbed.reproduce.seed001 import targets as tg
+from roadtrack.trackers.filters import make_filter
 from report_checks import read_report
 
 FULL = bool(os.environ.get("ROADTRACK_FULL"))

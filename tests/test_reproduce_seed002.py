@@ -6,10 +6,10 @@ import re
 import numpy as np
 import pytest
 
-from testbed.reproduce.seed002 import forced_loss as fl
-from testbed.reproduce.markdown import verdict
-from testbed.reproduce.seed002 import study as seed002
-from trackers.trackloss.regime import RegimeConfig, assess_window
+from roadtrack.testbed.reproduce.seed002 import forced_loss as fl
+from roadtrack.testbed.reproduce.markdown import verdict
+from roadtrack.testbed.reproduce.seed002 import study as seed002
+from roadtrack.trackers.trackloss.regime import RegimeConfig, assess_window
 
 
 def test_forced_loss_runs_are_seeded_and_lose_the_target_at_the_loss():

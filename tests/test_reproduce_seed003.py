@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed.reproduce import REPRODUCTIONS, entry
-from testbed.reproduce.seed003 import study as seed003
+from roadtrack.testbed.reproduce import REPRODUCTIONS, entry
+from roadtrack.testbed.reproduce.seed003 import study as seed003
 from report_checks import read_report
 
 FULL = bool(os.environ.get("ROADTRACK_FULL"))

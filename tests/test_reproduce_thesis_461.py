@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from testbed.common.stats import mcnemar
-from testbed.reproduce import REPRODUCTIONS, entry
-from testbed.reproduce.thesis import sec461
+from roadtrack.testbed.common.stats import mcnemar
+from roadtrack.testbed.reproduce import REPRODUCTIONS, entry
+from roadtrack.testbed.reproduce.thesis import sec461
 from report_checks import read_report
 
 FULL = bool(os.environ.get("ROADTRACK_FULL"))

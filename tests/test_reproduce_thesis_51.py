@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed.reproduce import REPRODUCTIONS, entry
-from testbed.reproduce.markdown import verdict
-from testbed.reproduce.thesis import sec51
-from testbed.reproduce.thesis import synthetic as sy
+from roadtrack.testbed.reproduce import REPRODUCTIONS, entry
+from roadtrack.testbed.reproduce.markdown import verdict
+from roadtrack.testbed.reproduce.thesis import sec51
+from roadtrack.testbed.reproduce.thesis import synthetic as sy
 from report_checks import read_report
 
 FULL = bool(os.environ.get("ROADTRACK_FULL"))

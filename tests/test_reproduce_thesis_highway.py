@@ -5,8 +5,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from testbed.reproduce import REPRODUCTIONS, entry
-from testbed.reproduce.thesis import highway
+from roadtrack.testbed.reproduce import REPRODUCTIONS, entry
+from roadtrack.testbed.reproduce.thesis import highway
 
 
 @pytest.fixture(scope="module")

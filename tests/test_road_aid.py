@@ -8,12 +8,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from sensors import RoadMap
-from testbed import load_scenario
-from testbed.pipeline.run import run_scenario
-from testbed.scoring.events import breakup_events
-from trackers import make_tracker
-from trackers.road import centripetal_input, input_shift, lane_pseudo_measurement
+from roadtrack.sensors import RoadMap
+from roadtrack.testbed import load_scenario
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.scoring.events import breakup_events
+from roadtrack.trackers import make_tracker
+from roadtrack.trackers.road import centripetal_input, input_shift, lane_pseudo_measurement
 
 DT = 0.1
 LANES = (0.0, 4.0, 8.0)  # lane centres y [m] of a straight three-lane road along x, half width 2 m

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed.config.strict import ConfigError
-from testbed.scenario.spec import SCENARIO_DIR, apply_overrides, list_scenarios, load_scenario, parse_scenario, read_toml
-from testbed.world.simulation import Simulation
+from roadtrack.testbed.config.strict import ConfigError
+from roadtrack.testbed.scenario.spec import SCENARIO_DIR, apply_overrides, list_scenarios, load_scenario, parse_scenario, read_toml
+from roadtrack.testbed.world.simulation import Simulation
 
 SHIPPED = ("convoy", "cut_in_out", "u_turn", "interchange", "straight_curve")
 REPO = Path(__file__).resolve().parent.parent
@@ -94,7 +94,7 @@ def test_cli_rejects_malformed_file_with_exit_2_and_writes_nothing(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text((SCENARIO_DIR / "convoy.toml").read_text().replace("gap_m = 10.0", "gap_m = -10.0"))
     out = tmp_path / "out"
-    proc = subprocess.run([sys.executable, "-m", "testbed.cli.main", "run", str(bad), "--out", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli.main", "run", str(bad), "--out", str(out)],
                           capture_output=True, text=True, cwd=REPO, timeout=120)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()

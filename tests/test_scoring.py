@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from testbed.scoring.rates import format_table, score_run
+from roadtrack.testbed.scoring.rates import format_table, score_run
 
 
 def _truth(n_frames=20, visible=None):

@@ -8,9 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from testbed.pipeline.run import run_scenario
-from testbed.scenario.spec import load_scenario
-from testbed.sensing.cache import CacheWarning, SensingCache, sensing_key
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.scenario.spec import load_scenario
+from roadtrack.testbed.sensing.cache import CacheWarning, SensingCache, sensing_key
 
 SHORT = {"duration_s": 3.0}
 

@@ -13,19 +13,19 @@ import warnings
 import numpy as np
 import pytest
 
-import testbed
-from testbed.common import streams
-from testbed.config import ConfigError
-from testbed.sensing import SENSORS, Sensor, rng_streams, scenario_sensors, sense, sensor_registry
-from testbed.sensing.cache import SensingCache
-from testbed.world import load_scenario
-from trackers.plugins import PluginWarning
+from roadtrack import testbed
+from roadtrack.testbed.common import streams
+from roadtrack.testbed.config import ConfigError
+from roadtrack.testbed.sensing import SENSORS, Sensor, rng_streams, scenario_sensors, sense, sensor_registry
+from roadtrack.testbed.sensing.cache import SensingCache
+from roadtrack.testbed.world import load_scenario
+from roadtrack.trackers.plugins import PluginWarning
 
 REPO = Path(__file__).resolve().parent.parent
 BEACON = '''
 """A toy sensor: a beacon receiver that reports each car within 40 m of the ego as its position plus noise."""
 import numpy as np
-from testbed.sensing import Sensor
+from roadtrack.testbed.sensing import Sensor
 
 RANGE_M, SIGMA_M = 40.0, 0.5
 
@@ -118,7 +118,7 @@ def test_an_unknown_or_repeated_sensor_is_one_line_naming_its_key():
 def test_the_cli_refuses_an_unknown_sensor_before_writing_anything(tmp_path):
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": str(REPO), "RERUN_ANALYTICS": "0"}
-    res = subprocess.run([sys.executable, "-m", "testbed.cli.main", "run", "cut_in_out", "--set", "duration_s=0.2",
+    res = subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli.main", "run", "cut_in_out", "--set", "duration_s=0.2",
                           "--set", 'sensor.extra=["nope"]', "--no-record", "--quiet", "--out", str(out)],
                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
     assert res.returncode == 2 and not out.exists()

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from sensors.boxfit import (
+from roadtrack.sensors.boxfit import (
     BoxFit,
     BoxFitConfig,
     SizePrior,
@@ -15,7 +15,7 @@ from sensors.boxfit import (
     open_ends_from_ranges,
     shape_class,
 )
-from sensors.lidar import LidarConfig, Scan, scan
+from roadtrack.sensors.lidar import LidarConfig, Scan, scan
 
 LIDAR = LidarConfig()  # HDL-32E with range noise and dropout
 GROUND_CUT_M = 0.25  # points below this height are the ground's (what ground removal takes)

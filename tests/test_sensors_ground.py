@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sensors import GROUND, LIDAR_PRESETS, LidarConfig, scan
-from sensors.ground import GROUND_METHODS, GroundConfig, ground_scores, segment_ground
+from roadtrack.sensors import GROUND, LIDAR_PRESETS, LidarConfig, scan
+from roadtrack.sensors.ground import GROUND_METHODS, GroundConfig, ground_scores, segment_ground
 
 LANE_W = 3.5
 CAR, TRUCK = (4.5, 1.8, 1.5), (12.0, 2.5, 4.0)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensors import GROUND, LidarConfig, Scan, scan
+from roadtrack.sensors import GROUND, LidarConfig, Scan, scan
 
 EXACT = LidarConfig(range_noise_std_m=0.0, dropout=0.0)  # noise-free sensor for geometric checks
 GEOM_TOL = 1e-3  # [m]
@@ -229,7 +229,8 @@ def _run(code: str, **kw) -> subprocess.CompletedProcess:
 
 def test_sensors_imports_no_simulator_viewer_or_sibling_package():
     out = _run("""
-        import sys, numpy as np, sensors
+        import sys, numpy as np
+        from roadtrack import sensors
         sensors.perceive(sensors.scan(sensors.LidarConfig(), np.zeros(3), np.zeros((0, 7)), np.zeros(0, int),
                                       np.random.default_rng(0)), sensors.PerceptionConfig())
         bad = [m for m in ("highway_env", "rerun", "trackers", "testbed") if m in sys.modules]
@@ -247,7 +248,8 @@ def test_open3d_import_failure_is_one_clear_line(tmp_path):
     )
     out = _run(f"""
         import sys; sys.path.insert(0, {str(tmp_path)!r})
-        import numpy as np, sensors
+        import numpy as np
+        from roadtrack import sensors
         try:
             sensors.scan(sensors.LidarConfig(), np.zeros(3), np.zeros((0, 7)), np.zeros(0, int),
                          np.random.default_rng(0))
@@ -298,7 +300,7 @@ def test_default_config_is_the_hdl32e_preset_and_explicit_fields_override():
 
 
 def test_presets_load_from_a_scenario_table():
-    from testbed.config.strict import from_dict, to_dict
+    from roadtrack.testbed.config.strict import from_dict, to_dict
 
     cfg = from_dict(LidarConfig, {"preset": "vlp16", "max_range_m": 80.0})
     assert cfg == LidarConfig(preset="vlp16", max_range_m=80.0) and cfg.n_beams == 16

@@ -11,9 +11,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sensors import GROUND, LidarConfig, Scan
-from sensors.lidar import scan
-from sensors.occlusion import OcclusionConfig, detection_probability, shadows, visibility
+from roadtrack.sensors import GROUND, LidarConfig, Scan
+from roadtrack.sensors.lidar import scan
+from roadtrack.sensors.occlusion import OcclusionConfig, detection_probability, shadows, visibility
 
 LIDAR = LidarConfig()  # HDL-32E with range noise and dropout
 OCC = OcclusionConfig.from_lidar(LIDAR)

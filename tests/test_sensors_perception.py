@@ -10,9 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-import sensors.perception as perception
-from sensors.boxfit import lshape_rectangle, min_area_rectangle, open_ends_from_ranges
-from sensors import (
+import roadtrack.sensors.perception as perception
+from roadtrack.sensors.boxfit import lshape_rectangle, min_area_rectangle, open_ends_from_ranges
+from roadtrack.sensors import (
     CLUSTER_METHODS,
     COMPLETED,
     MERGED,
@@ -137,7 +137,7 @@ def test_clusters_smaller_than_min_points_are_noise(method):
 def test_grid_labels_equal_the_sort_first_numbering():
     # the grid labels the points unsorted and numbers its clusters by their lexicographically first
     # points; the reference sorts every point first (as DBSCAN still does), with ties in x across clusters
-    import sensors.clustering as clustering
+    import roadtrack.sensors.clustering as clustering
 
     rng = np.random.default_rng(11)
     pts = np.vstack([c + rng.normal(0, 0.5, (n, 3)) for c, n in
@@ -156,7 +156,7 @@ def test_grid_labels_equal_the_sort_first_numbering():
 
 def test_shape_prefilter_keeps_every_object_shape_class_may_reject(traffic):
     # _screen classifies only the objects _maybe_not_vehicle passes on; every other one must be a vehicle
-    from sensors.boxfit import shape_class
+    from roadtrack.sensors.boxfit import shape_class
 
     cfg = PerceptionConfig()
     boxes = np.array([car(12.0, 1.75), [20.0, -8.0, 30.0, 0.3, 0.8, 0.0, 0.0], [9.0, 7.0, 0.3, 0.3, 3.0, 0.0, 0.0],

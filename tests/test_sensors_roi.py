@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import sensors.perception as perception
-from sensors import OFF_ROAD, LidarConfig, PerceptionConfig, RoadMap, perceive, scan
+import roadtrack.sensors.perception as perception
+from roadtrack.sensors import OFF_ROAD, LidarConfig, PerceptionConfig, RoadMap, perceive, scan
 
 LANES = [-5.25, -1.75, 1.75, 5.25]  # a 4-lane road, 3.5 m lanes, edges at +-7 m
 EGO = np.array([0.0, -1.75, 0.0])

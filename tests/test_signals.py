@@ -4,7 +4,7 @@ closed terminal keep the frames (or runs) done, marked INCOMPLETE, with one stde
 no worker and no resource-tracker noise (no "leaked semaphore" warning, no traceback), and resumes.
 
 The runs are real (convoy, 30 s of simulated time: 301 frames, several seconds of work) started as
-``python -m testbed.cli.main`` subprocesses, signalled in their frame loop: once the recording holds frames, or
+``python -m roadtrack.testbed.cli.main`` subprocesses, signalled in their frame loop: once the recording holds frames, or
 (``--no-record``) once open3d, which the first scan imports, is loaded and the sensors' numba kernels are
 compiled (a fresh clone compiles them in its first frames), 2 s later.
 """
@@ -22,9 +22,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from testbed.campaign import store
-from testbed.cli.main import main
-from testbed.common.errors import STOP_SIGNALS, Terminated, guarded
+from roadtrack.testbed.campaign import store
+from roadtrack.testbed.cli.main import main
+from roadtrack.testbed.common.errors import STOP_SIGNALS, Terminated, guarded
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals and /proc are Linux's")
 
@@ -43,7 +43,7 @@ duration_s = 0.5
 
 
 def _start(*args: str, new_session: bool = False) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "testbed.cli.main", *args], cwd=REPO,
+    return subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli.main", *args], cwd=REPO,
                             env=dict(os.environ, RERUN_ANALYTICS="0"), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=new_session)
 
@@ -55,7 +55,7 @@ def _wait_for_frames(proc: subprocess.Popen, out: Path, record: bool, timeout: f
     partial = out.parent / f".{out.name}.partial-{proc.pid}"
     t0 = time.monotonic()
     if record:
-        from testbed.recording.recorder import static_size
+        from roadtrack.testbed.recording.recorder import static_size
 
         (out.parent / "static").mkdir(exist_ok=True)
         static = static_size(out.parent / "static")
@@ -247,8 +247,8 @@ def test_an_ignored_hangup_stays_ignored(capsys):
 def test_a_frame_cut_short_between_its_tables_is_dropped_from_all_of_them(tmp_path, monkeypatch):
     """A signal (or Ctrl-C) can land after a frame's truth rows are logged and before the frame is counted;
     the tables written then hold exactly the frames the stop line counts, none of them half-logged."""
-    import testbed.pipeline.run as run_mod
-    from testbed.scenario.spec import load_scenario
+    import roadtrack.testbed.pipeline.run as run_mod
+    from roadtrack.testbed.scenario.spec import load_scenario
 
     real = run_mod.log_diagnostics
 
@@ -275,10 +275,10 @@ def test_a_signal_raised_inside_compiled_code_is_still_an_interruption(tmp_path)
 
     import numpy as np
 
-    from testbed import TrackSet
-    from testbed.common.errors import Terminated
-    from testbed.pipeline.run import run_scenario
-    from testbed.scenario.spec import load_scenario
+    from roadtrack.testbed import TrackSet
+    from roadtrack.testbed.common.errors import Terminated
+    from roadtrack.testbed.pipeline.run import run_scenario
+    from roadtrack.testbed.scenario.spec import load_scenario
 
     class StopsAtFrame3:
         def step(self, frame):

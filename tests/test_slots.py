@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from testbed.recording import palette as pal
+from roadtrack.testbed.recording import palette as pal
 import pandas as pd
 
-from testbed.recording.slots import POOL, Slots, colours, track_colours
+from roadtrack.testbed.recording.slots import POOL, Slots, colours, track_colours
 
 
 def _step(s: Slots, ids, confirmed):

@@ -14,11 +14,11 @@ import os
 import numpy as np
 import pytest
 
-from sensors.symmetric import SymmetricSensor, monte_carlo_moments
-from testbed.reproduce.seed003 import sme_targets as st
-from testbed.reproduce.seed003 import study as s3
-from trackers.filters import ExtendedKalmanFilter
-from trackers.sme import (SMEState, SMETracker, SymmetricMeasurement, label_permutation, permutations, relabel,
+from roadtrack.sensors.symmetric import SymmetricSensor, monte_carlo_moments
+from roadtrack.testbed.reproduce.seed003 import sme_targets as st
+from roadtrack.testbed.reproduce.seed003 import study as s3
+from roadtrack.trackers.filters import ExtendedKalmanFilter
+from roadtrack.trackers.sme import (SMEState, SMETracker, SymmetricMeasurement, label_permutation, permutations, relabel,
                           symmetric_g, symmetric_h, symmetric_jacobian, symmetric_noise_covariance,
                           symmetric_noise_mean)
 

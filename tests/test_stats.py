@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from testbed.common.stats import mcnemar, mean_ci, paired_bootstrap, paired_t, wilson
+from roadtrack.testbed.common.stats import mcnemar, mean_ci, paired_bootstrap, paired_t, wilson
 
 
 @pytest.mark.parametrize("k, n", [(0, 10), (3, 10), (10, 10), (47, 100), (1, 1)])

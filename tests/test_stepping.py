@@ -15,11 +15,11 @@ import pytest
 from highway_env.road.road import Road
 from highway_env.vehicle.behavior import IDMVehicle
 
-from testbed.scenario.spec import load_scenario
-from testbed.world import simulation, stepping
-from testbed.world.envsource import restore_vehicle_classes
-from testbed.world.stepping import BatchRoad, batch_act, batch_step
-from testbed.world.traffic import TrafficNetwork, TrafficRoad
+from roadtrack.testbed.scenario.spec import load_scenario
+from roadtrack.testbed.world import simulation, stepping
+from roadtrack.testbed.world.envsource import restore_vehicle_classes
+from roadtrack.testbed.world.stepping import BatchRoad, batch_act, batch_step
+from roadtrack.testbed.world.traffic import TrafficNetwork, TrafficRoad
 
 FULL = bool(os.environ.get("ROADTRACK_FULL"))
 
@@ -79,7 +79,7 @@ def test_highway_env_environments_step_the_same(monkeypatch, env_id):
     lanes identical."""
     import gymnasium as gym
 
-    from testbed.scenario.env import gymnasium_with_envs
+    from roadtrack.testbed.scenario.env import gymnasium_with_envs
 
     gymnasium_with_envs()
     monkeypatch.setattr(stepping, "BATCH_MIN_VEHICLES", 0)

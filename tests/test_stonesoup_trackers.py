@@ -16,8 +16,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import testbed
-from testbed.tracking.stonesoup import RunDetectionReader, components
+from roadtrack import testbed
+from roadtrack.testbed.tracking.stonesoup import RunDetectionReader, components
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +60,7 @@ def test_a_stone_soup_script_reads_a_run_folder_with_the_detection_reader(runs):
 
 def test_without_stone_soup_the_tracker_is_refused_in_one_line_naming_the_extra():
     code = ("import sys; sys.modules['stonesoup'] = None\n"
-            "from testbed.cli.main import main\n"
+            "from roadtrack.testbed.cli.main import main\n"
             "sys.exit(main(['run', 'cut_in_out', '--tracker', 'stonesoup-jpda-kf', '--no-record', '--out', "
             "'/nonexistent/x']))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
@@ -71,10 +71,10 @@ def test_without_stone_soup_the_tracker_is_refused_in_one_line_naming_the_extra(
 
 
 def test_a_campaign_compares_stone_soup_with_ours_on_traffic_sensed_once(tmp_path):
-    from testbed.campaign import store
-    from testbed.campaign.engine import EngineOptions, run_campaign
-    from testbed.campaign.spec import load_campaign
-    from testbed.sensing.cache import SensingCache
+    from roadtrack.testbed.campaign import store
+    from roadtrack.testbed.campaign.engine import EngineOptions, run_campaign
+    from roadtrack.testbed.campaign.spec import load_campaign
+    from roadtrack.testbed.sensing.cache import SensingCache
 
     spec = tmp_path / "ss.toml"
     spec.write_text('name = "ss"\nscenarios = ["cut_in_out"]\ntrackers = ["jpda-kf", "stonesoup-jpda-kf"]\n'
@@ -97,7 +97,7 @@ def ss_scene(n_tracks: int, spacing: float, std: float, seed: int = 0):
     from stonesoup.types.state import GaussianState
     from stonesoup.types.track import Track
 
-    from testbed.tracking.stonesoup import EPOCH, detections
+    from roadtrack.testbed.tracking.stonesoup import EPOCH, detections
 
     rng = np.random.default_rng(seed)
     scn = testbed.load_scenario("cut_in_out")
@@ -133,8 +133,8 @@ def test_a_stone_soup_cluster_over_its_budget_falls_back_to_lbp_is_counted_or_ra
 
     from stonesoup.dataassociator.probability import JPDAwithLBP
 
-    from testbed.tracking.stonesoup import SS_MAX_NODES
-    from trackers import JPDAOverflowError
+    from roadtrack.testbed.tracking.stonesoup import SS_MAX_NODES
+    from roadtrack.trackers import JPDAOverflowError
 
     parts, tracks, dets, when = ss_scene(30, 2.0, 4.0)  # 30 tracks, every one gating most detections
     guarded = parts["associator"]

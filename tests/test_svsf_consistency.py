@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from trackers import make_tracker
-from trackers.filters import make_filter
-from trackers.filters.svsf import estimate_mse, generalised_covariance
-from trackers.filters.base import pda_covariance
-from trackers.models import ConstantVelocity
+from roadtrack.trackers import make_tracker
+from roadtrack.trackers.filters import make_filter
+from roadtrack.trackers.filters.svsf import estimate_mse, generalised_covariance
+from roadtrack.trackers.filters.base import pda_covariance
+from roadtrack.trackers.models import ConstantVelocity
 
 DT, SV, SW = 0.1, 4.0, 0.5
 N_RUNS, N_STEPS = 50, 100

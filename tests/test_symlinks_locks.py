@@ -16,11 +16,11 @@ from pathlib import Path
 
 import pytest
 
-from testbed.pipeline import outdir
-from testbed.common import safe_io
-from testbed.campaign import store
-from testbed.cli.main import main
-from testbed.config.strict import ConfigError
+from roadtrack.testbed.pipeline import outdir
+from roadtrack.testbed.common import safe_io
+from roadtrack.testbed.campaign import store
+from roadtrack.testbed.cli.main import main
+from roadtrack.testbed.config.strict import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent
 FAST = ["--set", "sensor.lidar.azimuth_step_deg=1.0", "--quiet"]  # 11,520 rays per scan instead of 72,000
@@ -74,7 +74,8 @@ def _refused(code: int, err: list[str], link: str, target: str, exit_code: int =
 
 @pytest.fixture
 def no_simulation(monkeypatch):
-    import testbed.pipeline.run
+    import roadtrack.testbed.pipeline.run
+    from roadtrack import testbed
 
     def never(*args, **kwargs):
         raise AssertionError("a simulation ran")
@@ -125,7 +126,8 @@ def test_a_link_at_the_lock_or_staged_folder_name_is_refused(capsys, tmp_path, n
 
 
 def test_a_link_planted_at_incomplete_during_a_run_is_left_alone(capsys, tmp_path, monkeypatch):
-    import testbed.pipeline.run
+    import roadtrack.testbed.pipeline.run
+    from roadtrack import testbed
 
     victim = _victim(tmp_path)
     out = tmp_path / "r"
@@ -161,7 +163,7 @@ def test_write_atomic_refuses_a_link_at_its_temporary_and_final_name(tmp_path):
 
 
 def test_the_recording_is_never_written_through_a_link(tmp_path):
-    from testbed.recording.recorder import Recorder
+    from roadtrack.testbed.recording.recorder import Recorder
 
     victim = _victim(tmp_path)
     (tmp_path / "run.rrd").symlink_to(victim)
@@ -171,8 +173,8 @@ def test_the_recording_is_never_written_through_a_link(tmp_path):
 
 
 def test_write_settings_never_follows_a_link(tmp_path):
-    from testbed.perception.report import write_settings
-    from testbed.scenario.spec import SCENARIO_DIR, read_toml
+    from roadtrack.testbed.perception.report import write_settings
+    from roadtrack.testbed.scenario.spec import SCENARIO_DIR, read_toml
 
     data = read_toml(SCENARIO_DIR / "cut_in_out.toml")
     earlier = tmp_path / "earlier.toml"
@@ -267,7 +269,7 @@ def _wait_for_pid(path: Path, pid: int, proc: subprocess.Popen, timeout: float =
 
 def test_a_second_run_into_a_folder_being_written_is_refused(capsys, tmp_path):
     out = tmp_path / "r"
-    first = subprocess.Popen([sys.executable, "-m", "testbed.cli.main", *_run(out, duration=6.0)], cwd=REPO,
+    first = subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli.main", *_run(out, duration=6.0)], cwd=REPO,
                              env=dict(os.environ, PYTHONPATH=str(REPO), RERUN_ANALYTICS="0"),
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -291,7 +293,7 @@ def test_a_second_run_into_a_folder_being_written_is_refused(capsys, tmp_path):
 
 
 def test_a_killed_writer_leaves_no_stale_lock(tmp_path):
-    code = ("import sys, time\nfrom testbed.pipeline.outdir import Staging\nstage = Staging(sys.argv[1])\n"
+    code = ("import sys, time\nfrom roadtrack.testbed.pipeline.outdir import Staging\nstage = Staging(sys.argv[1])\n"
             "print('locked', flush=True)\ntime.sleep(60)\n")
     holder = subprocess.Popen([sys.executable, "-c", code, str(tmp_path / "r")], cwd=REPO, stdout=subprocess.PIPE,
                               text=True)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from testbed.reproduce.thesis import synthetic as sy
-from trackers.filters import make_filter
+from roadtrack.testbed.reproduce.thesis import synthetic as sy
+from roadtrack.trackers.filters import make_filter
 
 
 def test_truth_segments_follow_their_models():

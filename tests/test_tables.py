@@ -6,8 +6,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from testbed.pipeline import tables
-from testbed.pipeline.tables import TableLog
+from roadtrack.testbed.pipeline import tables
+from roadtrack.testbed.pipeline.tables import TableLog
 
 COLUMNS = dict(frame=np.int64, x=np.float64, status=object, cov=np.float64)
 

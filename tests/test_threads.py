@@ -7,10 +7,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-from testbed.common.threads import DEFAULTED, THREAD_VARS, one_thread_per_process, set_by_user
+from roadtrack.testbed.common.threads import DEFAULTED, THREAD_VARS, one_thread_per_process, set_by_user
 
 REPO = Path(__file__).resolve().parents[1]
-SHOW = ("import os, sys\nfrom testbed.cli.main import main\nbefore = 'numpy' in sys.modules\nmain(['keys'])\n"
+SHOW = ("import os, sys\nfrom roadtrack.testbed.cli.main import main\nbefore = 'numpy' in sys.modules\nmain(['keys'])\n"
         "print(before, *(os.environ.get(v) for v in %r), file=sys.stderr)" % (THREAD_VARS,))
 
 

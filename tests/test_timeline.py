@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from testbed.scoring.evaluate import score
-from testbed.scoring.timeline import _runs, car_timeline, draw_timeline
+from roadtrack.testbed.scoring.evaluate import score
+from roadtrack.testbed.scoring.timeline import _runs, car_timeline, draw_timeline
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -61,13 +61,13 @@ def test_timeline_has_the_cars_tracks_relabels_and_false_tracks_the_scores_count
 
 def test_testbed_run_writes_the_timeline(tmp_path):
     out = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "testbed.cli.main", "run", "cut_in_out", "--set", "duration_s=3",
+    proc = subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli.main", "run", "cut_in_out", "--set", "duration_s=3",
                            "--record", "tracks", "--out", str(out), "--quiet"], capture_output=True, text=True,
                           cwd=REPO, timeout=300, env=dict(os.environ, RERUN_ANALYTICS="0"))
     assert proc.returncode == 0, proc.stderr
     assert "timeline.png" in proc.stdout
     assert (out / "timeline.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    proc = subprocess.run([sys.executable, "-m", "testbed.cli.main", "run", "cut_in_out", "--set", "duration_s=1",
+    proc = subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli.main", "run", "cut_in_out", "--set", "duration_s=1",
                            "--no-record", "--no-plot", "--out", str(tmp_path / "bare"), "--quiet"],
                           capture_output=True, text=True, cwd=REPO, timeout=300)
     assert proc.returncode == 0, proc.stderr
@@ -76,8 +76,8 @@ def test_testbed_run_writes_the_timeline(tmp_path):
 
 def test_a_timeline_that_cannot_be_drawn_is_a_warning_and_the_run_stands(tmp_path, monkeypatch, capsys):
     """If drawing fails, `testbed run` still commits the run (exit 0, no INCOMPLETE) and says so in one line."""
-    import testbed.pipeline.plots as plots
-    from testbed.cli.main import main
+    import roadtrack.testbed.pipeline.plots as plots
+    from roadtrack.testbed.cli.main import main
 
     def broken(folder):
         raise ValueError("no figure today")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from trackers import make_tracker
+from roadtrack.trackers import make_tracker
 
 DT = 0.1
 SIGMA = 0.3
@@ -138,7 +138,7 @@ def test_the_duplicate_test_keeps_the_recently_detected_well_localised_track():
 
 
 def test_duplicate_counts_rank_the_pair():
-    from trackers.management import duplicate_counts
+    from roadtrack.trackers.management import duplicate_counts
 
     z_hat = np.array([[0.0, 0.0], [0.5, 0.0]])
     S_small, S_big = np.eye(2) * 0.25, np.eye(2) * 100.0
@@ -162,10 +162,10 @@ def test_duplicate_counts_rank_the_pair():
 def test_a_truck_seen_from_behind_has_the_nominal_pd_at_its_centre():
     """The occlusion-aware P_D input (testbed/sensing): a 14.9 m truck 20 m behind the sensor, one lane over, hit
     by ~1000 points, used to get P_D 0 at its centre (its own rear face 'blocked' a car-sized box there)."""
-    from sensors import LidarConfig, RoadMap
-    from sensors.lidar import scan
-    from testbed.sensing import occlusion_pd
-    from testbed.scenario.spec import load_scenario
+    from roadtrack.sensors import LidarConfig, RoadMap
+    from roadtrack.sensors.lidar import scan
+    from roadtrack.testbed.sensing import occlusion_pd
+    from roadtrack.testbed.scenario.spec import load_scenario
 
     scn = load_scenario("highway_benchmark")
     truck = np.array([[-20.0, -4.0, 14.9, 2.5, 3.8, 0.0, 0.0]])
@@ -181,7 +181,7 @@ def test_a_truck_seen_from_behind_has_the_nominal_pd_at_its_centre():
 
 
 def test_a_track_takes_the_class_of_the_detection_it_is_associated_with():
-    from testbed.tracking.builtin import truck_tracks
+    from roadtrack.testbed.tracking.builtin import truck_tracks
 
     W = np.array([[0.9, 0.0], [0.0, 0.3], [0.1, 0.8]])
     got = truck_tracks(np.array([4, 5, 6]), W, np.array([15.4, 4.6]), {5: True, 6: True})

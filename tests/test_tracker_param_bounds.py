@@ -13,10 +13,10 @@ import warnings
 import numpy as np
 import pytest
 
-from trackers import ParamError, make_tracker
-from trackers.management import ManagementParams
-from trackers.params import FLOAT_MAX, FLOAT_MIN
-from trackers.registry import ASSOCIATORS, FILTERS
+from roadtrack.trackers import ParamError, make_tracker
+from roadtrack.trackers.management import ManagementParams
+from roadtrack.trackers.params import FLOAT_MAX, FLOAT_MIN
+from roadtrack.trackers.registry import ASSOCIATORS, FILTERS
 
 DT = 0.1
 CANDIDATES = (0.0, FLOAT_MIN, FLOAT_MAX, -FLOAT_MAX)
@@ -100,8 +100,8 @@ def test_values_beyond_the_bounds_are_refused_in_one_line(role, key, value, word
 
 def test_check_refuses_an_overflowing_sigma_v_that_used_to_pass(tmp_path):
     """`testbed check` accepts exactly what `run` can run: sigma_v = 1e308 passed check and overflowed at frame 2."""
-    from testbed.cli.check import cmd_check
-    from testbed.config.strict import ConfigError
+    from roadtrack.testbed.cli.check import cmd_check
+    from roadtrack.testbed.config.strict import ConfigError
     import argparse
 
     with pytest.raises(ConfigError) as info:

@@ -12,16 +12,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from testbed.reproduce.thesis import synthetic as sy
-from trackers import (ASSOCIATORS, AssociationInput, AssociationParams, JPDAOverflowError, JPDAOverflowWarning,
+from roadtrack.testbed.reproduce.thesis import synthetic as sy
+from roadtrack.trackers import (ASSOCIATORS, AssociationInput, AssociationParams, JPDAOverflowError, JPDAOverflowWarning,
                       global_nearest_neighbour, jpda, nearest_neighbour, pda)
-from trackers.association.an import all_neighbours
-from trackers.association.jpda import clusters
-from trackers.association.roles import ANParams, APDAParams, JPDAParams
-from trackers.filters import make_filter
-from trackers.gating import gate_probability, mahalanobis2_and_log_gaussian
-from trackers.params import load
-from trackers.tracker import gate_volume
+from roadtrack.trackers.association.an import all_neighbours
+from roadtrack.trackers.association.jpda import clusters
+from roadtrack.trackers.association.roles import ANParams, APDAParams, JPDAParams
+from roadtrack.trackers.filters import make_filter
+from roadtrack.trackers.gating import gate_probability, mahalanobis2_and_log_gaussian
+from roadtrack.trackers.params import load
+from roadtrack.trackers.tracker import gate_volume
 
 P = AssociationParams(pd=0.9, pg=0.99966, clutter_density=1e-2)
 
@@ -122,9 +122,9 @@ def test_gate_probability_reaches_the_weights_and_the_score_by_hand(kind, table,
     beta0 = (1 - P_D P_G) / (1 - P_D P_G + L) (4.10)-(4.13) and the score increment ln(1 - P_D P_G + L) (1.35),
     with P_G = pg, or 1 - exp(-8) = 0.99966 (the alpha = 16 gate's chi-square mass) when pg is None. The
     single-track P_D P_G-form JPDA is the PDA; APDA is the PDA when no layer is given (kf: nothing chatters)."""
-    from trackers import make_tracker
-    from trackers.state import FilterState
-    from trackers.tracker import Track
+    from roadtrack.trackers import make_tracker
+    from roadtrack.trackers.state import FilterState
+    from roadtrack.trackers.tracker import Track
 
     extra = {} if pg is None else {"pg": pg}
     trk = make_tracker(f"{kind}-kf", sigma_w=1.0, pd=0.8, clutter_density=0.1, associator={**table, **extra})
@@ -144,7 +144,7 @@ def test_gate_probability_reaches_the_weights_and_the_score_by_hand(kind, table,
                                           (1.5, "1.5 is not allowed; must be in (0, 1]"),
                                           ("high", "expected float or NoneType, got 'high'")])
 def test_a_bad_gate_probability_is_a_one_line_error(value, words):
-    from trackers import ParamError, make_tracker
+    from roadtrack.trackers import ParamError, make_tracker
 
     with pytest.raises(ParamError) as info:
         make_tracker("jpda-kf", associator={"pg": value})

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from trackers import ConstantVelocity, ExtendedKalmanFilter, FILTERS, RangeBearing, make_filter, pda
-from trackers.association.params import AssociationParams
-from trackers.gating import gate_probability, mahalanobis2_and_log_gaussian
+from roadtrack.trackers import ConstantVelocity, ExtendedKalmanFilter, FILTERS, RangeBearing, make_filter, pda
+from roadtrack.trackers.association.params import AssociationParams
+from roadtrack.trackers.gating import gate_probability, mahalanobis2_and_log_gaussian
 
 KINDS = sorted(FILTERS)
 SENSIBLE: dict[str, dict] = {}  # kind -> parameters for the contract runs when the defaults do not fit

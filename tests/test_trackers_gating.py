@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2, multivariate_normal
 
-from trackers import gate, gate_probability, innovations, log_gaussian, mahalanobis2
+from roadtrack.trackers import gate, gate_probability, innovations, log_gaussian, mahalanobis2
 
 
 def test_batched_distances_and_log_likelihoods_match_explicit_formulas():

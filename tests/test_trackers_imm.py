@@ -9,12 +9,12 @@ from unittest import mock
 import numpy as np
 import pytest
 
-from trackers import CoordinatedTurn, ParamError, make_filter, make_tracker, pda, preset
-from trackers.association.params import AssociationParams
-from trackers.errors import FilterError
-from trackers.filters.imm import IMMFilter, IMMState
-from trackers.gating import log_gaussian
-from trackers.registry import WRAPPERS
+from roadtrack.trackers import CoordinatedTurn, ParamError, make_filter, make_tracker, pda, preset
+from roadtrack.trackers.association.params import AssociationParams
+from roadtrack.trackers.errors import FilterError
+from roadtrack.trackers.filters.imm import IMMFilter, IMMState
+from roadtrack.trackers.gating import log_gaussian
+from roadtrack.trackers.registry import WRAPPERS
 from state_fields import state_fields
 
 X0 = np.array([10.0, -5.0, 20.0, 1.0])
@@ -351,7 +351,7 @@ def test_the_batched_imm_equals_the_per_track_imm_to_1e_12(setting, T):
     x, P, e_post, mu, the info entries and every field of every mode state equal to 1e-12 (relative, or
     absolute near 0); a track without a measurement keeps its prediction (the same object), or with
     memory_after_miss = "reset" in its modes the prediction with every memory at 0."""
-    from trackers.filters.base import ModelFilter
+    from roadtrack.trackers.filters.base import ModelFilter
 
     imm = make_filter("imm", sigma_v=2.0, sigma_w=0.5, **IMM_BATCHED[setting])
     rng = np.random.default_rng(17)
@@ -400,7 +400,7 @@ def test_the_batched_imm_raises_as_the_per_track_imm():
     """Bad input: the batched forms raise the per-track path's ValueError (same message) for non-finite used
     innovations or weights, rows not summing to 1, a bad dt; FilterError for a non-finite covariance.
     A non-finite innovation the weights do not use is ignored by both."""
-    from trackers.filters.base import ModelFilter
+    from roadtrack.trackers.filters.base import ModelFilter
 
     imm = make_filter("imm")
     preds = imm.predict_many([imm.initial_state(X0 + k, P0) for k in range(3)], 0.1)

@@ -4,7 +4,7 @@ import ast
 import sys
 from pathlib import Path
 
-import trackers
+from roadtrack import trackers
 
 REPO = Path(__file__).resolve().parents[1]
 FORBIDDEN = {"open3d", "rerun", "highway_env", "gymnasium", "sensors", "testbed"}

@@ -10,11 +10,11 @@ import time
 import numpy as np
 import pytest
 
-from trackers import AssociationParams, JPDAOverflowError, jpda
-from trackers.association.ehm import net_marginals, plan
-from trackers.association.jpda import clusters
-from trackers.association.params import joint_event_terms
-from trackers.gating import gate, mahalanobis2_and_log_gaussian
+from roadtrack.trackers import AssociationParams, JPDAOverflowError, jpda
+from roadtrack.trackers.association.ehm import net_marginals, plan
+from roadtrack.trackers.association.jpda import clusters
+from roadtrack.trackers.association.params import joint_event_terms
+from roadtrack.trackers.gating import gate, mahalanobis2_and_log_gaussian
 
 LAM = 0.05
 

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from trackers import FilterError, FilterState, cv_noise_gain, cv_process_noise, cv_transition, make_filter
-from trackers.initiation import single_point, two_point
-from trackers.models import PositionMeasurement
-from trackers.gating import mahalanobis2
+from roadtrack.trackers import FilterError, FilterState, cv_noise_gain, cv_process_noise, cv_transition, make_filter
+from roadtrack.trackers.initiation import single_point, two_point
+from roadtrack.trackers.models import PositionMeasurement
+from roadtrack.trackers.gating import mahalanobis2
 
 SIGMA_V, SIGMA_W, DT = 2.0, 0.3, 0.1
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from trackers import ManagementParams, gate_probability, initial_score, make_tracker, score_decide, score_increment
-from trackers.management import m_of_n_decide
+from roadtrack.trackers import ManagementParams, gate_probability, initial_score, make_tracker, score_decide, score_increment
+from roadtrack.trackers.management import m_of_n_decide
 
 PD, PG, LAM = 0.9, gate_probability(16.0, 2), 1e-2
 

@@ -12,15 +12,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from testbed.reproduce.thesis import synthetic as sy
-from trackers import make_tracker
-from trackers.filters import FILTERS, KalmanFilter, make_filter
-from trackers.filters.gvbl import GVBLSVSF
-from trackers.filters.kalman import ExtendedKalmanFilter
-from trackers.filters.svsf import GeneralisedSVSF, generalised_covariance
-from trackers.models import ConstantVelocity, CoordinatedTurn, PositionMeasurement
-from trackers.params import ParamError
-from trackers.state import FilterState
+from roadtrack.testbed.reproduce.thesis import synthetic as sy
+from roadtrack.trackers import make_tracker
+from roadtrack.trackers.filters import FILTERS, KalmanFilter, make_filter
+from roadtrack.trackers.filters.gvbl import GVBLSVSF
+from roadtrack.trackers.filters.kalman import ExtendedKalmanFilter
+from roadtrack.trackers.filters.svsf import GeneralisedSVSF, generalised_covariance
+from roadtrack.trackers.models import ConstantVelocity, CoordinatedTurn, PositionMeasurement
+from roadtrack.trackers.params import ParamError
+from roadtrack.trackers.state import FilterState
 
 FULL = bool(os.environ.get("ROADTRACK_FULL"))  # run the slow Monte Carlo variants (as tests/test_trackers_filters)
 SV, SW, DT = 0.5, 3.0, 0.5  # thesis §4.6.1: sigma_v^2 = 0.5^2, sigma_w^2 = 3^2; Ts = 0.5 s ([I]: inferred from the thesis's numbers)
@@ -493,7 +493,7 @@ def test_the_batched_predict_and_update_equal_the_per_track_ones_to_1e_12(kind, 
     misses, first updates without z_prev; CT models turning and straight) against the per-track predict /
     predicted_measurement / update (ModelFilter.update_many's loop): every field, the layers and diagnostics
     included, equal to 1e-12 (relative, or absolute near 0)."""
-    from trackers.filters.base import ModelFilter
+    from roadtrack.trackers.filters.base import ModelFilter
 
     flt = make_filter(kind, sigma_v=2.0, sigma_w=0.5, **params)
     rng = np.random.default_rng(3)
@@ -537,7 +537,7 @@ def test_the_batched_predict_and_update_equal_the_per_track_ones_to_1e_12(kind, 
 # ---------------------------------------------------------------- the open choices of issue 21 (thesis silent)
 def _svsf_prior(flt, x=(0.0, 0.0, 0.0, 0.0), z_prev=(-1.0, 0.0), tau=1.0, e_post=(0.0, 0.0)):
     """A predicted SVSFState by hand: x, P = I, projected measurement z_prev of the last update tau seconds ago."""
-    from trackers.filters.svsf import SVSFState
+    from roadtrack.trackers.filters.svsf import SVSFState
 
     return SVSFState(x=np.array(x), P=np.eye(4), e_post=np.array(e_post), F=ConstantVelocity(1.0).transition(tau),
                      z_prev=np.array(z_prev), tau=tau, e_vel=np.zeros(2))
@@ -628,7 +628,7 @@ def test_memory_after_a_miss_is_kept_or_reset(kind):
     gc-svsf by hand: x_pred = 0, P = I, e_post = (0.4, 0.6), gamma = 0.5, psi_z = 10, nu = (2, -1):
     K_u = diag(E_z / 10) with E_z = |e| + 0.5 |e_post| = (2.2, 1.3) kept, (2, 1) reset, so
     x_u = K_u e = (0.44, -0.13) kept, (0.4, -0.1) reset."""
-    from trackers.state import FilterState
+    from roadtrack.trackers.state import FilterState
 
     keep, reset = (make_filter(kind, sigma_v=SV, sigma_w=SW, memory_after_miss=m) for m in ("keep", "reset"))
     sp = predicted(keep, np.random.default_rng(22))
@@ -685,8 +685,8 @@ def test_apda_layer_previous_capped_or_psi_max_by_hand():
     (1.0, 0.5) with "previous_capped" and (5, 5) with "psi_max"; before any update both report psi_max.
     Through apda-gvbl-svsf on a scan with one measurement at nu = (2, 0): chattering C = max(0, |nu| - layer)
     (5.37) = (1, 0), norm 1, and APDA active; with "psi_max" C = 0 and the weights are the PDA's."""
-    from trackers.filters.gvbl import GVBLState
-    from trackers.tracker import Track
+    from roadtrack.trackers.filters.gvbl import GVBLState
+    from roadtrack.trackers.tracker import Track
 
     for mode, lay in (("previous_capped", [1.0, 0.5]), ("psi_max", [5.0, 5.0])):
         flt = make_filter("gvbl-svsf", sigma_v=1.0, sigma_w=1.0, psi_max=5.0, apda_layer=mode)

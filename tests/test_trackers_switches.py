@@ -22,10 +22,10 @@ from unittest import mock
 import numpy as np
 import pytest
 
-from trackers.filters import FILTERS, make_filter
-from trackers.filters.base import batch_predict, batch_predicted_measurements, batch_update, takes_detection_R
-from trackers.filters.imm import IMMFilter
-from trackers.registry import WRAPPERS
+from roadtrack.trackers.filters import FILTERS, make_filter
+from roadtrack.trackers.filters.base import batch_predict, batch_predicted_measurements, batch_update, takes_detection_R
+from roadtrack.trackers.filters.imm import IMMFilter
+from roadtrack.trackers.registry import WRAPPERS
 from state_fields import state_fields
 
 SIGMAS = {"sigma_v": 2.0, "sigma_w": 0.5}

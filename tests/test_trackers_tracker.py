@@ -5,11 +5,11 @@ import warnings
 import numpy as np
 import pytest
 
-import trackers
-from trackers import (FILTERS, ParamError, available_trackers, cv_noise_gain, cv_transition, make_tracker,
+from roadtrack import trackers
+from roadtrack.trackers import (FILTERS, ParamError, available_trackers, cv_noise_gain, cv_transition, make_tracker,
                       parse_tracker_name)
-from trackers.initiation import single_point
-from trackers.registry import WRAPPERS
+from roadtrack.trackers.initiation import single_point
+from roadtrack.trackers.registry import WRAPPERS
 
 DT = 0.1
 
@@ -263,7 +263,7 @@ def test_info_diagnostics_equal_the_track_by_track_expansion(case):
     states share keys and sizes or not."""
     from types import SimpleNamespace
 
-    from trackers.tracker import _expand, info_diagnostics
+    from roadtrack.trackers.tracker import _expand, info_diagnostics
 
     rng = np.random.default_rng(7)
 

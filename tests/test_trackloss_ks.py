@@ -10,10 +10,10 @@ import pytest
 from scipy.special import gammaln, kolmogorov
 from scipy.stats import kstwo, poisson
 
-from testbed.reproduce.thesis import synthetic as syn
-from trackers import ManagementParams, ParamError, make_tracker
-from trackers.trackloss import ks
-from trackers.trackloss import regime as rg
+from roadtrack.testbed.reproduce.thesis import synthetic as syn
+from roadtrack.trackers import ManagementParams, ParamError, make_tracker
+from roadtrack.trackers.trackloss import ks
+from roadtrack.trackers.trackloss import regime as rg
 
 
 # ------------------------------------------------------------------------------------------ critical values

@@ -8,14 +8,14 @@ import numpy as np
 from highway_env.road.road import Road
 import pytest
 
-from testbed.world import simulation
-from testbed.config.strict import ConfigError
-from testbed.world.roadside import roadside_boxes
-from testbed.pipeline.run import run_scenario
-from testbed.sensing import rng_streams
-from testbed.scenario.spec import RoadsideSpec, RoadSpec, TrafficSpec, load_scenario, parse_scenario
-from testbed.world.simulation import Simulation, build_network, road_edges
-from testbed.world.traffic import (IDM_C, TrafficNetwork, TrafficRoad, entry_flux, idm_fit_speed,
+from roadtrack.testbed.world import simulation
+from roadtrack.testbed.config.strict import ConfigError
+from roadtrack.testbed.world.roadside import roadside_boxes
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.sensing import rng_streams
+from roadtrack.testbed.scenario.spec import RoadsideSpec, RoadSpec, TrafficSpec, load_scenario, parse_scenario
+from roadtrack.testbed.world.simulation import Simulation, build_network, road_edges
+from roadtrack.testbed.world.traffic import (IDM_C, TrafficNetwork, TrafficRoad, entry_flux, idm_fit_speed,
                              sample_entry, traffic_rngs)
 
 
@@ -331,7 +331,7 @@ def test_clear_of_lanes_keeps_rails_beside_a_lane_and_drops_boxes_on_it():
     """One straight lane along x (centre y = 0, 4 m wide). A guard rail 0.3 m wide parallel to it at
     y = 2.3 m (0.15 m clear of the edge) stays; the same rail at y = 2.1 m, a 2 m sign panel turned
     across the lane at y = 2.8 m (reaches y = 1.8 m) and a bush on the centre line are left out."""
-    from testbed.world.roadside import clear_of_lanes
+    from roadtrack.testbed.world.roadside import clear_of_lanes
 
     s = np.arange(0.0, 101.0)
     centre = np.column_stack([s, np.zeros_like(s)])

@@ -16,11 +16,11 @@ from pathlib import Path
 import pytest
 from rerun.chunk import RrdReader
 
-from testbed.pipeline.run import run_scenario
-from testbed.recording.layout import CHASE_EYE, TOP_DOWN_EYE, TRAIL_S
-from testbed.recording.recorder import Recorder
-from testbed.recording.timecursor import set_time_request
-from testbed.scenario.spec import load_scenario
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.recording.layout import CHASE_EYE, TOP_DOWN_EYE, TRAIL_S
+from roadtrack.testbed.recording.recorder import Recorder
+from roadtrack.testbed.recording.timecursor import set_time_request
+from roadtrack.testbed.scenario.spec import load_scenario
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -109,7 +109,7 @@ def _free_port() -> int:
                                          ("soon", "argument --at: expected seconds >= 0, got 'soon'"),
                                          ("2.5", "error: --at: 2.5 s is past the end of the recording")])
 def test_a_bad_start_time_is_one_line(run_dir, at, message):
-    proc = subprocess.run([sys.executable, "-m", "testbed.cli", "view", str(run_dir), "--web", "--at", at],
+    proc = subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli", "view", str(run_dir), "--web", "--at", at],
                           cwd=REPO, capture_output=True, text=True, timeout=60)
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr
@@ -121,7 +121,7 @@ def test_view_prints_its_address_and_serves_the_page_with_the_start_time(run_dir
     port = _free_port()
     env = dict(os.environ)
     env.pop("RUST_LOG", None)
-    proc = subprocess.Popen([sys.executable, "-m", "testbed.cli", "view", str(run_dir), "--web", "--port", str(port),
+    proc = subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli", "view", str(run_dir), "--web", "--port", str(port),
                              "--at", "1.5"], cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     try:

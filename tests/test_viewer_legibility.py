@@ -8,12 +8,12 @@ import pandas as pd
 import pytest
 from rerun.chunk import RrdReader
 
-from testbed.pipeline.run import run_scenario
-from testbed.recording import diagnostics as dg, palette as pal, slots
-from testbed.recording.legend import BACKGROUND, ENTRIES, ROW_PX, legend_image
-from testbed.recording.recorder import Recorder
-from testbed.recording.scene import LAYER_MIN_HALF_M, track_label
-from testbed.scenario.spec import load_scenario
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.recording import diagnostics as dg, palette as pal, slots
+from roadtrack.testbed.recording.legend import BACKGROUND, ENTRIES, ROW_PX, legend_image
+from roadtrack.testbed.recording.recorder import Recorder
+from roadtrack.testbed.recording.scene import LAYER_MIN_HALF_M, track_label
+from roadtrack.testbed.scenario.spec import load_scenario
 
 SOLID = 3  # rerun 0.41 FillMode.Solid
 

@@ -11,8 +11,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 RUN = """
 import numba.core.event as ev
-from testbed.pipeline.run import run_scenario
-from testbed.scenario.spec import load_scenario
+from roadtrack.testbed.pipeline.run import run_scenario
+from roadtrack.testbed.scenario.spec import load_scenario
 with ev.install_recorder("numba:compile") as rec:
     for name, over in [("highway_benchmark", {"duration_s": 1.0}), ("dense_motorway", {"duration_s": 1.0}),
                        ("cut_in_out", {"duration_s": 1.0, "sensor.pipeline": "thesis"})]:
@@ -28,7 +28,7 @@ def _python(code: str) -> subprocess.CompletedProcess:
 
 
 def test_the_warm_up_reaches_every_kernel_and_a_run_after_it_compiles_none():
-    warm = subprocess.run([sys.executable, "-m", "testbed.pipeline.warmup"], capture_output=True, text=True,
+    warm = subprocess.run([sys.executable, "-m", "roadtrack.testbed.pipeline.warmup"], capture_output=True, text=True,
                           cwd=REPO, timeout=900)
     assert warm.returncode == 0, warm.stderr
     assert warm.stdout.startswith("warm-up: ") and "numba kernels cached" in warm.stdout
@@ -50,9 +50,9 @@ def test_the_recorder_sees_a_compile_when_there_is_one(tmp_path):
 
 
 def test_every_module_with_cached_kernels_is_warmed():
-    from testbed.pipeline.warmup import KERNEL_MODULES
+    from roadtrack.testbed.pipeline.warmup import KERNEL_MODULES
 
-    with_kernels = {f"sensors.{p.stem}" for p in (REPO / "sensors").glob("*.py")
+    with_kernels = {f"roadtrack.sensors.{p.stem}" for p in (REPO / "sensors").glob("*.py")
                     if "@njit(cache=True)" in p.read_text(encoding="utf-8")}
     assert with_kernels == set(KERNEL_MODULES)
 
@@ -64,7 +64,7 @@ def test_the_first_compile_note_is_one_line_once_and_only_for_the_watched_module
 
     import numba
 
-    from testbed.pipeline.warmup import COMPILE_NOTE, first_compile_note
+    from roadtrack.testbed.pipeline.warmup import COMPILE_NOTE, first_compile_note
 
     def add(x):
         return x + 1
@@ -84,10 +84,10 @@ def test_the_first_compile_note_is_one_line_once_and_only_for_the_watched_module
 
 
 def test_testbed_warmup_is_a_command_and_says_where_the_cache_is():
-    out = subprocess.run([sys.executable, "-m", "testbed.cli.main", "warmup", "--help"], capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli.main", "warmup", "--help"], capture_output=True,
                          text=True, cwd=REPO, timeout=300)
     assert out.returncode == 0 and "numba kernels" in out.stdout
-    from testbed.pipeline.warmup import cache_folders
+    from roadtrack.testbed.pipeline.warmup import cache_folders
 
     folders = cache_folders()
     assert folders and all(os.path.isdir(f) and os.access(f, os.W_OK) for f in folders), folders

@@ -10,21 +10,21 @@ citation: [R] reconstructed (the extracted text is garbled or missing, the stand
 parameter).
 """
 
-from trackers.association import (ASSOCIATORS, AssociationInput, AssociationParams, AssociatorParams,
+from roadtrack.trackers.association import (ASSOCIATORS, AssociationInput, AssociationParams, AssociatorParams,
                                   global_nearest_neighbour, jpda, nearest_neighbour, pda)
-from trackers.errors import FilterError, JPDAOverflowError, JPDAOverflowWarning
-from trackers.filters import FILTERS, ExtendedKalmanFilter, Filter, KalmanFilter, make_filter, pda_covariance
-from trackers.gating import (gate, gate_probability, innovations, log_gaussian, mahalanobis2,
+from roadtrack.trackers.errors import FilterError, JPDAOverflowError, JPDAOverflowWarning
+from roadtrack.trackers.filters import FILTERS, ExtendedKalmanFilter, Filter, KalmanFilter, make_filter, pda_covariance
+from roadtrack.trackers.gating import (gate, gate_probability, innovations, log_gaussian, mahalanobis2,
                              mahalanobis2_and_log_gaussian)
-from trackers.management import ManagementParams, initial_score, score_decide, score_increment
-from trackers.models import (ConstantVelocity, CoordinatedTurn, PositionMeasurement, RangeBearing, cv_noise_gain,
+from roadtrack.trackers.management import ManagementParams, initial_score, score_decide, score_increment
+from roadtrack.trackers.models import (ConstantVelocity, CoordinatedTurn, PositionMeasurement, RangeBearing, cv_noise_gain,
                              cv_process_noise, cv_transition, measurement_noise, position_measurement_matrix)
-from trackers.params import ParamError
-from trackers.plugins import register_associator, register_filter
-from trackers.registry import (PAPER_TRACKERS, WRAPPERS, available_trackers, describe_tracker, make_tracker,
+from roadtrack.trackers.params import ParamError
+from roadtrack.trackers.plugins import register_associator, register_filter
+from roadtrack.trackers.registry import (PAPER_TRACKERS, WRAPPERS, available_trackers, describe_tracker, make_tracker,
                                named_trackers, parse_tracker_name, plugin_trackers, preset)
-from trackers.state import FilterState
-from trackers.tracker import ScanRecord, StepInfo, StepResult, Track, Tracker
+from roadtrack.trackers.state import FilterState
+from roadtrack.trackers.tracker import ScanRecord, StepInfo, StepResult, Track, Tracker
 
 __all__ = [
     "ASSOCIATORS", "PAPER_TRACKERS", "AssociationInput", "AssociationParams", "AssociatorParams", "ConstantVelocity",
@@ -38,6 +38,6 @@ __all__ = [
     "score_increment",
 ]
 
-from trackers import plugins as _plugins  # noqa: E402 - last: a plug-in may import anything above
+from roadtrack.trackers import plugins as _plugins  # noqa: E402 - last: a plug-in may import anything above
 
 _plugins.load_all(WRAPPERS)  # installed filters and associators (entry points roadtrack.filters, roadtrack.associators)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import gammainc
 
-from trackers.errors import FilterError
+from roadtrack.trackers.errors import FilterError
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 

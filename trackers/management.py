@@ -50,9 +50,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trackers.association.pda import pda_log_denominator
-from trackers.params import NON_NEGATIVE, OPEN_PROBABILITY, POSITIVE, ParamError, load, param
-from trackers.trackloss.regime import RegimeConfig
+from roadtrack.trackers.association.pda import pda_log_denominator
+from roadtrack.trackers.params import NON_NEGATIVE, OPEN_PROBABILITY, POSITIVE, ParamError, load, param
+from roadtrack.trackers.trackloss.regime import RegimeConfig
 
 
 @functools.lru_cache(maxsize=64)

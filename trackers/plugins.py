@@ -95,8 +95,8 @@ def register_filter(name: str, kind) -> None:
     its parameters are loaded and bounded like the built-ins'. Registering a name again from Python replaces
     it; ValueError (one line) for an invalid name, a built-in's or an installed plug-in's, TypeError for a kind
     of the wrong type (docs/api.md, "Plug-in filters and associators")."""
-    from trackers.filters import FILTERS
-    from trackers.filters.params import FilterKind
+    from roadtrack.trackers.filters import FILTERS
+    from roadtrack.trackers.filters.params import FilterKind
 
     _register("filter", name, kind, FILTERS, FilterKind)
 
@@ -104,7 +104,7 @@ def register_filter(name: str, kind) -> None:
 def register_associator(name: str, kind) -> None:
     """Add the associator ``kind`` (a trackers.association.AssociatorKind) as ``name`` in this process:
     ``<name>-<filter>`` is then a tracker name for every filter. Errors as :func:`register_filter`."""
-    from trackers.association.roles import ASSOCIATORS, AssociatorKind
+    from roadtrack.trackers.association.roles import ASSOCIATORS, AssociatorKind
 
     _register("associator", name, kind, ASSOCIATORS, AssociatorKind)
 
@@ -130,9 +130,9 @@ def _register(role: str, name: str, kind, registry: dict, kind_type: type) -> No
 def load_all(wrappers) -> None:
     """Register the installed filter and associator plug-ins (called once, when ``trackers`` is imported);
     ``wrappers``: the wrapper names (trackers.registry.WRAPPERS), which no plug-in may take."""
-    from trackers.association.roles import ASSOCIATORS, AssociatorKind
-    from trackers.filters import FILTERS
-    from trackers.filters.params import FilterKind
+    from roadtrack.trackers.association.roles import ASSOCIATORS, AssociatorKind
+    from roadtrack.trackers.filters import FILTERS
+    from roadtrack.trackers.filters.params import FilterKind
 
     taken = set(wrappers)
     BUILTINS["filter"] = frozenset(taken | set(FILTERS))

@@ -17,12 +17,12 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Callable
 
-from trackers.association.roles import ASSOCIATORS, build_associator
-from trackers.filters import FILTERS, build_filter
-from trackers.filters.imm import imm_wrapper
-from trackers.management import MANAGERS, ManagementParams, build_management
-from trackers.params import ParamError, load
-from trackers.tracker import Tracker
+from roadtrack.trackers.association.roles import ASSOCIATORS, build_associator
+from roadtrack.trackers.filters import FILTERS, build_filter
+from roadtrack.trackers.filters.imm import imm_wrapper
+from roadtrack.trackers.management import MANAGERS, ManagementParams, build_management
+from roadtrack.trackers.params import ParamError, load
+from roadtrack.trackers.tracker import Tracker
 
 # wrapper name -> fn(base filter kind) -> (filter kind, default filter table); see trackers.filters.imm
 WRAPPERS: dict[str, Callable[[str], tuple[str, dict[str, Any]]]] = {"imm": imm_wrapper}
@@ -66,7 +66,7 @@ def named_trackers(all_combinations: bool = False) -> list[str]:
 def plugin_trackers() -> list[str]:
     """The combinations of the installed plug-in filters with every associator and of the plug-in associators
     with every filter (no wrapper), sorted (trackers.plugins)."""
-    from trackers.plugins import PLUGINS
+    from roadtrack.trackers.plugins import PLUGINS
 
     filters = [f for f in FILTERS if f not in WRAPPERS]
     names = {f"{a}-{f}" for a in ASSOCIATORS for f in PLUGINS["filter"]}

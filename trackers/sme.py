@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from trackers.errors import FilterError
-from trackers.models import ConstantVelocity
+from roadtrack.trackers.errors import FilterError
+from roadtrack.trackers.models import ConstantVelocity
 
 FORMS = ("powers", "products")
 

@@ -13,16 +13,16 @@ from typing import Any, Callable
 import numpy as np
 from scipy.special import gammaln
 
-from trackers.association.roles import AssociationInput, AssociatorKind, AssociatorParams
-from trackers.filters.base import (Filter, batch_predict, batch_predicted_measurements, batch_update, check_detection_R,
+from roadtrack.trackers.association.roles import AssociationInput, AssociatorKind, AssociatorParams
+from roadtrack.trackers.filters.base import (Filter, batch_predict, batch_predicted_measurements, batch_update, check_detection_R,
                                    pair_covariances, takes_detection_R, weighted_R)
-from trackers.gating import gate, mahalanobis2_and_log_gaussian
-from trackers.initiation import pair_candidates, single_point, two_point
-from trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
+from roadtrack.trackers.gating import gate, mahalanobis2_and_log_gaussian
+from roadtrack.trackers.initiation import pair_candidates, single_point, two_point
+from roadtrack.trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
                                  position_std, score_decide, score_increment)
-from trackers.road import RoadInput, centripetal_input, cross_lane_std, input_shift, lane_pseudo_measurement
-from trackers.state import FilterState
-from trackers.trackloss.regime import (ROW_FIXED, WINDOW_LOW, RegimeState, advance, alpha_of, assess_rolled,
+from roadtrack.trackers.road import RoadInput, centripetal_input, cross_lane_std, input_shift, lane_pseudo_measurement
+from roadtrack.trackers.state import FilterState
+from roadtrack.trackers.trackloss.regime import (ROW_FIXED, WINDOW_LOW, RegimeState, advance, alpha_of, assess_rolled,
                                       initial_state, roll_windows, window_holds, window_of_records, window_rows)
 
 PdInput = np.ndarray | float | Callable[[np.ndarray], np.ndarray] | None

@@ -220,7 +220,7 @@ def settings_tracker(tracker: str) -> str:
 def for_tracker(params: dict[str, Any], tracker: str) -> dict[str, Any]:
     """``params`` without the tracker-table keys (``tracker.filter.X``, ...) that ``tracker`` does not have, so a
     grid over, e.g., ``tracker.associator.max_events`` can compare JPDA with GNN (GNN runs without the key)."""
-    from trackers.registry import known_keys
+    from roadtrack.trackers.registry import known_keys
 
     known = known_keys(settings_tracker(tracker))
     out = {}
@@ -233,7 +233,7 @@ def for_tracker(params: dict[str, Any], tracker: str) -> dict[str, Any]:
 
 def _check_tracker_keys(keys: list[tuple[str, str]], trackers: tuple[str, ...]) -> None:
     """A tracker-table key must belong to at least one of the campaign's trackers."""
-    from trackers.registry import known_keys
+    from roadtrack.trackers.registry import known_keys
 
     known = [known_keys(settings_tracker(t)) for t in trackers]
     for where, key in keys:
@@ -242,7 +242,7 @@ def _check_tracker_keys(keys: list[tuple[str, str]], trackers: tuple[str, ...]) 
             continue
         role, name = table.split(".")[1], key[len(table):].split(".")[0]
         if not any(name in k[role] for k in known):
-            from trackers import ASSOCIATORS, FILTERS
+            from roadtrack.trackers import ASSOCIATORS, FILTERS
 
             kinds = set(FILTERS) | set(ASSOCIATORS)  # per-kind sub-tables, accepted by every tracker
             allowed = sorted(set().union(*(k[role] for k in known)) - {"kind"} - kinds)
@@ -313,7 +313,7 @@ def _is_file(path: Path) -> bool:
 
 def _check_trackers(trackers: tuple[str, ...]) -> None:
     """Each a built-in combination or a named tracker (Stone Soup's, a plug-in's), loadable now, and once."""
-    from trackers import parse_tracker_name
+    from roadtrack.trackers import parse_tracker_name
 
     from ..tracking.registry import is_named
     from ..tracking.user import load_tracker

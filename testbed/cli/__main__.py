@@ -1,4 +1,4 @@
-"""``python -m testbed.cli``: the ``testbed`` command."""
+"""``python -m roadtrack.testbed.cli``: the ``testbed`` command."""
 import sys
 
 from .main import main

@@ -1,7 +1,7 @@
 """``testbed campaign run|resume|report``: Monte Carlo campaigns from the command line.
 
 ``add_campaign_parser(subparsers)`` adds the ``campaign`` command to ``testbed``'s argparse;
-``python -m testbed.cli.campaign run|resume|report ...`` runs the same sub-commands stand-alone.
+``python -m roadtrack.testbed.cli.campaign run|resume|report ...`` runs the same sub-commands stand-alone.
 
 Exit codes: 0 done (runs that failed inside the scenario or tracker are recorded, not fatal);
 1 the engine failed (a worker died, the scheduler is unreachable, the disk is full): finished runs are
@@ -181,11 +181,11 @@ def add_campaign_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m testbed.cli.campaign [--debug] run|resume|report ...`` = ``testbed campaign ...``: every
+    """``python -m roadtrack.testbed.cli.campaign [--debug] run|resume|report ...`` = ``testbed campaign ...``: every
     error one line on stderr (with ``--debug`` also its traceback) and exit code 1 or 2."""
     from ..common.errors import guarded
 
-    p = argparse.ArgumentParser(prog="python -m testbed.cli.campaign",
+    p = argparse.ArgumentParser(prog="python -m roadtrack.testbed.cli.campaign",
                                 description="Monte Carlo campaigns (see docs/campaigns.md).")
     p.add_argument("--debug", action="store_true", help="show the traceback of an error")
     _add_subcommands(p.add_subparsers(dest="campaign_command", required=True), debug=True)

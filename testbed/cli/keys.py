@@ -96,8 +96,8 @@ of every filter, associator and manager:
 
 
 def tracker_markdown() -> list[str]:
-    from trackers.params import describe
-    from trackers.registry import parameter_tables
+    from roadtrack.trackers.params import describe
+    from roadtrack.trackers.registry import parameter_tables
 
     lines = [TRACKER_HEADER]
     for table, kind, cls in parameter_tables():

@@ -116,7 +116,7 @@ def _plot_run(folder: Path, args: argparse.Namespace) -> None:
 
 def check_combination(name: str) -> None:
     """``--tracker NAME`` that is not a named tracker must be a built-in combination: one line listing both."""
-    from trackers import parse_tracker_name
+    from roadtrack.trackers import parse_tracker_name
 
     from ..tracking.registry import unknown_tracker
 
@@ -381,7 +381,7 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _cmd_trackers(args: argparse.Namespace) -> int:
-    from trackers import describe_tracker, named_trackers, plugin_trackers
+    from roadtrack.trackers import describe_tracker, named_trackers, plugin_trackers
 
     from ..tracking import named_trackers as whole_trackers
 

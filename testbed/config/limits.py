@@ -275,7 +275,7 @@ def check_sensor(sensor: Any) -> None:
 
 def check_perception(cfg: Any, max_range_m: float) -> None:
     """Grid sizes over the sensor's reach, RANSAC iterations and box-fit heading grids of ``cfg``."""
-    from sensors.grid import MAX_CELLS
+    from roadtrack.sensors.grid import MAX_CELLS
 
     reach = 2.0 * max_range_m
     grids = []

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-import sensors
-from sensors.occlusion import visibility as lidar_visibility
+from roadtrack import sensors
+from roadtrack.sensors.occlusion import visibility as lidar_visibility
 
 from ..common.jsonio import json_text
 from ..common.safe_io import make_folder, write_bytes, write_text

@@ -29,8 +29,8 @@ from typing import Callable
 
 import numpy as np
 
-import sensors
-from sensors.occlusion import visibility as occlusion_visibility
+from roadtrack import sensors
+from roadtrack.sensors.occlusion import visibility as occlusion_visibility
 
 from ..scenario.spec import Scenario
 

@@ -15,7 +15,7 @@ from typing import Callable, Iterable, Iterator
 import numpy as np
 import pandas as pd
 
-import sensors
+from roadtrack import sensors
 
 from ..config import ConfigError, to_dict
 from ..common.jsonio import json_text
@@ -299,7 +299,7 @@ class JPDAOverflows:
         self.registry: dict = {}
 
     def call(self, func, *args, **kwargs):
-        from trackers import JPDAOverflowWarning
+        from roadtrack.trackers import JPDAOverflowWarning
 
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", JPDAOverflowWarning)  # counted here, not shown one by one
@@ -318,7 +318,7 @@ class JPDAOverflows:
         return out
 
     def report(self) -> None:
-        from trackers import JPDAOverflowWarning
+        from roadtrack.trackers import JPDAOverflowWarning
 
         if self.frames:
             t, m = self.largest

@@ -1,6 +1,6 @@
 """Compile the sensors' numba kernels into their on-disk cache ahead of a run, so that no user's run compiles.
 
-``testbed warmup`` (or ``python -m testbed.pipeline.warmup``; ``bin/setup`` runs it in a checkout): a few frames
+``testbed warmup`` (or ``python -m roadtrack.testbed.pipeline.warmup``; ``bin/setup`` runs it in a checkout): a few frames
 of the highway benchmark with the full perception stack (trucks, box fits, the occlusion-aware P_D) and with the
 thesis pipeline, which between them call every kernel of :data:`KERNEL_MODULES`. numba keeps what it compiled
 next to the sources (``sensors/__pycache__``, in a checkout or in site-packages), or, where that folder is not
@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable, Iterator
 from typing import TextIO
 
-KERNEL_MODULES = ("sensors.raycast", "sensors.perception_jit", "sensors.boxfit_jit")
+KERNEL_MODULES = ("roadtrack.sensors.raycast", "roadtrack.sensors.perception_jit", "roadtrack.sensors.boxfit_jit")
 """The modules of numba kernels (``@njit(cache=True)``); their public functions are the kernels a run calls."""
 RUNS = (("highway_benchmark", {"duration_s": 0.5}),
         ("highway_benchmark", {"duration_s": 0.5, "sensor.pipeline": "thesis"}))

@@ -64,7 +64,7 @@ import numpy as np
 os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
 import rerun as rr  # noqa: E402
 
-import sensors
+from roadtrack import sensors
 
 from ..common.safe_io import refuse_link
 from . import palette as pal

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-import sensors
+from roadtrack import sensors
 
 from . import palette as pal
 from .levels import thinned

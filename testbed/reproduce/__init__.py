@@ -27,27 +27,27 @@ from typing import Callable
 
 # name -> (module, one-line description); modules are imported on use.
 REPRODUCTIONS: dict[str, tuple[str, str]] = {
-    "seed-000": ("testbed.reproduce.seed000.points", "paper 000: one car in a convoy with mixed measurements; gating, "
+    "seed-000": ("roadtrack.testbed.reproduce.seed000.points", "paper 000: one car in a convoy with mixed measurements; gating, "
                  "PDAF and the windowed KS integral test"),
-    "seed-002": ("testbed.reproduce.seed002.study", "paper 002 (Powers & Pao): track-loss detection by KS tests on "
+    "seed-002": ("roadtrack.testbed.reproduce.seed002.study", "paper 002 (Powers & Pao): track-loss detection by KS tests on "
                  "gated-measurement counts"),
-    "seed-000-highway": ("testbed.reproduce.seed000.highway", "paper 000 on the highway: one car of a close "
+    "seed-000-highway": ("roadtrack.testbed.reproduce.seed000.highway", "paper 000 on the highway: one car of a close "
                          "LiDAR-seen convoy (gaps 0.25-4 m, full and thesis pipelines); mixing fraction, gating and "
                          "the KS integral test"),
-    "seed-002-highway": ("testbed.reproduce.seed002.highway", "paper 002's KS track regime detector on the highway: "
+    "seed-002-highway": ("roadtrack.testbed.reproduce.seed002.highway", "paper 002's KS track regime detector on the highway: "
                          "delay after a forced loss and a sensor dropout, false alarms while tracking, per tracker, "
                          "against the track score's deletion"),
-    "thesis-highway": ("testbed.reproduce.thesis.highway", "thesis Tables 4.3 and 5.4 on highway_benchmark: every "
+    "thesis-highway": ("roadtrack.testbed.reproduce.thesis.highway", "thesis Tables 4.3 and 5.4 on highway_benchmark: every "
                        "named tracker, 5 seeds, full and thesis pipelines, intervals and paired differences"),
-    "thesis-2.1": ("testbed.reproduce.thesis.sec21", "thesis §2.1.6: PDA-SVSF against PDA-KF under model error, one "
+    "thesis-2.1": ("roadtrack.testbed.reproduce.thesis.sec21", "thesis §2.1.6: PDA-SVSF against PDA-KF under model error, one "
                    "target; both PDA-SVSF forms, two loss criteria, sensitivity to the open choices"),
-    "thesis-4.6.1": ("testbed.reproduce.thesis.sec461", "thesis §4.6.1 (Tables 4.1-4.2): JPDA-GVBL-SVSF against JPDA-KF, "
+    "thesis-4.6.1": ("roadtrack.testbed.reproduce.thesis.sec461", "thesis §4.6.1 (Tables 4.1-4.2): JPDA-GVBL-SVSF against JPDA-KF, "
                      "three manoeuvring cars in clutter"),
-    "thesis-5.1": ("testbed.reproduce.thesis.sec51", "thesis §5.6.1 (Table 5.1): APDA-SVSF, PDA-SVSF and PDA-KF on a "
+    "thesis-5.1": ("roadtrack.testbed.reproduce.thesis.sec51", "thesis §5.6.1 (Table 5.1): APDA-SVSF, PDA-SVSF and PDA-KF on a "
                    "highly manoeuvring target in dense clutter"),
-    "seed-001": ("testbed.reproduce.seed001.study", "paper 001: PDA against the all-neighbours weights linear in "
+    "seed-001": ("roadtrack.testbed.reproduce.seed001.study", "paper 001: PDA against the all-neighbours weights linear in "
                  "distance; one target, two crossing and two parallel targets, loss against separation"),
-    "seed-003": ("testbed.reproduce.seed003.study", "paper 003: symmetric measurement equations (sum of powers, sum of "
+    "seed-003": ("roadtrack.testbed.reproduce.seed003.study", "paper 003: symmetric measurement equations (sum of powers, sum of "
                  "products) with an EKF, 2 and 3 targets"),
 }
 

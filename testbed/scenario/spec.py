@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sensors import LidarConfig, PerceptionConfig
+from roadtrack.sensors import LidarConfig, PerceptionConfig
 
 from ..config import (ConfigError, field, find_file, from_dict, non_negative, positive, read_toml_file, shipped_dir,
                       shipped_names, to_dict)
@@ -306,7 +306,7 @@ class TrackerSpec:
         """The trackers.Tracker of this spec; ParamError on bad parameters. ``name`` overrides the preset
         (``--tracker``): the tables' keys that the other tracker does not have are then left out (they were
         validated against this spec's own tracker when the scenario was loaded)."""
-        from trackers import make_tracker
+        from roadtrack.trackers import make_tracker
 
         return make_tracker(name or self.name, filter=self.filter, associator=self.associator,
                             management=self.management, lenient=name is not None and name != self.name)
@@ -413,7 +413,7 @@ def apply_overrides(data: dict, overrides: dict[str, Any]) -> dict:
 
 
 def _validate(scn: Scenario) -> Scenario:
-    from trackers import ParamError, parse_tracker_name
+    from roadtrack.trackers import ParamError, parse_tracker_name
 
     try:
         parse_tracker_name(scn.tracker.name)

@@ -38,7 +38,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-import sensors
+from roadtrack import sensors
 
 from ..config import ConfigError, to_dict
 from ..common.jsonio import json_text

@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-import sensors
+from roadtrack import sensors
 
 from ..common.streams import Streams
 from ..scenario.spec import Scenario

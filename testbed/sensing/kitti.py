@@ -29,7 +29,7 @@ from typing import Iterator
 
 import numpy as np
 
-import sensors
+from roadtrack import sensors
 
 from ..config import ConfigError
 from ..scenario.spec import Scenario

@@ -8,7 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-import sensors
+from roadtrack import sensors
 
 from ..scenario.spec import Scenario
 from ..world.roadside import boxes_near

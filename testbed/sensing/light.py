@@ -15,7 +15,7 @@ from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
-import sensors
+from roadtrack import sensors
 
 from ..scenario.spec import Scenario
 from .cache import quantised, range_dtype

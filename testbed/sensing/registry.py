@@ -26,7 +26,7 @@ SENSOR_GROUP = "roadtrack.sensors"
 
 def _plugin(ep, taken: dict[str, Sensor]) -> Sensor:
     """The Sensor of entry point ``ep``; ValueError/TypeError (one line) when it cannot join ``taken``."""
-    from trackers.plugins import NAME  # not at import: importing trackers loads its plug-ins, whose warnings the
+    from roadtrack.trackers.plugins import NAME  # not at import: importing trackers loads its plug-ins, whose warnings the
     # CLI shows as one line only once its commands run (testbed/cli/main.py)
 
     if not NAME.match(ep.name):
@@ -50,7 +50,7 @@ def _plugin(ep, taken: dict[str, Sensor]) -> Sensor:
 def sensor_registry() -> dict[str, Sensor]:
     """Built-in and installed sensors by name (read once per process; ``sensor_registry.cache_clear()`` re-reads
     the installed ones). Do not modify the dict."""
-    from trackers.plugins import PluginWarning, entry_points, origin  # see _plugin
+    from roadtrack.trackers.plugins import PluginWarning, entry_points, origin  # see _plugin
 
     out = dict(SENSORS)
     for ep in entry_points(SENSOR_GROUP):

@@ -26,7 +26,7 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-import sensors
+from roadtrack import sensors
 
 from ..scenario.spec import Scenario
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-import trackers
-from trackers.association.jpda import FALLBACK_DIAGNOSTIC, fallback_clusters
+from roadtrack import trackers
+from roadtrack.trackers.association.jpda import FALLBACK_DIAGNOSTIC, fallback_clusters
 
 from .protocol import Frame, TrackSet
 

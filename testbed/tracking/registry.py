@@ -9,7 +9,7 @@ import warnings
 from dataclasses import dataclass
 from typing import Any
 
-from trackers.plugins import NAME, TRACKER_GROUP, PluginWarning, entry_points, origin
+from roadtrack.trackers.plugins import NAME, TRACKER_GROUP, PluginWarning, entry_points, origin
 
 from ..config import ConfigError
 from ..common.usercode import load_object
@@ -27,10 +27,10 @@ class NamedTracker:
 
 
 STONESOUP = {
-    "stonesoup-gnn-kf": NamedTracker("stonesoup-gnn-kf", "testbed.tracking.stonesoup:gnn_kf",
+    "stonesoup-gnn-kf": NamedTracker("stonesoup-gnn-kf", "roadtrack.testbed.tracking.stonesoup:gnn_kf",
                                      "Stone Soup 1.9: GNN (2-D assignment) of Kalman filters, Mahalanobis gate",
                                      "roadtrack[stonesoup]"),
-    "stonesoup-jpda-kf": NamedTracker("stonesoup-jpda-kf", "testbed.tracking.stonesoup:jpda_kf",
+    "stonesoup-jpda-kf": NamedTracker("stonesoup-jpda-kf", "roadtrack.testbed.tracking.stonesoup:jpda_kf",
                                       "Stone Soup 1.9: JPDA (exact by EHM2; LBP for a cluster over budget) of Kalman filters",
                                       "roadtrack[stonesoup]"),
 }
@@ -46,7 +46,7 @@ def named_trackers() -> dict[str, NamedTracker]:
     """The Stone Soup trackers and the installed ``roadtrack.trackers`` plug-ins, by name (read once per process;
     do not modify the dict). A plug-in whose name is invalid, taken (a Stone Soup tracker's or a built-in
     combination's) or that cannot be imported is skipped with one PluginWarning."""
-    from trackers import parse_tracker_name
+    from roadtrack.trackers import parse_tracker_name
 
     out = dict(STONESOUP)
     for ep in entry_points(TRACKER_GROUP):

@@ -51,7 +51,7 @@ except ImportError as err:  # pragma: no cover - exercised by the missing-extra 
     raise ConfigError("tracker", f"the Stone Soup trackers need Stone Soup 1.9.1, which cannot be imported here "
                       f"({err.name or err}): pip install 'roadtrack[stonesoup]'") from None
 
-from trackers import JPDAOverflowError
+from roadtrack.trackers import JPDAOverflowError
 
 from .protocol import Frame, TrackSet
 

@@ -11,14 +11,14 @@ The associators' log-sum-exp is `logsum.logsumexp` (scipy's, bit for bit, withou
 
 Adding an associator = one module, one line here; the registry contract tests then run it."""
 
-from trackers.association.an import all_neighbours
-from trackers.association.apda import apda
-from trackers.association.gnn import global_nearest_neighbour
-from trackers.association.jpda import jpda
-from trackers.association.nn import nearest_neighbour
-from trackers.association.params import AssociationParams
-from trackers.association.pda import pda
-from trackers.association.roles import (ASSOCIATORS, AssociationInput, AssociatorKind, AssociatorParams, ANParams,
+from roadtrack.trackers.association.an import all_neighbours
+from roadtrack.trackers.association.apda import apda
+from roadtrack.trackers.association.gnn import global_nearest_neighbour
+from roadtrack.trackers.association.jpda import jpda
+from roadtrack.trackers.association.nn import nearest_neighbour
+from roadtrack.trackers.association.params import AssociationParams
+from roadtrack.trackers.association.pda import pda
+from roadtrack.trackers.association.roles import (ASSOCIATORS, AssociationInput, AssociatorKind, AssociatorParams, ANParams,
                                         APDAParams, JPDAParams, build_associator)
 
 __all__ = ["ANParams", "APDAParams", "ASSOCIATORS", "AssociationInput", "AssociationParams", "AssociatorKind",

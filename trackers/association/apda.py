@@ -47,9 +47,9 @@ import math
 
 import numpy as np
 
-from trackers.association.logsum import logsumexp
-from trackers.association.params import AssociationParams
-from trackers.association.pda import pda
+from roadtrack.trackers.association.logsum import logsumexp
+from roadtrack.trackers.association.params import AssociationParams
+from roadtrack.trackers.association.pda import pda
 
 FORMS = ("consistent", "thesis")
 LAYER_MODES = ("filter", "saturated")

@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackers.errors import JPDAOverflowError
+from roadtrack.trackers.errors import JPDAOverflowError
 
 _MAX_BITS = 62  # numpy node keys are int64 bitmasks over frontier slots
 _SMALL_EDGES = 1000  # nets with at most this many edges (upper bound) are evaluated in plain Python [D]

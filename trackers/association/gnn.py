@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from trackers.association.params import AssociationParams, check_inputs, joint_event_terms, track_pd
+from roadtrack.trackers.association.params import AssociationParams, check_inputs, joint_event_terms, track_pd
 
 _FORBIDDEN_MISS = 1e12  # cost of a miss when P_D = 1: chosen only if no feasible assignment remains
 

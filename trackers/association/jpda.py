@@ -34,12 +34,12 @@ import warnings
 
 import numpy as np
 
-from trackers.association.ehm import net_marginals
-from trackers.association.kbest import k_best_marginals
-from trackers.association.logsum import logsumexp
-from trackers.association.params import AssociationParams, check_inputs, joint_event_terms, track_pd
-from trackers.association.pda import pda
-from trackers.errors import JPDAOverflowError, JPDAOverflowWarning
+from roadtrack.trackers.association.ehm import net_marginals
+from roadtrack.trackers.association.kbest import k_best_marginals
+from roadtrack.trackers.association.logsum import logsumexp
+from roadtrack.trackers.association.params import AssociationParams, check_inputs, joint_event_terms, track_pd
+from roadtrack.trackers.association.pda import pda
+from roadtrack.trackers.errors import JPDAOverflowError, JPDAOverflowWarning
 
 METHODS = ("ehm", "enumerate", "k_best")
 FALLBACK_DIAGNOSTIC = "jpda_fallback"

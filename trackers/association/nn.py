@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackers.association.params import AssociationParams, check_inputs
+from roadtrack.trackers.association.params import AssociationParams, check_inputs
 
 
 def nearest_neighbour(log_lik: np.ndarray, gated: np.ndarray, p: AssociationParams,

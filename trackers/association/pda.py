@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackers.association.logsum import logsumexp
-from trackers.association.params import AssociationParams, check_inputs, track_pd
+from roadtrack.trackers.association.logsum import logsumexp
+from roadtrack.trackers.association.params import AssociationParams, check_inputs, track_pd
 
 
 def pda_log_terms(log_lik: np.ndarray, gated: np.ndarray, pd: np.ndarray | float, pg: float,

@@ -7,15 +7,15 @@ from typing import Any, Callable
 
 import numpy as np
 
-from trackers.association.an import DISTANCES, all_neighbours, an_distances
-from trackers.association.apda import FORMS, LAYER_MODES, apda
-from trackers.association.gnn import global_nearest_neighbour
-from trackers.association.jpda import DEFAULT_K, DEFAULT_MAX_NODES, FALLBACK_DIAGNOSTIC, METHODS, jpda_fallbacks
-from trackers.association.nn import nearest_neighbour
-from trackers.association.params import OVERFLOW_MODES, AssociationParams
-from trackers.association.pda import pda
-from trackers.gating import gate_probability
-from trackers.params import NON_NEGATIVE, POSITIVE, PROBABILITY, ParamError, load, param
+from roadtrack.trackers.association.an import DISTANCES, all_neighbours, an_distances
+from roadtrack.trackers.association.apda import FORMS, LAYER_MODES, apda
+from roadtrack.trackers.association.gnn import global_nearest_neighbour
+from roadtrack.trackers.association.jpda import DEFAULT_K, DEFAULT_MAX_NODES, FALLBACK_DIAGNOSTIC, METHODS, jpda_fallbacks
+from roadtrack.trackers.association.nn import nearest_neighbour
+from roadtrack.trackers.association.params import OVERFLOW_MODES, AssociationParams
+from roadtrack.trackers.association.pda import pda
+from roadtrack.trackers.gating import gate_probability
+from roadtrack.trackers.params import NON_NEGATIVE, POSITIVE, PROBABILITY, ParamError, load, param
 
 
 @dataclass(frozen=True, eq=False)

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from trackers.filters.base import Filter, ModelFilter, pda_covariance
-from trackers.filters.gvbl import GVBLSVSF, GVBLParams, build_gvbl
-from trackers.filters.imm import IMMFilter, IMMParams, IMMState, build_imm
-from trackers.filters.kalman import ExtendedKalmanFilter, KalmanFilter
-from trackers.filters.params import EKFParams, FilterKind, ModelParams
-from trackers.filters.svsf import SVSF, GCSVSFParams, GeneralisedSVSF, SVSFParams, build_gc_svsf, build_svsf
-from trackers.params import ParamError, load
+from roadtrack.trackers.filters.base import Filter, ModelFilter, pda_covariance
+from roadtrack.trackers.filters.gvbl import GVBLSVSF, GVBLParams, build_gvbl
+from roadtrack.trackers.filters.imm import IMMFilter, IMMParams, IMMState, build_imm
+from roadtrack.trackers.filters.kalman import ExtendedKalmanFilter, KalmanFilter
+from roadtrack.trackers.filters.params import EKFParams, FilterKind, ModelParams
+from roadtrack.trackers.filters.svsf import SVSF, GCSVSFParams, GeneralisedSVSF, SVSFParams, build_gc_svsf, build_svsf
+from roadtrack.trackers.params import ParamError, load
 
 
 def _kf(p: ModelParams) -> Filter:

@@ -34,8 +34,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from trackers.errors import FilterError
-from trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.errors import FilterError
+from roadtrack.trackers.state import FilterState, derive, freeze
 
 
 @runtime_checkable

@@ -58,15 +58,15 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from trackers.errors import FilterError
-from trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
+from roadtrack.trackers.errors import FilterError
+from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
                                    combined_innovation, pda_covariance, symmetrise, weighted_R)
-from trackers.filters.svsf import (EY_MEMORY, GAMMA, MEMORY_AFTER_MISS, MEMORY_AFTER_MISS_DOC, Partition,
+from roadtrack.trackers.filters.svsf import (EY_MEMORY, GAMMA, MEMORY_AFTER_MISS, MEMORY_AFTER_MISS_DOC, Partition,
                                    after_miss, apply_rows, check_memory_after_miss, generalised_covariance,
                                    lower_error, maps_many, promote_state, svsf_gain_factor)
-from trackers.filters.params import ModelParams
-from trackers.params import POSITIVE, ParamError, param
-from trackers.state import FilterState, derive
+from roadtrack.trackers.filters.params import ModelParams
+from roadtrack.trackers.params import POSITIVE, ParamError, param
+from roadtrack.trackers.state import FilterState, derive
 
 SWITCH_RULES = ("z_any", "all_any", "per_partition")
 ROBUST_LOWER = ("optimal", "psi_max")

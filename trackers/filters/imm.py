@@ -54,12 +54,12 @@ from typing import Any
 
 import numpy as np
 
-from trackers.filters.base import (ModelFilter, batch_predict, batch_predicted_measurements, batch_update,
+from roadtrack.trackers.filters.base import (ModelFilter, batch_predict, batch_predicted_measurements, batch_update,
                                    check_covariance, check_weights, pair_covariances, symmetrise)
-from trackers.gating import log_gaussian
-from trackers.models import MOTION_MODELS
-from trackers.params import NON_NEGATIVE, POSITIVE, ParamError, param
-from trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.gating import log_gaussian
+from roadtrack.trackers.models import MOTION_MODELS
+from roadtrack.trackers.params import NON_NEGATIVE, POSITIVE, ParamError, param
+from roadtrack.trackers.state import FilterState, derive, freeze
 
 
 # --------------------------------------------------------------------------------------------- state

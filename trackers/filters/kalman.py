@@ -12,10 +12,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from trackers.errors import FilterError
-from trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
+from roadtrack.trackers.errors import FilterError
+from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
                                    combined_innovation, pda_covariance, symmetrise)
-from trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.state import FilterState, derive, freeze
 
 
 def gain_update(s_pred: FilterState, H: np.ndarray, R: np.ndarray, S: np.ndarray, K: np.ndarray,

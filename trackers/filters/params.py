@@ -6,9 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from trackers.filters.base import Filter
-from trackers.models import ConstantVelocity, CoordinatedTurn, PositionMeasurement
-from trackers.params import NON_NEGATIVE, POSITIVE, param
+from roadtrack.trackers.filters.base import Filter
+from roadtrack.trackers.models import ConstantVelocity, CoordinatedTurn, PositionMeasurement
+from roadtrack.trackers.params import NON_NEGATIVE, POSITIVE, param
 
 
 @dataclass(frozen=True)

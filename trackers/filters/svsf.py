@@ -38,12 +38,12 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from trackers.errors import FilterError
-from trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
+from roadtrack.trackers.errors import FilterError
+from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
                                    combined_innovation, pda_covariance, symmetrise, weighted_R)
-from trackers.filters.params import ModelParams
-from trackers.params import POSITIVE, ParamError, param
-from trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.filters.params import ModelParams
+from roadtrack.trackers.params import POSITIVE, ParamError, param
+from roadtrack.trackers.state import FilterState, derive, freeze
 
 EY_MEMORY = ("a_priori", "a_posteriori")
 COVARIANCES = ("mse", "joseph", "short")

@@ -30,7 +30,7 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.special import gammainc, gammaln, pdtr, xlogy
 
-from trackers.trackloss.ks import critical_value, ks_distance_counts, ks_distances_counts
+from roadtrack.trackers.trackloss.ks import critical_value, ks_distance_counts, ks_distances_counts
 
 VERDICTS = ("tracking", "track-lost", "both", "neither")
 LABELS = ("unknown", "tracking", "track-lost", "ambiguous")

@@ -36,10 +36,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
-from sensors.mixed import MIX_MODES, mixed_measurements, wrong_steps
-from trackers.filters.kalman import ExtendedKalmanFilter
-from trackers.gating import gate
-from trackers.models import PositionMeasurement
+from roadtrack.sensors.mixed import MIX_MODES, mixed_measurements, wrong_steps
+from roadtrack.trackers.filters.kalman import ExtendedKalmanFilter
+from roadtrack.trackers.gating import gate
+from roadtrack.trackers.models import PositionMeasurement
 
 
 # ------------------------------------------------------------------------------------------------ road

@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sensors.perception import MERGED
-from trackers.filters.kalman import KalmanFilter
-from trackers.models import ConstantVelocity, PositionMeasurement
-from trackers.trackloss import ks_integral as ksi
+from roadtrack.sensors.perception import MERGED
+from roadtrack.trackers.filters.kalman import KalmanFilter
+from roadtrack.trackers.models import ConstantVelocity, PositionMeasurement
+from roadtrack.trackers.trackloss import ks_integral as ksi
 
 from ...common.safe_io import save_figure, write_text
 from ...perception.characterise import detection_owners

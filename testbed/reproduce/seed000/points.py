@@ -35,8 +35,8 @@ from .convoy_points import (Association, ConvoyScenario, measurement_error, posi
                                    track)
 from ...common.safe_io import save_figure, write_text
 from ...common.stats import PAIRED_T, Interval, paired_t
-from trackers.gating import gate_probability
-from trackers.trackloss import ks_integral as ksi
+from roadtrack.trackers.gating import gate_probability
+from roadtrack.trackers.trackloss import ks_integral as ksi
 
 GAMMA = 9.0
 PG_PAPER = 0.971  # paper 000 §V-B; the 2-D chi-square value is gate_probability(9, 2) = 0.9889 (register #1)

@@ -28,9 +28,9 @@ import numpy as np
 
 from . import targets as tg
 from ...common.safe_io import save_figure, write_text
-from trackers.association.an import all_neighbours
-from trackers.association.params import AssociationParams
-from trackers.association.pda import pda
+from roadtrack.trackers.association.an import all_neighbours
+from roadtrack.trackers.association.params import AssociationParams
+from roadtrack.trackers.association.pda import pda
 from ..markdown import table as md_table, verdict as shown_verdict
 from ...common.stats import MCNEMAR, PAIRED_T, mcnemar, mean_ci, paired_t, wilson
 

@@ -37,11 +37,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from testbed.reproduce.thesis.synthetic import lost_at
-from trackers.association.an import DISTANCES, all_neighbours, an_distances
-from trackers.association.params import AssociationParams
-from trackers.association.pda import pda
-from trackers.models import ConstantVelocity
+from roadtrack.testbed.reproduce.thesis.synthetic import lost_at
+from roadtrack.trackers.association.an import DISTANCES, all_neighbours, an_distances
+from roadtrack.trackers.association.params import AssociationParams
+from roadtrack.trackers.association.pda import pda
+from roadtrack.trackers.models import ConstantVelocity
 
 N_MODES = ("gated", "scan")
 COVARIANCES = ("kf", "spread")

@@ -34,12 +34,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_discrete_are
 
-from trackers.association import AssociationParams, pda
-from trackers.filters import KalmanFilter
-from trackers.gating import gate_probability, mahalanobis2_and_log_gaussian
-from trackers.models import ConstantVelocity, PositionMeasurement
-from trackers.tracker import gate_volume
-from trackers.trackloss.regime import (RegimeConfig, RegimeSeries, constant_gate_scale, regime_series)
+from roadtrack.trackers.association import AssociationParams, pda
+from roadtrack.trackers.filters import KalmanFilter
+from roadtrack.trackers.gating import gate_probability, mahalanobis2_and_log_gaussian
+from roadtrack.trackers.models import ConstantVelocity, PositionMeasurement
+from roadtrack.trackers.tracker import gate_volume
+from roadtrack.trackers.trackloss.regime import (RegimeConfig, RegimeSeries, constant_gate_scale, regime_series)
 
 
 @dataclass(frozen=True)

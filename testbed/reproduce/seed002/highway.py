@@ -44,7 +44,7 @@ from ...sensing import (SensedFrame, occlusion_pd, pd_scan, rng_streams, sense_f
                              visibility)
 
 if TYPE_CHECKING:
-    from sensors import RoadMap
+    from roadtrack.sensors import RoadMap
     from ...scoring.rates import Scores
 
 REGIMES = ("unknown", "tracking", "ambiguous", "track-lost")
@@ -78,7 +78,7 @@ class Settings:
 
 
 def settings(quick: bool) -> Settings:
-    from trackers import PAPER_TRACKERS
+    from roadtrack.trackers import PAPER_TRACKERS
 
     if quick:
         return Settings((Case("cut_in_out", "right", 12.0, 6.0, 1.5),), QUICK_TRACKERS, 1)
@@ -497,7 +497,7 @@ def _all_tracks_panel(ax, run: Run, match_m: float, min_points: int) -> None:
 
 # ------------------------------------------------------------------------------------- summary
 def _setup_lines(s: Settings, seeds: list[int], quick: bool) -> list[str]:
-    from trackers import make_tracker
+    from roadtrack.trackers import make_tracker
 
     mp = make_tracker(FIGURE_TRACKER).management
     rows = [["cases", "; ".join(f"{c.scenario} cut to {c.duration_s:g} s: {c.car} out of the scan from t0 = {c.t0_s:g}"
@@ -570,7 +570,7 @@ def _headline(s: Settings, res: dict) -> list[str]:
 
 
 def settings_regime_n() -> int:
-    from trackers import make_tracker
+    from roadtrack.trackers import make_tracker
 
     return make_tracker(FIGURE_TRACKER).management.regime_n
 

@@ -28,8 +28,8 @@ from .forced_loss import ForcedLoss, LossRun, covered, paper_1d, plane_2d, simul
 from ..markdown import table as md_table, verdict as shown_verdict
 from ...common.safe_io import save_figure, write_text
 from ...common.stats import PAIRED_BOOTSTRAP, PAIRED_T, mean_ci, paired_bootstrap, paired_t
-from trackers.trackloss.ks import asymptotic_critical_value, critical_value
-from trackers.trackloss.regime import (RegimeConfig, RegimeSeries, assess_window, delta_f, gamma_best,
+from roadtrack.trackers.trackloss.ks import asymptotic_critical_value, critical_value
+from roadtrack.trackers.trackloss.regime import (RegimeConfig, RegimeSeries, assess_window, delta_f, gamma_best,
                                        gate_probability, lost_cdf, tracking_cdf, unit_ball_volume)
 
 VERDICTS = ("tracking", "both", "neither", "track-lost")

@@ -34,10 +34,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sensors.symmetric import SymmetricSensor, associated_positions
-from trackers.filters import KalmanFilter
-from trackers.models import ConstantVelocity, PositionMeasurement
-from trackers.sme import SMETracker, SymmetricMeasurement, label_permutation, relabel
+from roadtrack.sensors.symmetric import SymmetricSensor, associated_positions
+from roadtrack.trackers.filters import KalmanFilter
+from roadtrack.trackers.models import ConstantVelocity, PositionMeasurement
+from roadtrack.trackers.sme import SMETracker, SymmetricMeasurement, label_permutation, relabel
 
 PAPER_X0 = (3.0, 25.0, 120.0, 10.0, 5.0, 0.0)
 PAPER_P0_DIAG = (9.0, 625.0, 14400.0, 100.0, 25.0, 1.0)

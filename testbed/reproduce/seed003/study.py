@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sensors.symmetric import FORMS, SymmetricSensor, monte_carlo_moments
+from roadtrack.sensors.symmetric import FORMS, SymmetricSensor, monte_carlo_moments
 from . import sme_targets as st
 from ...common.safe_io import save_figure, write_text
-from trackers.sme import symmetric_noise_covariance, symmetric_noise_mean
+from roadtrack.trackers.sme import symmetric_noise_covariance, symmetric_noise_mean
 from ..markdown import table as md_table, verdict as shown_verdict
 from ...common.stats import PAIRED_T, paired_t, wilson
 

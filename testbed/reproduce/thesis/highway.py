@@ -71,7 +71,7 @@ class Settings:
 
 
 def settings(quick: bool, seed: int) -> Settings:
-    from trackers import PAPER_TRACKERS
+    from roadtrack.trackers import PAPER_TRACKERS
 
     n = 2 if quick else N_SEEDS
     return Settings(QUICK_TRACKERS if quick else tuple(PAPER_TRACKERS), tuple(range(seed, seed + n)),

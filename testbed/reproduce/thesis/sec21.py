@@ -36,9 +36,9 @@ import numpy as np
 
 from . import synthetic as sy
 from ...common.safe_io import save_figure, write_text
-from trackers.association import build_associator, pda
-from trackers.filters import make_filter
-from trackers.gating import gate, mahalanobis2_and_log_gaussian
+from roadtrack.trackers.association import build_associator, pda
+from roadtrack.trackers.filters import make_filter
+from roadtrack.trackers.gating import gate, mahalanobis2_and_log_gaussian
 from ..markdown import table as md_table, verdict as shown_verdict
 from ...common.stats import MCNEMAR, PAIRED_BOOTSTRAP, McNemar, mcnemar, paired_bootstrap, wilson
 

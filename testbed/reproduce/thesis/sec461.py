@@ -37,8 +37,8 @@ from ..markdown import table as md_table, verdict as shown_verdict
 from ...common.safe_io import save_figure, write_text
 from ...common.stats import MCNEMAR, PAIRED_BOOTSTRAP, PAIRED_T, McNemar, mcnemar, mean_ci, paired_bootstrap, \
     paired_t, wilson
-from trackers.filters import make_filter
-from trackers.models import ConstantVelocity
+from roadtrack.trackers.filters import make_filter
+from roadtrack.trackers.models import ConstantVelocity
 
 # ------------------------------------------------------------------ the thesis's parameters (§4.6.1) and ours
 DT = 0.5  # [s] Ts, [I] from the KF numbers of Table 4.2 (reference Appendix B)

@@ -35,8 +35,8 @@ from . import synthetic as sy
 from ..markdown import table as md_table, verdict as shown_verdict
 from ...common.safe_io import save_figure, write_text
 from ...common.stats import MCNEMAR, PAIRED_BOOTSTRAP, McNemar, mcnemar, paired_bootstrap, wilson
-from trackers.filters import make_filter
-from trackers.gating import gate_probability
+from roadtrack.trackers.filters import make_filter
+from roadtrack.trackers.gating import gate_probability
 
 METHODS = ("pda-kf", "pda-svsf", "apda-svsf")
 NAMES = {"pda-kf": "PDA-KF", "pda-svsf": "PDA-SVSF", "apda-svsf": "APDA-SVSF"}

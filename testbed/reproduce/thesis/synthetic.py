@@ -47,10 +47,10 @@ from typing import Mapping
 import numpy as np
 from scipy.optimize import brentq
 
-from trackers.association.roles import AssociationInput, build_associator
-from trackers.gating import gate, mahalanobis2_and_log_gaussian
-from trackers.models import ConstantVelocity, CoordinatedTurn
-from trackers.tracker import gate_volume
+from roadtrack.trackers.association.roles import AssociationInput, build_associator
+from roadtrack.trackers.gating import gate, mahalanobis2_and_log_gaussian
+from roadtrack.trackers.models import ConstantVelocity, CoordinatedTurn
+from roadtrack.trackers.tracker import gate_volume
 
 
 # ------------------------------------------------------------------------------------------ scenario
