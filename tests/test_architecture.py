@@ -1,5 +1,6 @@
 """The tree shows the architecture (docs/architecture.md): testbed's stage packages import only downwards, no
-import cycle between modules, no private name used outside its module, and the libraries stay independent.
+import cycle between modules, no private name used outside its module, the libraries stay independent, and every
+import of ours goes through the one installed name, roadtrack (issue 31.1).
 
 Every import statement is read from the source (function-local and TYPE_CHECKING ones included), so an import
 that only runs on some path still counts.
@@ -7,15 +8,24 @@ that only runs on some path still counts.
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
+TOPS = ("testbed", "sensors", "trackers")
+"""The repository's package folders, installed as roadtrack.testbed, roadtrack.sensors and roadtrack.trackers."""
 LAYERS = ("config", "common", "scenario", "world", "sensing", "tracking", "scoring", "recording", "pipeline",
           "export", "perception", "campaign", "reproduce", "cli")
 """testbed's stage packages, lowest first: a package imports only those before it (and itself)."""
 
 
+def _short(mod: str) -> str:
+    """``roadtrack.X.y`` -> ``X.y`` (the folder's name); other names unchanged."""
+    return mod[len("roadtrack."):] if mod.startswith("roadtrack.") else mod
+
+
 def _modules(package: str) -> dict[str, Path]:
+    """Module name (without the ``roadtrack.`` prefix) -> file, for one package folder."""
     out = {}
     for p in sorted((REPO / package).rglob("*.py")):
         parts = p.relative_to(REPO).with_suffix("").parts
@@ -24,7 +34,7 @@ def _modules(package: str) -> dict[str, Path]:
 
 
 def _imports(name: str, path: Path) -> list[tuple[str, str]]:
-    """(imported module, imported name or '') of every import in the file."""
+    """(imported module without the ``roadtrack.`` prefix, imported name or '') of every import in the file."""
     pkg = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
     out = []
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
@@ -33,10 +43,10 @@ def _imports(name: str, path: Path) -> list[tuple[str, str]]:
                 base = pkg.split(".")
                 mod = ".".join(base[: len(base) - node.level + 1] + ([node.module] if node.module else []))
             else:
-                mod = node.module or ""
+                mod = _short(node.module or "")
             out += [(mod, a.name) for a in node.names]
         elif isinstance(node, ast.Import):
-            out += [(a.name, "") for a in node.names]
+            out += [(_short(a.name), "") for a in node.names]
     return out
 
 
@@ -49,8 +59,7 @@ def _graph(package: str) -> tuple[dict[str, set[str]], list[str]]:
             target = f"{mod}.{attr}" if f"{mod}.{attr}" in mods else mod
             if target in mods and target != name:
                 graph[name].add(target)
-            if attr.startswith("_") and not attr.startswith("__") and mod.split(".")[0] in ("testbed", "sensors",
-                                                                                          "trackers"):
+            if attr.startswith("_") and not attr.startswith("__") and mod.split(".")[0] in TOPS:
                 private.append(f"{name} imports {mod}.{attr}")
     return graph, private
 
@@ -90,7 +99,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def test_no_import_cycle_and_no_private_name_across_modules():
-    for package in ("testbed", "sensors", "trackers"):
+    for package in TOPS:
         graph, private = _graph(package)
         assert _cycles(graph) == [], package
         assert private == [], private
@@ -127,3 +136,30 @@ def test_the_libraries_know_nothing_of_the_testbed_or_the_simulator():
         for name, path in _modules(package).items():
             for mod, _ in _imports(name, path):
                 assert mod.split(".")[0] not in names, f"{name} imports {mod}"
+
+
+IN_STRING_IMPORT = re.compile(r"(?:\\n|;|[\"'])[ \t]*(?:from[ \t]+(?:testbed|sensors|trackers)(?:\.\w+)*[ \t]+import"
+                              r"|import[ \t]+(?:testbed|sensors|trackers)\b)")
+"""An import statement of a top-level testbed, sensors or trackers in code held by a string ("...\\nfrom X import")."""
+
+
+def _absolute_imports(path: Path) -> list[str]:
+    """The module named by every absolute import statement of a file."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and not node.level:
+            out.append(node.module or "")
+        elif isinstance(node, ast.Import):
+            out += [a.name for a in node.names]
+    return out
+
+
+def test_every_import_of_ours_names_roadtrack():
+    """An installed roadtrack has no top-level testbed, sensors or trackers (PyPI's `trackers` is another
+    project): an import of one of them anywhere in the code, tests, benchmarks or examples would run only from a
+    checkout, or import someone else's package. Import statements inside strings (code run by a subprocess) count."""
+    files = [p for d in (*TOPS, "tests", "benchmarks", "examples") for p in sorted((REPO / d).rglob("*.py"))]
+    bad = [f"{p.relative_to(REPO)}: import {m}" for p in files for m in _absolute_imports(p) if m.split(".")[0] in TOPS]
+    bad += [f"{p.relative_to(REPO)}: {m.group(0).strip()!r}" for p in files
+            for m in IN_STRING_IMPORT.finditer(p.read_text(encoding="utf-8"))]
+    assert bad == [] and len(files) > 150, bad

@@ -37,7 +37,7 @@ def test_the_scenario_and_campaign_modules_use_the_one_lookup():
 
 def test_the_package_data_covers_every_shipped_file():
     """pyproject.toml's package-data globs match each shipped file through the package's path to it."""
-    conf = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["testbed"]
+    conf = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["roadtrack.testbed"]
     package = REPO / "testbed"
     matched = {p.resolve() for pattern in conf for p in package.glob(pattern)}
     shipped = {p.resolve() for kind in ("scenarios", "campaigns") for p in (REPO / kind).glob("*.toml")}

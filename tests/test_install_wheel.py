@@ -10,9 +10,11 @@ How, offline and in well under a minute (the reduced version):
   ``--no-deps --no-index``); the dependencies (numpy, open3d, highway-env, ... about 1.5 GB, minutes to
   download) are not installed again: a ``.pth`` file appends this environment's site-packages to the new venv's
   ``sys.path``, after its own site-packages. A ``.pth`` line only adds a folder: the ``.pth`` files in that folder,
-  such as an editable install's finder of this checkout, are not run. The test checks that ``testbed``,
-  ``sensors`` and ``trackers`` are imported from the new venv's site-packages, and runs every command with no
-  PYTHONPATH, from a folder outside the checkout, through the venv's own ``testbed`` script;
+  such as an editable install's finder of this checkout, are not run. The test checks that ``roadtrack.testbed``,
+  ``roadtrack.sensors`` and ``roadtrack.trackers`` are imported from the new venv's site-packages, and runs every
+  command with no PYTHONPATH, from a folder outside the checkout, through the venv's own ``testbed`` script;
+* the wheel puts nothing at the top level of site-packages but ``roadtrack/`` and its ``.dist-info`` (issue 31.1:
+  PyPI's ``trackers`` is another project's top-level package);
 * the run is short (0.5 s of cut_in_out with the thesis pipeline, whose kernels compile in about 20 s of CPU;
   the full stack's take about 40 s, in the slow test).
 """
@@ -31,7 +33,9 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 FULL = bool(os.environ.get("ROADTRACK_FULL"))
-PACKAGING = ("pyproject.toml", "README.md", "testbed", "sensors", "trackers", "scenarios", "campaigns")
+TOPS = ("testbed", "sensors", "trackers")
+"""The repository's package folders; installed as roadtrack.testbed, roadtrack.sensors, roadtrack.trackers."""
+PACKAGING = ("pyproject.toml", "README.md", *TOPS, "scenarios", "campaigns")
 NOTE = "note: compiling the sensors' numba kernels"
 SHORT = ["--set", "duration_s=0.5", "--set", "sensor.pipeline=thesis", "--no-record", "--no-plot", "--quiet"]
 
@@ -65,7 +69,9 @@ def _install(wheel: Path, folder: Path) -> Path:
     assert out.returncode == 0, out.stderr[-2000:]
     site = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
                           capture_output=True, text=True, check=True, timeout=60).stdout.strip()
-    deps = dict.fromkeys([sysconfig.get_path("purelib"), sysconfig.get_path("platlib")])
+    # this environment's site-packages, and those it sees through a .pth of its own (an environment layered on another)
+    deps = dict.fromkeys([sysconfig.get_path("purelib"), sysconfig.get_path("platlib"),
+                          *(p for p in sys.path if Path(p).name == "site-packages")])
     (Path(site) / "roadtrack_test_deps.pth").write_text("".join(f"{p}\n" for p in deps))
     return folder / "bin"
 
@@ -92,7 +98,7 @@ def _names(folder: Path) -> list[str]:
 def test_the_wheel_carries_every_shipped_scenario_and_campaign(wheel):
     with zipfile.ZipFile(wheel) as z:
         for kind in ("scenarios", "campaigns"):
-            prefix = f"testbed/_shipped/{kind}/"
+            prefix = f"roadtrack/testbed/_shipped/{kind}/"
             inside = sorted(n[len(prefix):-5] for n in z.namelist() if n.startswith(prefix) and n.endswith(".toml"))
             assert inside == _names(REPO / kind) and len(inside) >= 5, kind
             for name in inside:  # the files themselves, not links
@@ -101,26 +107,44 @@ def test_the_wheel_carries_every_shipped_scenario_and_campaign(wheel):
 
 def test_the_wheel_carries_every_file_of_the_packages(wheel):
     """Every file of testbed/, sensors/ and trackers/ (through the _shipped links; the HTML replay's template, ...)
-    is in the wheel: a data file left out of pyproject.toml's package-data fails here, not after an install."""
+    is in the wheel under roadtrack/: a data file left out of pyproject.toml's package-data, or a sub-package left
+    out of its package list, fails here, not after an install."""
     ours = set()
-    for top in ("testbed", "sensors", "trackers"):
+    for top in TOPS:
         for folder, dirs, files in os.walk(REPO / top, followlinks=True):
             dirs[:] = [d for d in dirs if d != "__pycache__"]
-            rel = Path(folder).relative_to(REPO)
+            rel = Path("roadtrack") / Path(folder).relative_to(REPO)
             ours |= {(rel / f).as_posix() for f in files if not f.endswith((".pyc", ".nbi", ".nbc"))}
     with zipfile.ZipFile(wheel) as z:
         missing = sorted(ours - set(z.namelist()))
     assert not missing and len(ours) > 100, missing
 
 
+def test_the_wheel_installs_one_top_level_name_roadtrack(wheel):
+    """Nothing of ours at the top level of site-packages (issue 31.1): roadtrack/ (no __init__.py: an implicit
+    namespace package) holding testbed/, sensors/ and trackers/, and the .dist-info folder."""
+    with zipfile.ZipFile(wheel) as z:
+        names = z.namelist()
+    tops = {n.split("/")[0] for n in names}
+    assert tops == {"roadtrack", f"{wheel.name.split('-')[0]}-{wheel.name.split('-')[1]}.dist-info"}, tops
+    assert {n.split("/")[1] for n in names if n.startswith("roadtrack/")} == set(TOPS)
+    assert "roadtrack/__init__.py" not in names and not [n for n in names if n.split("/")[0] in TOPS]
+
+
 def test_the_installed_package_is_what_runs(venv, tmp_path):
-    code = "from roadtrack import testbed, sensors, trackers; print('\\n'.join(m.__file__ for m in (testbed, sensors, trackers)))"
+    code = ("from roadtrack import testbed, sensors, trackers; import importlib.util as u, sys\n"
+            "print(*(m.__file__ for m in (testbed, sensors, trackers)), sep='\\n')\n"
+            "print(*(u.find_spec(t) for t in ('testbed', 'sensors')), file=sys.stderr)")
     out = subprocess.run([str(venv / "python"), "-c", code], capture_output=True, text=True, cwd=tmp_path,
                          env=_env(), timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stderr.split() == ["None", "None"]  # no top-level testbed or sensors anywhere on sys.path
     site = venv.parent / "lib"
-    for path in out.stdout.split():
+    paths = out.stdout.split()
+    assert [Path(p).parent.name for p in paths] == list(TOPS) and len(paths) == 3, paths
+    for path in paths:
         assert Path(path).is_relative_to(site) and not Path(path).is_relative_to(REPO), path
+        assert Path(path).parent.parent.name == "roadtrack", path
 
 
 def test_testbed_scenarios_lists_the_shipped_ones_and_campaigns_are_found_by_name(venv, tmp_path):
@@ -142,7 +166,7 @@ def test_a_shipped_scenario_runs_by_name_and_the_first_run_notes_the_compilation
         line for line in first.stderr.splitlines() if "numba" in line] and first.stderr.count(NOTE) == 1
     scores = json.loads((tmp_path / "a" / "scores.json").read_text())
     assert scores["scenario"] == "cut_in_out" and scores["scores"]["cars_seen"] == 3, scores
-    cache = next((venv.parent / "lib").glob("python3*/site-packages/sensors/__pycache__"))
+    cache = next((venv.parent / "lib").glob("python3*/site-packages/roadtrack/sensors/__pycache__"))
     assert list(cache.glob("raycast.*.nbi")) and list(cache.glob("perception_jit.*.nbi"))  # numba's cache, writable
     again = _testbed(venv, "run", "cut_in_out", *SHORT, "--out", str(tmp_path / "b"), cwd=tmp_path)
     assert again.returncode == 0 and NOTE not in again.stderr, again.stderr[-2000:]

@@ -233,7 +233,7 @@ def test_sensors_imports_no_simulator_viewer_or_sibling_package():
         from roadtrack import sensors
         sensors.perceive(sensors.scan(sensors.LidarConfig(), np.zeros(3), np.zeros((0, 7)), np.zeros(0, int),
                                       np.random.default_rng(0)), sensors.PerceptionConfig())
-        bad = [m for m in ("highway_env", "rerun", "trackers", "testbed") if m in sys.modules]
+        bad = [m for m in ("highway_env", "rerun", "roadtrack.trackers", "roadtrack.testbed") if m in sys.modules]
         print(len(bad), *bad)
     """)
     assert out.returncode == 0, out.stderr

@@ -1,4 +1,5 @@
-"""Our `trackers` is this repository's package (not PyPI's `trackers`) and depends on numpy/scipy only."""
+"""Our `trackers` is this repository's package, installed as roadtrack.trackers (not PyPI's `trackers`, issue 31.1;
+tests/test_namespace.py runs both in one environment), and depends on numpy/scipy only."""
 
 import ast
 import sys
@@ -11,17 +12,19 @@ FORBIDDEN = {"open3d", "rerun", "highway_env", "gymnasium", "sensors", "testbed"
 
 
 def imported_top_level_modules(path: Path) -> set[str]:
+    """Top-level names of a file's absolute imports, roadtrack.X counted as X."""
     names = set()
     for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
         if isinstance(node, ast.Import):
-            names |= {a.name.split(".")[0] for a in node.names}
+            names |= {a.name.removeprefix("roadtrack.").split(".")[0] for a in node.names}
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            names.add(node.module.split(".")[0])
+            names.add(node.module.removeprefix("roadtrack.").split(".")[0])
     return names
 
 
 def test_trackers_resolves_inside_this_repository():
     path = Path(trackers.__file__).resolve()
+    assert trackers.__name__ == "roadtrack.trackers"
     assert path == REPO / "trackers" / "__init__.py"
     assert "site-packages" not in str(path)
 
