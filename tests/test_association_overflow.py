@@ -13,7 +13,7 @@ from roadtrack.trackers.association.pda import pda
 from roadtrack.trackers.association.roles import ASSOCIATORS, JPDAParams
 from roadtrack.trackers.params import load
 
-from tests.test_trackers_association import scan_input
+from test_trackers_association import scan_input  # tests/ is on sys.path (rootdir conftest)
 
 P = AssociationParams(pd=0.9, pg=0.9997, clutter_density=1e-2)
 

@@ -25,12 +25,10 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-REPO = Path(__file__).resolve().parent.parent
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
+from roadtrack.testbed.cli.main import main
+from roadtrack.testbed.perception.report import dumps_toml
 
-from roadtrack.testbed.cli.main import main  # noqa: E402
-from roadtrack.testbed.perception.report import dumps_toml  # noqa: E402
+REPO = Path(__file__).resolve().parent.parent
 
 SCENARIOS = sorted((REPO / "scenarios").glob("*.toml"))
 CAMPAIGNS = sorted((REPO / "campaigns").glob("*.toml"))
