@@ -5,6 +5,11 @@ interpreter overhead). Validation, the size prior and the result dataclass stay 
 `fit_many(...)` fits K objects and returns one row of `FIELDS` per object; `params(cfg)` packs a BoxFitConfig
 into the float64 array the kernel reads (`P_*` indices). Results equal the former numpy code up to floating-point
 summation order (~1e-15 relative).
+
+Installed as roadtrack.sensors.boxfit_jit (issue 31.1). numba's cache pickles that module name and recognises
+this file by a hash of its text (numba 0.68): code cached under the former top-level name `sensors.boxfit_jit`
+cannot be loaded ("No module named 'sensors'"), so this paragraph came with the rename: a new text, compiled
+afresh.
 """
 
 from __future__ import annotations

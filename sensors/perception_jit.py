@@ -9,6 +9,11 @@ decision back to the reference (sensors/perception_reference.py) where rounding 
 of the split, merge and link loops is kept in sensors/perception_reference.py and
 tests/test_perception_identical.py checks the kernels against it. Objects are packed: `starts` (K,) and `n`
 (K,) index the members' rows of the (sum n, ...) arrays, object by object.
+
+Installed as roadtrack.sensors.perception_jit (issue 31.1). numba's cache pickles that module name and
+recognises this file by a hash of its text (numba 0.68): code cached under the former top-level name
+`sensors.perception_jit` cannot be loaded ("No module named 'sensors'"), so this paragraph came with the rename:
+a new text, compiled afresh.
 """
 
 from __future__ import annotations

@@ -6,6 +6,10 @@ width, bottom and top heights, all in the sensor frame (origin on the road below
 sensor yaw), float64. They are the exact boxes of the open3d mesh the full cast uses (sensors/lidar.py
 `_mesh`), which casts in float32: the two agree up to float32 round-off (~1e-5 m at 70 m), except for rays
 grazing a box edge or face within that round-off, which one may count as a hit and the other not.
+
+Installed as roadtrack.sensors.raycast (issue 31.1). numba's cache pickles that module name and recognises this
+file by a hash of its text (numba 0.68): code cached under the former top-level name `sensors.raycast` cannot be
+loaded ("No module named 'sensors'"), so this paragraph came with the rename: a new text, compiled afresh.
 """
 
 from __future__ import annotations
