@@ -86,4 +86,4 @@ def __getattr__(name: str) -> Any:  # the rest of the API, imported on first use
         from . import tracking
 
         return getattr(tracking, name)
-    raise AttributeError(f"module 'testbed' has no attribute {name!r}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

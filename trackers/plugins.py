@@ -3,10 +3,10 @@
 A package adds a filter by declaring, in its ``pyproject.toml``::
 
     [project.entry-points."roadtrack.filters"]
-    ab = "my_package.ab:AB"            # a trackers.filters.FilterKind (or a function returning one)
+    ab = "my_package.ab:AB"            # a roadtrack.trackers.filters.FilterKind (or a function returning one)
 
     [project.entry-points."roadtrack.associators"]
-    mine = "my_package.assoc:MINE"     # a trackers.association.AssociatorKind (or a function returning one)
+    mine = "my_package.assoc:MINE"     # a roadtrack.trackers.association.AssociatorKind (or a function returning one)
 
 A script or notebook adds one in its own process with :func:`register_filter` and :func:`register_associator`.
 Once it is installed (``pip install my-package``) the entry point's name is a registered kind: ``jpda-ab``,
