@@ -181,7 +181,7 @@ def test_registering_a_plugin_checks_its_name_and_kind():
         trackers.register_filter("imm", kf)
     with pytest.raises(ValueError, match="lower-case letters"):
         trackers.register_filter("My_Filter", kf)
-    with pytest.raises(TypeError, match="expected a trackers.filters.params.FilterKind, got a dict"):
+    with pytest.raises(TypeError, match="expected a roadtrack.trackers.filters.params.FilterKind, got a dict"):
         trackers.register_filter("mine", {})
     with pytest.raises(TypeError, match="params must be a dataclass"):
         trackers.register_filter("mine", FilterKind(dict, kf.build, "x"))
