@@ -876,13 +876,6 @@ def first_points(label, rows, pts, k):
 
 # --- grid clustering (sensors/clustering._grid) ---------------------------------------------------------------
 
-@njit(cache=True)
-def _find(parent, i):
-    while parent[i] != i:
-        parent[i] = parent[parent[i]]
-        i = parent[i]
-    return i
-
 
 @njit(cache=True)
 def grid_components(ix, iy, nx, ny):
@@ -905,14 +898,14 @@ def grid_components(ix, iy, nx, ny):
             for dy in range(-1, 2):
                 x, y = cx + dx, cy + dy
                 if (dx or dy) and 0 <= x < nx and 0 <= y < ny and node[x * ny + y] >= 0:
-                    a, b = _find(parent, k), _find(parent, node[x * ny + y])
+                    a, b = _root_halving(parent, k), _root_halving(parent, node[x * ny + y])
                     if a != b:
                         parent[max(a, b)] = min(a, b)
     comp = np.full(n_nodes, -1, np.int64)
     out = np.empty(len(ix), np.int64)
     n_comp = 0
     for i in range(len(ix)):
-        r = _find(parent, node[ix[i] * ny + iy[i]])
+        r = _root_halving(parent, node[ix[i] * ny + iy[i]])
         if comp[r] < 0:
             comp[r] = n_comp
             n_comp += 1

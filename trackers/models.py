@@ -181,16 +181,20 @@ class CoordinatedTurn:
         60-digit evaluation for |omega| in [0, 1])."""
         w, vx, vy = float(x[4]), float(x[2]), float(x[3])
         F = self.transition(dt, w)
+        sw, cw, a, b = self._turn_derivative(w, dt)
+        F[:, 4] = [vx * a - vy * b, vx * b + vy * a, -dt * (sw * vx + cw * vy), dt * (cw * vx - sw * vy), 1.0]
+        return F
+
+    @staticmethod
+    def _turn_derivative(w: float, dt: float) -> tuple[float, float, float, float]:
+        """sin(w dt), cos(w dt) (libm) and the entries a, b of d(A x)/domega [s^2] of turn rate w [rad/s] over dt [s]
+        (the series form below SERIES_BELOW, shared by `jacobian` and the batched `_turns`)."""
         t = w * dt
         sw, cw = math.sin(t), math.cos(t)
         if abs(t) < SERIES_BELOW:
             t2 = t * t
-            a, b = dt * dt * t * taylor(DSINC, t2), dt * dt * taylor(DVERSINE, t2)  # series form of a, b
-        else:
-            a = (w * dt * cw - sw) / w ** 2
-            b = (w * dt * sw - (1.0 - cw)) / w ** 2
-        F[:, 4] = [vx * a - vy * b, vx * b + vy * a, -dt * (sw * vx + cw * vy), dt * (cw * vx - sw * vy), 1.0]
-        return F
+            return sw, cw, dt * dt * t * taylor(DSINC, t2), dt * dt * taylor(DVERSINE, t2)  # series form of a, b
+        return sw, cw, (w * dt * cw - sw) / w ** 2, (w * dt * sw - (1.0 - cw)) / w ** 2
 
     # ---- batched forms: X (T, 5) -> (T, 5) and (T, 5, 5), from the per-track scalars (libm sin / cos, the series
     # switch) computed track by track, then placed and combined entry by entry with the same float operations, so
@@ -206,13 +210,7 @@ class CoordinatedTurn:
         out = []
         for w in np.asarray(omega, dtype=np.float64).reshape(-1).tolist():
             s, c1 = self._terms(w, dt)
-            t = w * dt
-            sw, cw = math.sin(t), math.cos(t)
-            if abs(t) < SERIES_BELOW:
-                t2 = t * t
-                a, b = dt * dt * t * taylor(DSINC, t2), dt * dt * taylor(DVERSINE, t2)  # series form of a, b
-            else:
-                a, b = (w * dt * cw - sw) / w ** 2, (w * dt * sw - (1.0 - cw)) / w ** 2
+            sw, cw, a, b = self._turn_derivative(w, dt)
             out.append((s, c1, cw, sw, a, b))
         return np.array(out, dtype=np.float64).reshape(-1, 6)
 
