@@ -172,7 +172,7 @@ class ModelFilter:
         for s, d in zip(states, dkin):
             x = s.x.copy()
             x[idx] += d
-            if spread:
+            if spread and d.any():  # a straight lane (u = 0) adds nothing: no copy on the hot path
                 P = s.P.copy()
                 P[block] += np.outer(d, d)  # Q_u = B Sigma_u B^T with Sigma_u = u u^T [D]
                 out.append(derive(s, x=x, P=P))
