@@ -99,12 +99,14 @@ BEFORE = {"tracker.management.road_curvature": False, "tracker.management.road_l
 filter's fixed R)."""
 VARIANTS = {"before": BEFORE, "after": {}, "detection_R": {"tracker.filter.detection_R": True},
             "pd_points": {"sensor.occlusion_pd_full_points": 11}, "moving_whole": {"moving_test.parts": 1},
+            "edge_on_off": {"sensor.occlusion_pd_edge_on": False},
             "input_exact": {"tracker.management.road_curvature_spread": False}}
 """--variants: before issue 29; the defaults; the defaults with the detections' own covariances (filter key
 detection_R, off by default) instead of the filter's fixed R (sigma_w); the defaults with the occlusion-aware P_D
 rising to its nominal value at 11 rays on a car (perception's measured P_D of few-point cars); the defaults with
 the moving-object test over the whole window only (moving_test.parts = 1); the defaults with the road's curvature
-input taken as exact (tracker.management.road_curvature_spread = false)."""
+input taken as exact (tracker.management.road_curvature_spread = false); the defaults without the edge-on term of
+the occlusion-aware P_D (sensor.occlusion_pd_edge_on = false)."""
 CHI2_2_95 = 5.991464547107979
 """The 95 % point of the chi-square distribution with 2 degrees of freedom (NEES and NIS of a 2-D position)."""
 

@@ -305,3 +305,27 @@ def test_few_rays_give_a_partial_pd_with_full_points():
     assert ramp[0] == pytest.approx(step[0] * (far - MIN_POINTS + 1) / (full - MIN_POINTS + 1))
     with pytest.raises(ValueError, match="full_points"):
         replace(OCC, full_points=-1)
+
+
+def test_a_far_car_showing_only_its_side_gets_no_pd_with_the_edge_on_term():
+    """A car 52 m ahead, 16 m to the side (seen low: only the beam at -1.33 deg reaches it), its rear face hidden
+    by a post 20 m ahead: the rays see its side only, along the line of sight, and perception drops it as
+    edge-on (sensors/perception.py). edge_on_top_m (perception's min_height_m) makes its P_D 0; with the post
+    gone the rear face is seen and both the P_D and perception keep it."""
+    from roadtrack.sensors import PerceptionConfig, perceive
+
+    car, post = box(52.0, 16.0), box(20.0, 6.53, size=(1.0, 1.02, 3.0))
+    edge = replace(OCC, edge_on_top_m=PerceptionConfig().min_height_m)
+    hidden, free = cast([post, car], [-1, 1]), cast([car], [1])
+    assert n_points(hidden, 1) >= MIN_POINTS  # the side really is hit
+    vis = visibility(hidden, [car[:2]], edge, heading=[0.0])
+    assert vis.clear_end_columns[0] <= 1 < vis.clear_columns[0] - 3 and vis.seen_top[0] < 0.8  # a corner at most
+    assert detection_probability(hidden, [car[:2]], OCC, heading=[0.0])[0] > 0.4  # without the term: half seen
+    assert detection_probability(hidden, [car[:2]], edge, heading=[0.0])[0] == 0.0
+    rejected = perceive(hidden, PerceptionConfig()).rejected
+    assert "edge_on" in rejected.reason[rejected.provenance == 1]
+
+    assert detection_probability(free, [car[:2]], edge, heading=[0.0])[0] == pytest.approx(OCC.pd_nominal)
+    assert 1 in perceive(free, PerceptionConfig()).detections.provenance
+    with pytest.raises(ValueError, match="edge_on_lo_m"):
+        replace(OCC, edge_on_lo_m=1.2)

@@ -273,6 +273,11 @@ class SensorSpec:
                                           "measured on dense_motorway, docs/perception.md: its break-ups 1.15 -> "
                                           "0.97 %, 3 seeds); 0: a step at min_points",
                                           check=(lambda v: 0 <= v <= 1000, "in [0, 1000]"))
+    occlusion_pd_edge_on: bool = field(True, doc="the occlusion-aware P_D of a car seen low (its visible rays all "
+                                       "below perception's min_height_m, i.e. far away) ramps with the seen width "
+                                       "of its front or rear face from 0.3 to 1.1 m, as perception's edge-on test "
+                                       "drops a low object narrow across the line of sight (a car's side seen "
+                                       "along it): measured P_D 0.15-0.21 where the P_D said 0.74 (issue 29)")
     clutter: ClutterSpec = field(ClutterSpec(), doc="added Poisson clutter")
     extra: tuple[str, ...] = field((), doc="further sensors by name, sensed beside the LiDAR (testbed/sensing/"
                                    "registry.py, plug-ins of the entry point group roadtrack.sensors); their data "

@@ -57,6 +57,9 @@ def occlusion_pd(scn: Scenario, road: sensors.RoadMap):
     track would not do: the car just ahead of a hidden car then lies at the box's entry and no longer hides it.)"""
     lidar = scn.sensor.lidar
     configs: dict[float, sensors.OcclusionConfig] = {}
+    perception = scn.sensor.perception
+    edge_on = scn.sensor.occlusion_pd_edge_on and perception.vehicle_like and perception.shape_filter
+    edge_on_top = perception.min_height_m if edge_on else 0.0  # the perception's edge-on test (sensors/perception.py)
 
     def for_scan(scan: sensors.Scan):
         def pd_of(xy: np.ndarray, nominal: float, trucks: np.ndarray | None = None) -> np.ndarray:
@@ -65,7 +68,7 @@ def occlusion_pd(scn: Scenario, road: sensors.RoadMap):
             if cfg is None:
                 cfg = configs[nominal] = sensors.OcclusionConfig.from_lidar(
                     lidar, pd_nominal=nominal, min_points=scn.sensor.perception.cluster.min_points,
-                    full_points=scn.sensor.occlusion_pd_full_points)
+                    full_points=scn.sensor.occlusion_pd_full_points, edge_on_top_m=edge_on_top)
             xy = np.asarray(xy, dtype=np.float64)[:, :2]
             heading = road.heading_at(xy) if len(xy) else None
             occ = sensors.detection_probability(scan, xy, cfg, heading=heading)
