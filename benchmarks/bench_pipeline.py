@@ -44,6 +44,7 @@ one_thread_per_process()
 import numpy as np  # noqa: E402
 
 from roadtrack import sensors
+from roadtrack.trackers import make_tracker
 from roadtrack.testbed.pipeline.run import run_scenario
 from roadtrack.testbed.scenario.spec import load_scenario
 from roadtrack.testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
@@ -203,12 +204,18 @@ def main() -> None:
                     help="also run at these mean numbers of vehicles within the LiDAR's range (scenarios with [traffic])")
     ap.add_argument("--trackers", nargs="*", default=None,
                     help="the campaign's trackers (default jpda-kf gnn-kf pda-kf; --long adds imm-pda-kf, jpda-svsf; "
-                         "none: skip the campaign)")
+                         "none, or the option without names: skip the campaign)")
     ap.add_argument("--long", action="store_true", help="30 s per density and five trackers")
     args = ap.parse_args()
     duration = args.duration if args.duration is not None else (30.0 if args.long else 10.0)
     trackers = args.trackers if args.trackers is not None else (
         ["jpda-kf", "gnn-kf", "pda-kf"] + (["imm-pda-kf", "jpda-svsf"] if args.long else []))
+    trackers = [] if trackers == ["none"] else trackers
+    for name in trackers:  # a misspelt name fails now, not after the timed loops
+        try:
+            make_tracker(name)
+        except ValueError as err:
+            ap.error(f"--trackers: {err}")
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, set(sorted(os.sched_getaffinity(0))[: args.cores]))
     scn = load_scenario(args.scenario, {"duration_s": duration})

@@ -205,3 +205,26 @@ def test_a_wide_track_claims_only_the_detections_near_it(offset, starts):
     res = trk.step(res.tracks, (z_hat + [0.0, offset])[None, :], DT, res.next_id)
     assert bool(res.info.gated[0, 0])  # in its (wide) gate either way
     assert any(t.id != old.id for t in res.tracks) == starts
+
+
+@pytest.mark.parametrize("length, pd_after_birth", [(15.4, 0.9), (4.6, 0.0)])
+def test_a_track_started_on_a_truck_is_a_trucks_from_its_first_scan(length, pd_after_birth):
+    """A new track takes the class of the detection it was started on: a truck's gets the truck box's P_D at once.
+    (With the car box a truck's own rear face hides its centre: P_D 0, its detections got no weight, so it never
+    learnt its class from them; the P_D here is that rule: the nominal value for a truck box, 0 for a car box.)"""
+    from roadtrack.testbed.tracking.builtin import BuiltinTracker, born_trucks
+    from roadtrack.testbed.tracking.protocol import Frame
+
+    def pd(xy, nominal, trucks=None):
+        return np.where(np.zeros(len(xy), bool) if trucks is None else trucks, nominal, 0.0)
+
+    bt = BuiltinTracker(make_tracker("jpda-kf"))
+    seen = []
+    for k in range(4):
+        z = np.array([[30.0 + 20.0 * DT * k, 0.0]])
+        out = bt.step(Frame(index=k, time=k * DT, dt=DT if k else 0.0, z=z, R=np.eye(2)[None] * 0.04,
+                            extent=np.array([[length, 2.5, 3.5]]), heading=np.zeros(1), pd=pd))
+        seen += list(out.info.diagnostics.get("pd", []))
+    assert seen and all(v == pd_after_birth for v in seen), seen
+    assert born_trucks(np.array([1, 2]), np.array([[0.0, 0.0], [5.0, 0.0]]), np.array([[0.0, 0.0]]),
+                       np.array([15.4])) == {1: True}  # no detection under track 2: class unknown

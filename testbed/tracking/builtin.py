@@ -1,7 +1,8 @@
 """The built-in trackers (``trackers.make_tracker``: any filter with any associator) behind the tracker protocol.
 
 ``BuiltinTracker`` keeps the tracks, the next label and which tracks follow trucks between scans, feeds the
-occlusion-aware P_D (a truck-sized box for the tracks whose last detection was truck-long) and reports the
+occlusion-aware P_D (a truck-sized box for the tracks whose last detection, or the one they were started on, was
+truck-long) and reports the
 non-candidate tracks with their gates, boundary layers and diagnostics for the recording.
 """
 from __future__ import annotations
@@ -28,6 +29,24 @@ def truck_tracks(ids: np.ndarray, W: np.ndarray, lengths: np.ndarray, known: dic
     return out
 
 
+BORN_ON_M = 1e-6
+"""A new track lies this close [m] to the detection it was started from (its position is that measurement's)."""
+
+
+def born_trucks(ids: np.ndarray, xy: np.ndarray, Z: np.ndarray, lengths: np.ndarray) -> dict[int, bool]:
+    """Track id -> truck for new tracks ``ids`` (B,) at positions ``xy`` (B, 2) [m]: the class of the detection of
+    ``Z`` (M, 2) [m] it was started on (within :data:`BORN_ON_M`; ``lengths`` (M,) [m] > :data:`TRUCK_MIN_LENGTH_M`).
+    A track is born a truck's so that its P_D is a truck box's from its first scan: with a car box a truck's own
+    rear face hides its centre, its P_D is 0, its detections get no weight and it never learns its class from
+    them (the oncoming trucks dense_motorway never confirmed)."""
+    if not len(ids) or not len(Z):
+        return {}
+    d2 = ((xy[:, None, :2] - Z[None, :, :2]) ** 2).sum(axis=2)
+    j = np.argmin(d2, axis=1)
+    on = d2[np.arange(len(ids)), j] <= BORN_ON_M**2
+    return {int(i): bool(lengths[k] > TRUCK_MIN_LENGTH_M) for i, k, o in zip(ids, j, on) if o}
+
+
 class BuiltinTracker:
     """A ``trackers.Tracker`` as a protocol tracker. ``tracker``: the built tracker (``trackers.make_tracker``);
     ``tracks``: the live tracks after the last step (candidates included), ``next_id`` the next label."""
@@ -46,12 +65,17 @@ class BuiltinTracker:
             live = np.array([self._trucks.get(t.id, False) for t in self.tracks if not t.candidate], dtype=bool)
             nominal, occ = trk.association.pd, frame.pd
             pd = lambda z_hat: occ(z_hat[:, :2], nominal, live)  # noqa: E731 - the tracker calls it once
+        first_new = self.next_id
         res = trk.step(self.tracks, frame.z, frame.dt, self.next_id, pd=pd, road=frame.road, R=frame.R)
         self.tracks, self.next_id = res.tracks, res.next_id
         if frame.pd is not None:
             alive = {t.id for t in res.tracks}
-            self._trucks = {k: v for k, v in truck_tracks(res.info.ids, res.info.W, frame.extent[:, 0],
-                                                          self._trucks).items() if k in alive}
+            known = truck_tracks(res.info.ids, res.info.W, frame.extent[:, 0], self._trucks)
+            born = [t for t in res.tracks if t.id >= first_new and not t.candidate]
+            if born:
+                xy = trk.kinematics(born)[0][:, :2]
+                known.update(born_trucks(np.array([t.id for t in born]), xy, frame.z, frame.extent[:, 0]))
+            self._trucks = {k: v for k, v in known.items() if k in alive}
         reported = tuple(t for t in res.tracks if not t.candidate)  # candidates await a second measurement
         kin, cov = trk.kinematics(reported)
         d = kin.shape[1] // 2
