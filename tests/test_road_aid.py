@@ -195,14 +195,21 @@ def test_breakup_events_name_their_causes():
                          heading=0.0, is_ego=False))
         rows.append(dict(frame=f, vehicle_id=2, x=2.5 * f, y=8.0, vx=25.0, vy=0.0, n_points=40, heading=0.0,
                          is_ego=False))
+        far = 10 <= f < 20  # car 3 drives out of the sensor's range and comes back
+        rows.append(dict(frame=f, vehicle_id=3, x=2.5 * f, y=-8.0, vx=25.0, vy=0.0, n_points=0 if far else 40,
+                         heading=0.0, is_ego=False, in_range=not far))
     truth = pd.DataFrame(rows)
     tr = []
     for f in range(40):
         tr.append(dict(frame=f, track_id=1 if f < 18 else 3, x=2.5 * f, y=0.0, status="confirmed"))  # occlusion
         tr.append(dict(frame=f, track_id=2 if f < 30 else 4, x=2.5 * f, y=8.0, status="confirmed"))  # visible
-    ev = breakup_events(truth, pd.DataFrame(tr).assign(vx=25.0, vy=0.0))
+        tr.append(dict(frame=f, track_id=5 if f < 18 else 6, x=2.5 * f, y=-8.0, status="confirmed"))  # out of range
+    ev = breakup_events(truth.assign(in_range=truth.in_range.fillna(True).astype(bool)),
+                        pd.DataFrame(tr).assign(vx=25.0, vy=0.0))
     assert ev[["car", "old_track", "new_track", "cause"]].values.tolist() == [
-        [1, 1, 3, "occlusion"], [2, 2, 4, "deletion while visible"]]
+        [1, 1, 3, "occlusion"], [3, 5, 6, "out of range"], [2, 2, 4, "deletion while visible"]]
+    without = breakup_events(truth.drop(columns="in_range"), pd.DataFrame(tr).assign(vx=25.0, vy=0.0))
+    assert without.cause.tolist() == ["occlusion", "occlusion", "deletion while visible"]  # not known: hidden
 
 
 @pytest.mark.parametrize("name, check", [("cut_in_out", "relabel_events"), ("u_turn", "breakup_pct")])

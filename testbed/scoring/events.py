@@ -13,8 +13,12 @@ read from the tables alone (no tracker internals), in this order:
   before the old track's deletion (or before the relabel, if the old track lives on);
 * "merge": the old track is still confirmed but on no car (it left its car: merged or split detections, or a
   duplicate track that won);
+* "out of range": the old track was deleted while its car was beyond the sensor's range (truth's ``in_range``
+  false on at least half of the frames between the old track's last frame on the car and its deletion): a car
+  that drove out of reach and came back, which no tracker keeps (a truth table without ``in_range`` never
+  gives this cause);
 * "occlusion": the old track was deleted while its car was hidden (fewer than the scoring's visible points on
-  at least half of the frames between the old track's last frame on the car and its deletion);
+  at least half of those frames);
 * "deletion while visible": any other deletion (the car was in view and not turning).
 
 A **false track** (a confirmed track no car claims as correct, rates.py rule 3) is dated at its first confirmed
@@ -35,7 +39,7 @@ from ..scenario.spec import ScoringSpec
 from .evaluate import scoring_rows
 from .timeline import car_timeline
 
-CAUSES = ("swap", "manoeuvre", "merge", "occlusion", "deletion while visible")
+CAUSES = ("swap", "manoeuvre", "merge", "out of range", "occlusion", "deletion while visible")
 FALSE_CAUSES = ("clutter", "swap", "duplicate", "drift")
 MISSED_CAUSES = ("wrong track", "seen briefly", "occlusion", "never confirmed")
 KINDS = ("relabel", "false track", "missed car")
@@ -69,6 +73,7 @@ def _breakups(tl, t: dict, truth, dt: float) -> pd.DataFrame:
             if a >= 0:
                 on_car[(int(f), int(a))] = int(v)
     heading = _headings(truth)
+    beyond = _beyond(truth)
     rows = []
     for c, v in enumerate(tl.cars):
         a, f, vis = tl.assigned[c], tl.frames[c], tl.visible[c]
@@ -76,8 +81,9 @@ def _breakups(tl, t: dict, truth, dt: float) -> pd.DataFrame:
             i = int(np.flatnonzero(f == fr)[0])
             prev = a[:i][a[:i] >= 0]
             old, new = int(prev[-1]), int(a[i])
+            far = beyond.get(int(v))
             cause = _cause(int(v), int(fr), old, f, a[:i], vis, last, on_car, heading.get(int(v)),
-                           int(round(LOOKBACK_S / dt)))
+                           int(round(LOOKBACK_S / dt)), None if far is None else far.reindex(f, fill_value=False).to_numpy(bool))
             rows.append(dict(frame=int(fr), car=int(v), old_track=old, new_track=new, cause=cause))
     out = pd.DataFrame(rows, columns=["frame", "car", "old_track", "new_track", "cause"])
     return out.sort_values(["frame", "car"], kind="stable").reset_index(drop=True)
@@ -161,8 +167,18 @@ def _headings(truth) -> dict[int, pd.Series]:
     return {int(v): grp.set_index("frame")["heading"] for v, grp in df.groupby("vehicle_id")}
 
 
+def _beyond(truth) -> dict[int, pd.Series]:
+    """Per vehicle id, frame -> whether it was beyond the sensor's range (truth's ``in_range``); empty without it."""
+    df = truth if isinstance(truth, pd.DataFrame) else pd.DataFrame(truth)
+    if "in_range" not in df.columns:
+        return {}
+    return {int(v): ~grp.set_index("frame")["in_range"].astype(bool) for v, grp in df.groupby("vehicle_id")}
+
+
 def _cause(car: int, frame: int, old: int, frames: np.ndarray, before: np.ndarray, visible: np.ndarray,
-           last: pd.Series, on_car: dict, h: pd.Series | None, lookback: int) -> str:
+           last: pd.Series, on_car: dict, h: pd.Series | None, lookback: int, beyond: np.ndarray | None = None) -> str:
+    """The cause of car ``car``'s relabel at ``frame`` (module docstring); visible and beyond (F,) bool per frame
+    of ``frames``: the car in view, beyond the sensor's range (None: not known)."""
     end = int(last.get(old, -1))
     alive = end >= frame  # the old track lives on
     if alive and on_car.get((frame, old), car) != car:
@@ -177,6 +193,8 @@ def _cause(car: int, frame: int, old: int, frames: np.ndarray, before: np.ndarra
     seen = np.flatnonzero(before == old)
     start = int(frames[seen[-1]]) if seen.size else end
     span = (frames >= start) & (frames <= end)
+    if span.any() and beyond is not None and beyond[span].mean() >= 0.5:
+        return "out of range"
     if span.any() and (~visible[span]).mean() >= 0.5:
         return "occlusion"
     return "deletion while visible"
