@@ -88,7 +88,7 @@ def diagnose(run: Path) -> dict:
                 breakup_pct=s["breakup_pct"], cars_seen=s["cars_seen"], relabel_events=s["relabel_events"],
                 largest_gate_m2=gate, tracks_over_1000_m2=over, missed=len(missed), missed_barely_detected=barely,
                 missed_well_detected=len(missed) - barely, **{f"breakup_{k}": v for k, v in causes.items()},
-                ms_tracking=meta["timings_ms_per_frame"]["tracking"],
+                stitched=int(meta.get("stitched_tracks", 0)), ms_tracking=meta["timings_ms_per_frame"]["tracking"],
                 **consistency(truth, tb["tracks"], tb["diagnostics"], sc["match_distance_m"]))
 
 
@@ -100,13 +100,15 @@ filter's fixed R)."""
 VARIANTS = {"before": BEFORE, "after": {}, "detection_R": {"tracker.filter.detection_R": True},
             "pd_points": {"sensor.occlusion_pd_full_points": 11}, "moving_whole": {"moving_test.parts": 1},
             "edge_on_off": {"sensor.occlusion_pd_edge_on": False},
+            "stitch2": {"tracker.stitch_s": 2.0}, "stitch5": {"tracker.stitch_s": 5.0},
             "input_exact": {"tracker.management.road_curvature_spread": False}}
 """--variants: before issue 29; the defaults; the defaults with the detections' own covariances (filter key
 detection_R, off by default) instead of the filter's fixed R (sigma_w); the defaults with the occlusion-aware P_D
 rising to its nominal value at 11 rays on a car (perception's measured P_D of few-point cars); the defaults with
 the moving-object test over the whole window only (moving_test.parts = 1); the defaults with the road's curvature
 input taken as exact (tracker.management.road_curvature_spread = false); the defaults without the edge-on term of
-the occlusion-aware P_D (sensor.occlusion_pd_edge_on = false)."""
+the occlusion-aware P_D (sensor.occlusion_pd_edge_on = false); the defaults with track-to-track stitching over 2 s or
+5 s (tracker.stitch_s; the run's stitched_tracks is printed beside its scores)."""
 CHI2_2_95 = 5.991464547107979
 """The 95 % point of the chi-square distribution with 2 degrees of freedom (NEES and NIS of a 2-D position)."""
 
@@ -160,7 +162,7 @@ def summary(rows: list[dict]) -> list[dict]:
     for r in rows:
         k = (r["scenario"], r["tracker"], r["variant"])
         a = out.setdefault(k, dict(scenario=k[0], tracker=k[1], variant=k[2], seeds=0, cars_seen=0, tp=0.0, fp=0.0,
-                                   breakups=0.0, largest_gate_m2=0.0, **{f"breakup_{c}": 0 for c in CAUSES},
+                                   breakups=0.0, largest_gate_m2=0.0, stitched=0, **{f"breakup_{c}": 0 for c in CAUSES},
                                    nees_mean=[], nees_in95=[], nis_mean=[], nis_in95=[], ms_tracking=[]))
         n = r["cars_seen"]
         a["seeds"] += 1
@@ -169,6 +171,7 @@ def summary(rows: list[dict]) -> list[dict]:
         a["fp"] += r["fp_pct"] * n / 100
         a["breakups"] += r["breakup_pct"] * n / 100
         a["largest_gate_m2"] = max(a["largest_gate_m2"], r["largest_gate_m2"])
+        a["stitched"] += r["stitched"]
         for c in CAUSES:
             a[f"breakup_{c}"] += r[f"breakup_{c}"]
         for c in ("nees_mean", "nees_in95", "nis_mean", "nis_in95", "ms_tracking"):

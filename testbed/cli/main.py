@@ -232,7 +232,9 @@ def print_run(res, args: argparse.Namespace, out: str) -> None:
     per_frame = sum(res.timings_ms.values())
     print(f"\n{res.n_frames} frames, {per_frame:.1f} ms/frame "
           f"({', '.join(f'{k} {v:.1f}' for k, v in res.timings_ms.items())}), "
-          f"{res.fallbacks} association fallback{'' if res.fallbacks == 1 else 's'}")
+          f"{res.fallbacks} association fallback{'' if res.fallbacks == 1 else 's'}"
+          + (f", {res.stitched} stitched track{'' if res.stitched == 1 else 's'} (tracker.stitch_s: the scores count "
+             f"each as the track it continues)" if res.scenario.tracker.stitch_s > 0 else ""))
     written = ["scores.json", "truth.parquet", "detections.parquet", "tracks.parquet", "diagnostics.parquet",
                "events.parquet"]
     if not args.no_record:

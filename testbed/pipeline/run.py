@@ -46,6 +46,7 @@ class RunResult:
     tracker: str = ""  # the tracker's name in the outputs
     fallbacks: int = 0  # association problems solved by a fallback over the run (TrackSet.fallbacks summed)
     events: pd.DataFrame | None = None  # relabels, false tracks, missed cars (testbed.scoring.events.run_events)
+    stitched: int = 0  # tracks given a deleted track's label over the run (TrackSet.stitched summed)
 
     def summary(self) -> dict[str, float]:
         """Flat dict of every scalar score of the run: thesis scores, MOT metrics, ms per frame per stage."""
@@ -131,7 +132,8 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         if closing is not None:  # the compaction ran beside the scoring: the wait left is the recording's
             _timed(closing.wait_compacted, watch, "recording")
         timings = {k: 1000.0 * v / max(state.frames, 1) for k, v in watch.spent.items()}
-        res = RunResult(scn, scores, timings, state.frames, out, tables, metrics, name, state.fallbacks, events)
+        res = RunResult(scn, scores, timings, state.frames, out, tables, metrics, name, state.fallbacks, events,
+                        state.stitched)
         if out is not None:
             _write_tables(out, tables)
             write_atomic(out / EVENTS_FILE, lambda tmp: events.to_parquet(tmp, index=False))
@@ -171,6 +173,7 @@ class _Progress:
     tables_written: bool = False
     rows: dict[str, int] = field(default_factory=dict)  # each table's rows at the end of the last frame done
     fallbacks: int = 0  # TrackSet.fallbacks summed over the frames done
+    stitched: int = 0  # TrackSet.stitched summed over the frames done
 
 
 def tracker_frame(sensed: SensedFrame, dt: float) -> Frame:
@@ -225,6 +228,7 @@ def _frames(scn, tracker, frames, recorder, tables, watch, state: _Progress, ove
         watch.lap("recording")
         state.rows = {k: log.n_rows for k, log in tables.items()}
         state.fallbacks += ts.fallbacks
+        state.stitched += ts.stitched
         state.frames += 1
         if on_frame is not None:
             on_frame(state.frames, scn.n_frames)
@@ -429,11 +433,14 @@ def _write_tables(out: Path, tables: dict) -> None:
 
 def write_scores(res: RunResult, tracker_name: str) -> None:
     """``scores.json`` of a run: scenario, seed, tracker, frames, association fallbacks (TrackSet.fallbacks summed:
-    association problems over their exact budget, solved by a fallback), scores, MOT metrics, timings, config."""
+    association problems over their exact budget, solved by a fallback), stitched tracks (TrackSet.stitched summed:
+    tracks given a recently deleted track's label, tracker.stitch_s; the scores count them as that track), scores,
+    MOT metrics, timings, config."""
     out = res.out_dir
     assert out is not None
     doc = dict(scenario=res.scenario.name, seed=res.scenario.seed, tracker=tracker_name,
-               frames=res.n_frames, association_fallbacks=res.fallbacks, scores=res.scores.to_dict(), mot_metrics=res.metrics,
+               frames=res.n_frames, association_fallbacks=res.fallbacks, stitched_tracks=res.stitched,
+               scores=res.scores.to_dict(), mot_metrics=res.metrics,
                timings_ms_per_frame=res.timings_ms,
                config=to_dict(res.scenario))
     text = json_text(doc, indent=2, default=float) + "\n"  # a score with nothing to measure is null

@@ -306,6 +306,11 @@ class TrackerSpec:
     associator: dict[str, Any] = field({}, doc="associator parameters (gate, P_D, clutter density, JPDA method)")
     management: dict[str, Any] = field({}, doc="track management: kind (score or m_of_n), initiation, "
                                        "confirmation, deletion, coasting, duplicate pruning")
+    stitch_s: float = field(0.0, doc="track-to-track stitching of the built-in trackers: a newly confirmed track "
+                            "takes the label of a confirmed track deleted at most this many seconds before when it "
+                            "lies in that track's constant-velocity prediction (testbed/tracking/stitch.py); the "
+                            "run counts the stitches (scores.json stitched_tracks); 0: off",
+                            check=(lambda v: 0 <= v <= 60, "in [0, 60]"))
 
     def build(self, name: str | None = None):
         """The trackers.Tracker of this spec; ParamError on bad parameters. ``name`` overrides the preset

@@ -7,12 +7,15 @@ non-candidate tracks with their gates, boundary layers and diagnostics for the r
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from roadtrack import trackers
 from roadtrack.trackers.association.jpda import FALLBACK_DIAGNOSTIC, fallback_clusters
 
 from .protocol import Frame, TrackSet
+from .stitch import Stitcher
 
 TRUCK_MIN_LENGTH_M = 7.0
 """A detection longer than this [m] is a truck's (the box fit's truck boxes are at least 7.5 m long)."""
@@ -51,12 +54,14 @@ class BuiltinTracker:
     """A ``trackers.Tracker`` as a protocol tracker. ``tracker``: the built tracker (``trackers.make_tracker``);
     ``tracks``: the live tracks after the last step (candidates included), ``next_id`` the next label."""
 
-    def __init__(self, tracker: trackers.Tracker):
+    def __init__(self, tracker: trackers.Tracker, stitch_s: float = 0.0):
         self.tracker = tracker
         self.name = tracker.name
         self.tracks: tuple = ()
         self.next_id = 1
         self._trucks: dict[int, bool] = {}
+        self.stitcher = Stitcher(stitch_s) if stitch_s > 0 else None  # track-to-track stitching (stitch.py)
+        self._confirmed: set[int] = set()
 
     def step(self, frame: Frame) -> TrackSet:
         trk = self.tracker
@@ -80,14 +85,34 @@ class BuiltinTracker:
         kin, cov = trk.kinematics(reported)
         d = kin.shape[1] // 2
         idx = np.array([0, 1, d, d + 1])  # [x, y, vx, vy] of the filter's [p; v]
+        ids, info = np.array([t.id for t in reported], dtype=np.int64), res.info
+        stitched = self._stitch(frame.time, res, reported, kin[:, idx], cov[:, idx][:, :, idx])
+        if self.stitcher is not None:
+            ids, info = self.stitcher.label(ids), dataclasses.replace(info, ids=self.stitcher.label(info.ids))
         return TrackSet(
-            ids=np.array([t.id for t in reported], dtype=np.int64), xy=kin[:, :2], v=kin[:, d:d + 2],
+            ids=ids, xy=kin[:, :2], v=kin[:, d:d + 2],
             cov=cov[:, idx][:, :, idx], status=np.array(["confirmed" if t.confirmed else "tentative" for t in reported],
                                                         dtype=object),
             score=np.array([t.score for t in reported], dtype=np.float64),
             regime=np.array([t.regime for t in reported], dtype=object),
-            diagnostics=res.info.diagnostics, diagnostic_ids=res.info.ids, info=res.info,
-            gate_alpha=trk.association.gate_alpha, fallbacks=self.fallbacks(res.info))
+            diagnostics=info.diagnostics, diagnostic_ids=info.ids, info=info,
+            gate_alpha=trk.association.gate_alpha, fallbacks=self.fallbacks(res.info), stitched=stitched)
+
+    def _stitch(self, time: float, res, reported: tuple, kin: np.ndarray, cov: np.ndarray) -> int:
+        """The stitches of this step (0 without a stitcher): the confirmed tracks it deleted are kept, the tracks it
+        confirmed are stitched to kept ones (kin (T, 4) [x, y, vx, vy], cov (T, 4, 4) of ``reported``)."""
+        if self.stitcher is None:
+            return 0
+        gone = tuple(t for t in res.deleted if t.id in self._confirmed)
+        d_kin, d_cov = self.tracker.kinematics(gone) if gone else (np.zeros((0, 4)), np.zeros((0, 4, 4)))
+        if gone:
+            dd = d_kin.shape[1] // 2
+            j = np.array([0, 1, dd, dd + 1])
+            d_kin, d_cov = d_kin[:, j], d_cov[:, j][:, :, j]
+        new = np.array([t.confirmed and t.id not in self._confirmed for t in reported], dtype=bool).reshape(-1)
+        self._confirmed = {t.id for t in reported if t.confirmed}
+        return self.stitcher.update(time, (np.array([t.id for t in gone], dtype=np.int64), d_kin, d_cov),
+                                    (np.array([t.id for t in reported], dtype=np.int64)[new], kin[new], cov[new]))
 
     @staticmethod
     def fallbacks(info) -> int:

@@ -65,6 +65,8 @@ class TrackSet:
     gate_alpha: the gate's chi-square threshold the recording draws ``info``'s gates at.
     fallbacks: association problems of this scan solved by a fallback because the exact one was over its budget
     (a JPDA cluster over max_nodes; the run sums them into scores.json's ``association_fallbacks``).
+    stitched: tracks of this scan given the label of a recently deleted track (track-to-track stitching,
+    ``tracker.stitch_s``; testbed/tracking/stitch.py); the run sums them into scores.json's ``stitched_tracks``.
     """
 
     ids: np.ndarray
@@ -79,6 +81,7 @@ class TrackSet:
     info: object | None = None
     gate_alpha: float = 9.21
     fallbacks: int = 0
+    stitched: int = 0
 
     def __post_init__(self) -> None:
         ids = np.asarray(self.ids)
@@ -105,8 +108,10 @@ class TrackSet:
         regime = np.full(t, "", dtype=object) if self.regime is None else np.asarray(self.regime, dtype=object)
         if regime.shape != (t,):
             raise ValueError(f"TrackSet.regime: expected shape ({t},), got {regime.shape}")
-        if isinstance(self.fallbacks, bool) or not isinstance(self.fallbacks, (int, np.integer)) or self.fallbacks < 0:
-            raise ValueError(f"TrackSet.fallbacks: expected an int >= 0, got {self.fallbacks!r}")
+        for name in ("fallbacks", "stitched"):
+            n = getattr(self, name)
+            if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+                raise ValueError(f"TrackSet.{name}: expected an int >= 0, got {n!r}")
         diag_ids = ids if self.diagnostic_ids is None else np.asarray(self.diagnostic_ids, dtype=np.int64).reshape(-1)
         diag = {}
         for name, values in self.diagnostics.items():

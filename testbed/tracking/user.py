@@ -36,7 +36,7 @@ def build_tracker(scenario, tracker: Any = None) -> Tracker:
     function of the scenario), or an object with ``step`` already built. ConfigError (one line) when it is none
     of these or the factory does not give an object with ``step``."""
     if tracker is None or (isinstance(tracker, str) and not is_factory_spec(tracker)):
-        return BuiltinTracker(scenario.tracker.build(tracker or scenario.tracker.name))
+        return BuiltinTracker(scenario.tracker.build(tracker or scenario.tracker.name), scenario.tracker.stitch_s)
     factory = load_tracker(tracker) if isinstance(tracker, str) else tracker
     if isinstance(factory, Tracker) and not inspect.isclass(factory):
         return factory
