@@ -62,3 +62,12 @@ def test_a_run_counts_its_stitches_in_scores_json(tmp_path):
     assert json.loads((tmp_path / "r" / "scores.json").read_text())["stitched_tracks"] == res.stitched == 0
     with pytest.raises(ConfigError, match="tracker.stitch_s"):
         load_scenario("cut_in_out", {"tracker.stitch_s": -1.0})
+
+
+def test_a_tracker_that_is_not_built_in_refuses_stitching_in_one_line():
+    from roadtrack.testbed.tracking.user import build_tracker
+
+    scn = load_scenario("cut_in_out", {"tracker.stitch_s": 2.0})
+    with pytest.raises(ConfigError, match=r"^tracker.stitch_s: stitching is a step of the built-in trackers, not "
+                                          r"of a named or a user's tracker"):
+        build_tracker(scn, "stonesoup-jpda-kf")

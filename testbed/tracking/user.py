@@ -37,6 +37,9 @@ def build_tracker(scenario, tracker: Any = None) -> Tracker:
     of these or the factory does not give an object with ``step``."""
     if tracker is None or (isinstance(tracker, str) and not is_factory_spec(tracker)):
         return BuiltinTracker(scenario.tracker.build(tracker or scenario.tracker.name), scenario.tracker.stitch_s)
+    if scenario.tracker.stitch_s > 0 and not isinstance(tracker, BuiltinTracker):  # never silently left out
+        raise ConfigError("tracker.stitch_s", "stitching is a step of the built-in trackers, not of a named or a "
+                          "user's tracker: set it to 0 for this one")
     factory = load_tracker(tracker) if isinstance(tracker, str) else tracker
     if isinstance(factory, Tracker) and not inspect.isclass(factory):
         return factory
