@@ -46,14 +46,17 @@ def _frames(gap: range, n: int = 60, dt: float = 0.1):
 @pytest.mark.parametrize("stitch_s", [0.0, 3.0])
 def test_a_car_missed_for_a_second_keeps_its_label_with_stitching(stitch_s):
     bt = BuiltinTracker(make_tracker("jpda-kf"), stitch_s)
-    labels, stitched = [], 0
+    labels, stitched, marked = [], 0, []
     for f in _frames(range(20, 32)):
         ts = bt.step(f)
         stitched += ts.stitched
         labels += [int(i) for i, s in zip(ts.ids, ts.status) if s == "confirmed"]
+        mark = ts.diagnostics.get("stitched", np.zeros(0))
+        marked += [(f.index, int(i)) for i, m in zip(ts.diagnostic_ids, mark) if m == 1.0]
     before, after = labels[0], labels[-1]
     assert len(set(labels)) == (1 if stitch_s else 2) and stitched == (1 if stitch_s else 0)
     assert (before == after) == bool(stitch_s)
+    assert [i for _, i in marked] == ([before] if stitch_s else [])  # the diagnostic marks the stitch's scan
 
 
 def test_a_run_counts_its_stitches_in_scores_json(tmp_path):

@@ -87,8 +87,11 @@ class BuiltinTracker:
         idx = np.array([0, 1, d, d + 1])  # [x, y, vx, vy] of the filter's [p; v]
         ids, info = np.array([t.id for t in reported], dtype=np.int64), res.info
         stitched = self._stitch(frame.time, res, reported, kin[:, idx], cov[:, idx][:, :, idx])
-        if self.stitcher is not None:
-            ids, info = self.stitcher.label(ids), dataclasses.replace(info, ids=self.stitcher.label(info.ids))
+        if self.stitcher is not None:  # reported under the labels they continue; diagnostic "stitched" marks the scan
+            mark = np.isin(info.ids, list(stitched)).astype(np.float64)
+            info = dataclasses.replace(info, ids=self.stitcher.label(info.ids),
+                                       diagnostics={**info.diagnostics, "stitched": mark})
+            ids = self.stitcher.label(ids)
         return TrackSet(
             ids=ids, xy=kin[:, :2], v=kin[:, d:d + 2],
             cov=cov[:, idx][:, :, idx], status=np.array(["confirmed" if t.confirmed else "tentative" for t in reported],
@@ -96,13 +99,13 @@ class BuiltinTracker:
             score=np.array([t.score for t in reported], dtype=np.float64),
             regime=np.array([t.regime for t in reported], dtype=object),
             diagnostics=info.diagnostics, diagnostic_ids=info.ids, info=info,
-            gate_alpha=trk.association.gate_alpha, fallbacks=self.fallbacks(res.info), stitched=stitched)
+            gate_alpha=trk.association.gate_alpha, fallbacks=self.fallbacks(res.info), stitched=len(stitched))
 
-    def _stitch(self, time: float, res, reported: tuple, kin: np.ndarray, cov: np.ndarray) -> int:
-        """The stitches of this step (0 without a stitcher): the confirmed tracks it deleted are kept, the tracks it
-        confirmed are stitched to kept ones (kin (T, 4) [x, y, vx, vy], cov (T, 4, 4) of ``reported``)."""
+    def _stitch(self, time: float, res, reported: tuple, kin: np.ndarray, cov: np.ndarray) -> set[int]:
+        """The track ids stitched in this step (none without a stitcher): the confirmed tracks it deleted are kept,
+        the tracks it confirmed are stitched to kept ones (kin (T, 4) [x, y, vx, vy], cov (T, 4, 4) of ``reported``)."""
         if self.stitcher is None:
-            return 0
+            return set()
         gone = tuple(t for t in res.deleted if t.id in self._confirmed)
         d_kin, d_cov = self.tracker.kinematics(gone) if gone else (np.zeros((0, 4)), np.zeros((0, 4, 4)))
         if gone:
@@ -111,8 +114,10 @@ class BuiltinTracker:
             d_kin, d_cov = d_kin[:, j], d_cov[:, j][:, :, j]
         new = np.array([t.confirmed and t.id not in self._confirmed for t in reported], dtype=bool).reshape(-1)
         self._confirmed = {t.id for t in reported if t.confirmed}
-        return self.stitcher.update(time, (np.array([t.id for t in gone], dtype=np.int64), d_kin, d_cov),
-                                    (np.array([t.id for t in reported], dtype=np.int64)[new], kin[new], cov[new]))
+        before = set(self.stitcher.alias)
+        self.stitcher.update(time, (np.array([t.id for t in gone], dtype=np.int64), d_kin, d_cov),
+                             (np.array([t.id for t in reported], dtype=np.int64)[new], kin[new], cov[new]))
+        return set(self.stitcher.alias) - before
 
     @staticmethod
     def fallbacks(info) -> int:

@@ -8,8 +8,9 @@ track is moved to the current time at constant velocity, x' = x + dt v, with its
 P' = F P F^T (F = [[I, dt I], [0, I]]) plus an acceleration term (sigma_a dt^2 / 2)^2 I, and the new track's position
 is gated against it: d^2 = e^T (P'_pos + P_new,pos)^-1 e <= ``d2_max`` (chi-square, 2 degrees of freedom). The
 nearest kept track within the gate gives its label, once. It is causal (decided at the confirmation, from the
-past only) and reported: the run counts the stitches (scores.json ``stitched_tracks``), so scores with it on can be
-told from scores without it.
+past only) and reported: the run counts the stitches (scores.json ``stitched_tracks``) and marks each in
+diagnostics.parquet (quantity ``stitched``, testbed/tracking/builtin.py), so scores with it on can be told from
+scores without it.
 """
 from __future__ import annotations
 
