@@ -44,7 +44,8 @@ one_thread_per_process()
 import numpy as np  # noqa: E402
 
 from roadtrack import sensors
-from roadtrack.trackers import make_tracker
+from roadtrack.testbed.config import ConfigError
+from roadtrack.testbed.tracking import build_tracker
 from roadtrack.testbed.pipeline.run import run_scenario
 from roadtrack.testbed.scenario.spec import load_scenario
 from roadtrack.testbed.sensing.frames import rng_streams, scan_frame, sensing_setup
@@ -211,14 +212,14 @@ def main() -> None:
     trackers = args.trackers if args.trackers is not None else (
         ["jpda-kf", "gnn-kf", "pda-kf"] + (["imm-pda-kf", "jpda-svsf"] if args.long else []))
     trackers = [] if trackers == ["none"] else trackers
-    for name in trackers:  # a misspelt name fails now, not after the timed loops
-        try:
-            make_tracker(name)
-        except ValueError as err:
-            ap.error(f"--trackers: {err}")
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, set(sorted(os.sched_getaffinity(0))[: args.cores]))
     scn = load_scenario(args.scenario, {"duration_s": duration})
+    for name in trackers:  # a misspelt name fails now, not after the timed loops (built as the campaign builds it)
+        try:
+            build_tracker(scn, name)
+        except (ValueError, ConfigError) as err:
+            ap.error(f"--trackers: {err}")
     print(f"{scn.name}: {scn.n_frames} frames at {scn.rate_hz:g} Hz per density, pinned to "
           f"{len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else '?'} core(s)")
 

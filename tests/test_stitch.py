@@ -24,13 +24,13 @@ def _one(i, x, y, vx=20.0):
 def test_a_track_confirmed_where_a_deleted_one_would_be_takes_its_label_once():
     none = (np.zeros(0, np.int64), np.zeros((0, 4)), np.zeros((0, 4, 4)))
     s = Stitcher(2.0)
-    assert s.update(0.0, _one(7, 0.0, 0.0), none) == 0
-    assert s.update(1.0, none, _one(12, 20.3, 8.0)) == 0  # the next lane: 8 m across is outside the gate
-    assert s.update(1.0, none, _one(13, 20.3, 0.1)) == 1  # 20 m on at 20 m/s
+    assert s.update(0.0, _one(7, 0.0, 0.0), none) == []
+    assert s.update(1.0, none, _one(12, 20.3, 8.0)) == []  # the next lane: 8 m across is outside the gate
+    assert s.update(1.0, none, _one(13, 20.3, 0.1)) == [13]  # 20 m on at 20 m/s
     assert s.label(np.array([13, 12, 5])).tolist() == [7, 12, 5]
-    assert s.update(1.1, none, _one(14, 22.3, 0.0)) == 0  # T7's state was used once
+    assert s.update(1.1, none, _one(14, 22.3, 0.0)) == []  # T7's state was used once
     s.update(1.5, _one(13, 30.0, 0.0), none)  # the stitched track is deleted in turn: kept under label 7
-    assert s.update(5.0, none, _one(15, 100.0, 0.0)) == 0  # 3.5 s later: outside the 2 s window
+    assert s.update(5.0, none, _one(15, 100.0, 0.0)) == []  # 3.5 s later: outside the 2 s window
     with pytest.raises(ValueError, match="stitch window"):
         Stitcher(0.0)
 

@@ -212,7 +212,7 @@ def test_a_track_started_on_a_truck_is_a_trucks_from_its_first_scan(length, pd_a
     """A new track takes the class of the detection it was started on: a truck's gets the truck box's P_D at once.
     (With the car box a truck's own rear face hides its centre: P_D 0, its detections got no weight, so it never
     learnt its class from them; the P_D here is that rule: the nominal value for a truck box, 0 for a car box.)"""
-    from roadtrack.testbed.tracking.builtin import BuiltinTracker, born_trucks
+    from roadtrack.testbed.tracking.builtin import BuiltinTracker, truck_tracks
     from roadtrack.testbed.tracking.protocol import Frame
 
     def pd(xy, nominal, trucks=None):
@@ -226,5 +226,5 @@ def test_a_track_started_on_a_truck_is_a_trucks_from_its_first_scan(length, pd_a
                             extent=np.array([[length, 2.5, 3.5]]), heading=np.zeros(1), pd=pd))
         seen += list(out.info.diagnostics.get("pd", []))
     assert seen and all(v == pd_after_birth for v in seen), seen
-    assert born_trucks(np.array([1, 2]), np.array([[0.0, 0.0], [5.0, 0.0]]), np.array([[0.0, 0.0]]),
-                       np.array([15.4])) == {1: True}  # no detection under track 2: class unknown
+    got = truck_tracks(np.array([4]), np.zeros((1, 2)), np.array([15.4, 4.6]), {4: True}, born_from={7: 0, 8: 1})
+    assert got == {4: True, 7: True, 8: False}  # births take their detection's class (StepInfo.born_from)

@@ -105,7 +105,7 @@ def test_deletion_with_clutter_within_bound():
         assert gone - 39 <= 8, (seed, gone)
 
 
-@pytest.mark.filterwarnings("ignore::trackers.JPDAOverflowWarning")  # large tentative clusters: documented PDA fallback
+@pytest.mark.filterwarnings("ignore::roadtrack.trackers.JPDAOverflowWarning")  # large tentative clusters: documented PDA fallback
 def test_clutter_only_run_confirms_few_tracks():
     """100 scans of Poisson clutter (lambda = 1e-2 m^-2, 18 points per scan) with the default parameters:
     the SPRT allows alpha_FC = 1e-4 false confirmations per tentative track; at most 1 is accepted here."""

@@ -87,7 +87,8 @@ class StepInfo:
     after prediction: ids (T,) int64, z_hat (T, m), S (T, m, m), gated (T, M) bool, W (T, M), w0 (T,),
     layers (T, m) boundary-layer half widths (NaN without one), diagnostics: name -> (T,) float64 (NIS,
     gated count, gate volume, P_D, the filters' `info` after the update and the associator's extras;
-    vector quantities as name_0, name_1, ...)."""
+    vector quantities as name_0, name_1, ...); born_from: id of each track started in this step -> index of the
+    measurement it was started on (its class, e.g. a truck's, is that detection's)."""
 
     ids: np.ndarray
     z_hat: np.ndarray
@@ -97,6 +98,7 @@ class StepInfo:
     w0: np.ndarray
     layers: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
+    born_from: dict[int, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,9 +258,10 @@ class Tracker:
         deleted = too_wide + deleted
         for k, v in extra.items():
             diag[k] = np.asarray(v, dtype=np.float64)
-        births, next_id = self._initiate(candidates, live, Z, inp, dt, next_id, pred, Rz)
+        births, next_id, born_from = self._initiate(candidates, live, Z, inp, dt, next_id, pred, Rz)
         info = StepInfo(ids=np.array([tr.id for tr in live], dtype=np.int64).reshape(len(live)), z_hat=pred.z_hat,
-                        S=pred.S, gated=inp.gated, W=W, w0=w0, layers=pred.layers, diagnostics=diag)
+                        S=pred.S, gated=inp.gated, W=W, w0=w0, layers=pred.layers, diagnostics=diag,
+                        born_from=born_from)
         return StepResult(tracks=tuple(survivors + births), next_id=int(next_id), deleted=tuple(deleted), info=info)
 
     # ------------------------------------------------------------------ roles
@@ -527,7 +530,7 @@ class Tracker:
                 owns = owns | (np.einsum("tmk,tmk->tm", d, d) <= mp.claim_radius_m**2)  # (T, M)
             claims = claims & owns
         free = np.flatnonzero(~claims.any(axis=0))
-        out, used = [], set()
+        out, used, born_from = [], set(), {}
 
         def new(state, score, label, age, candidate=False):
             return Track(id=label, state=state, score=score, max_score=score, confirmed=False, age=age,
@@ -536,8 +539,9 @@ class Tracker:
         if mp.initiation == "single":
             for j in free:
                 out.append(new(flt.initial_state(*single_point(Z[j], meas, mp.v_max, None if R is None else R[j])), score0, int(next_id), 1))
+                born_from[int(next_id)] = int(j)
                 next_id += 1
-            return out, next_id
+            return out, next_id, born_from
         positions = [meas.position_of(Z[j]) if R is None else (Z[j], R[j]) for j in free]
         if dt > 0 and candidates and free.size:
             d = len(positions[0][0])
@@ -550,10 +554,11 @@ class Tracker:
                 used.add(f)
                 x0, P0 = two_point(C[c], Z[free[f]], dt, meas, None if R is None else R[free[f]])
                 out.append(new(flt.initial_state(x0, P0), score0 + inc, int(next_id), 2))
+                born_from[int(next_id)] = int(free[f])
                 next_id += 1
         for f, (p, Rp) in enumerate(positions):
             if f not in used:
                 d = len(p)
                 out.append(new(FilterState(x=np.concatenate([p, np.zeros(d)]), P=np.eye(2 * d), e_post=np.zeros(meas.ndim)),
                                score0, -1, 1, candidate=True))
-        return out, next_id
+        return out, next_id, born_from

@@ -51,7 +51,7 @@ def occlusion_pd(scn: Scenario, road: sensors.RoadMap):
     (a P_D of 0 there would keep it forever).
 
     ``trucks`` marks the tracks whose last associated detection was truck-long, or that were started on one
-    (testbed.tracking.builtin truck_tracks, born_trucks); their P_D is that of a truck-sized box (:data:`TRUCK_BOX_M`). With the car box a truck's own
+    (testbed.tracking.builtin truck_tracks, trackers StepInfo.born_from); their P_D is that of a truck-sized box (:data:`TRUCK_BOX_M`). With the car box a truck's own
     rear face, 6-9 m before its centre and so nearer than a car box's entry, "blocked" the view of it: a truck
     20 m behind, hit by 1000 points a scan, got P_D 0 and its track was never updated. (A truck box for every
     track would not do: the car just ahead of a hidden car then lies at the box's entry and no longer hides it.)"""

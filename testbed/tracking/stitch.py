@@ -39,12 +39,12 @@ class Stitcher:
         """(T,) int64 reported labels of the tracker's track ids (T,)."""
         return np.array([self.alias.get(int(i), int(i)) for i in ids], dtype=np.int64).reshape(len(ids))
 
-    def update(self, time: float, deleted: tuple, new: tuple) -> int:
+    def update(self, time: float, deleted: tuple, new: tuple) -> list[int]:
         """Keep ``deleted`` (ids (D,), kin (D, 4) [x, y, vx, vy], cov (D, 4, 4)): the confirmed tracks deleted at
         ``time`` [s]; stitch ``new`` (ids (N,), kin (N, 4), cov (N, 4, 4)): the tracks confirmed at ``time``.
-        Returns the number of stitches made."""
+        Returns the ids of ``new`` that were stitched."""
         self._kept = [k for k in self._kept if time - k[1] <= self.window_s]
-        made = 0
+        made = []
         for i, x, P in zip(*new):
             best, best_d2 = None, self.d2_max
             for n, (label, t0, x0, P0) in enumerate(self._kept):
@@ -53,7 +53,7 @@ class Stitcher:
                     best, best_d2 = n, d2
             if best is not None:
                 self.alias[int(i)] = self._kept.pop(best)[0]
-                made += 1
+                made.append(int(i))
         self._kept += [(self.alias.get(int(i), int(i)), float(time), x, P) for i, x, P in zip(*deleted)]
         return made
 
