@@ -123,7 +123,7 @@ def test_the_cli_refuses_an_unknown_sensor_before_writing_anything(tmp_path):
                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
     assert res.returncode == 2 and not out.exists()
     assert res.stderr.strip().splitlines() == [
-        f"error: sensor.extra[0]: 'nope' is not a sensor; allowed: none installed (nothing was written ({out} is "
+        f"error: sensor.extra[0]: 'nope' is not a sensor; allowed: radar (nothing was written ({out} is "
         "unchanged))"]
     with pytest.raises(ConfigError, match=r"^sensor\.extra\[0\]: 'nope' is not a sensor"):
         testbed.sense(load_scenario("cut_in_out", {"duration_s": 0.2, "sensor.extra": ["nope"]}))  # at the call

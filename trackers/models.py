@@ -328,6 +328,14 @@ class PositionMeasurement:
         return np.asarray(z, dtype=np.float64), self.R
 
 
+def polar_position(origin, r: float, b: float, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(position (2,), covariance (2, 2)) of range r [m] and bearing b [rad] from origin (2,), R the (range,
+    bearing) covariance (2, 2), by the first-order Jacobian."""
+    p = np.array([origin[0] + r * math.cos(b), origin[1] + r * math.sin(b)])
+    J = np.array([[math.cos(b), -r * math.sin(b)], [math.sin(b), r * math.cos(b)]])
+    return p, J @ R @ J.T
+
+
 @dataclass(frozen=True)
 class RangeBearing:
     """z = [range, bearing] of the position seen from `origin` (a nonlinear model for the EKF).
@@ -381,13 +389,72 @@ class RangeBearing:
         return nu
 
     def position_of(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r, b = float(z[0]), float(z[1])
-        p = np.array([self.origin[0] + r * math.cos(b), self.origin[1] + r * math.sin(b)])
-        J = np.array([[math.cos(b), -r * math.sin(b)], [math.sin(b), r * math.cos(b)]])
-        return p, J @ self.R @ J.T
+        return polar_position(self.origin, float(z[0]), float(z[1]), self.R)
 
 
-MEASUREMENT_MODELS = {"position": PositionMeasurement, "range_bearing": RangeBearing}
+@dataclass(frozen=True)
+class RangeBearingRate:
+    """z = [range, azimuth, range-rate] of a target seen by a radar at ``pose`` = (x, y, heading) moving with
+    ``velocity`` = (vx, vy) (a nonlinear model for the EKF; the sensor's pose rides with the model, so each scan's
+    detections carry the model of the scan they were taken in). With d = p - s and u = v - v_s (target minus
+    sensor position and velocity): range |d|, azimuth atan2(d_y, d_x) - heading (wrapped to (-pi, pi]), range-rate
+    d.u / |d|. sigma_r [m], sigma_az [rad], sigma_rr [m/s]."""
+
+    sigma_r: float
+    sigma_az: float
+    sigma_rr: float
+    pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    velocity: tuple[float, float] = (0.0, 0.0)
+    per_detection: bool = False
+    linear: bool = field(default=False, init=False)
+    ndim = 3
+    dims = 2
+
+    def __post_init__(self) -> None:
+        _check_finite("RangeBearingRate", sigma_r=self.sigma_r, sigma_az=self.sigma_az, sigma_rr=self.sigma_rr,
+                      x=self.pose[0], y=self.pose[1], heading=self.pose[2], vx=self.velocity[0], vy=self.velocity[1])
+        if self.sigma_r <= 0 or self.sigma_az <= 0 or self.sigma_rr <= 0:
+            raise ValueError("RangeBearingRate needs sigma_r, sigma_az and sigma_rr > 0")
+
+    @property
+    def R(self) -> np.ndarray:
+        return np.diag([self.sigma_r ** 2, self.sigma_az ** 2, self.sigma_rr ** 2])
+
+    def _relative(self, x: np.ndarray, motion) -> tuple[float, float, float, float]:
+        (i, j), (k, l) = motion.position[:2], motion.velocity[:2]
+        return (x[i] - self.pose[0], x[j] - self.pose[1], x[k] - self.velocity[0], x[l] - self.velocity[1])
+
+    def h(self, x: np.ndarray, motion) -> np.ndarray:
+        dx, dy, ux, uy = self._relative(x, motion)
+        r = max(math.hypot(dx, dy), 1e-6)
+        az = (math.atan2(dy, dx) - self.pose[2] + math.pi) % (2.0 * math.pi) - math.pi
+        return np.array([r, az, (dx * ux + dy * uy) / r])
+
+    def jacobian(self, x: np.ndarray, motion) -> np.ndarray:
+        """H (3, n): d[range, azimuth, range-rate] / d state at x."""
+        dx, dy, ux, uy = self._relative(x, motion)
+        r2 = max(dx * dx + dy * dy, 1e-12)
+        r = math.sqrt(r2)
+        rr = (dx * ux + dy * uy) / r
+        (i, j), (k, l) = motion.position[:2], motion.velocity[:2]
+        H = np.zeros((3, motion.ndim))
+        H[0, i], H[0, j] = dx / r, dy / r
+        H[1, i], H[1, j] = -dy / r2, dx / r2
+        H[2, i], H[2, j] = (ux - rr * dx / r) / r, (uy - rr * dy / r) / r  # d (d.u / |d|) / d p
+        H[2, k], H[2, l] = dx / r, dy / r
+        return H
+
+    def residual(self, z: np.ndarray, z_hat: np.ndarray) -> np.ndarray:
+        """z - z_hat with the azimuth wrapped to (-pi, pi], as RangeBearing's bearing."""
+        return RangeBearing.residual(self, z, z_hat)
+
+    def position_of(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(position (2,), its covariance (2, 2)) of one detection [range, azimuth, range-rate] (range-rate unused)."""
+        return polar_position(self.pose[:2], float(z[0]), float(z[1]) + self.pose[2], self.R[:2, :2])
+
+
+MEASUREMENT_MODELS = {"position": PositionMeasurement, "range_bearing": RangeBearing,
+                      "range_bearing_rate": RangeBearingRate}
 
 
 # -------------------------------------------------------------------------- plain functions (2-D NCV)

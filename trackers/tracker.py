@@ -6,6 +6,7 @@ random numbers and reads no clock.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -21,7 +22,7 @@ from roadtrack.trackers.initiation import pair_candidates, single_point, two_poi
 from roadtrack.trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
                                  position_std, score_decide, score_increment)
 from roadtrack.trackers.road import RoadInput, centripetal_input, cross_lane_std, input_shift, lane_pseudo_measurement
-from roadtrack.trackers.state import FilterState
+from roadtrack.trackers.state import FilterState, derive
 from roadtrack.trackers.trackloss.regime import (ROW_FIXED, WINDOW_LOW, RegimeState, advance, alpha_of, assess_rolled,
                                       initial_state, roll_windows, window_holds, window_of_records, window_rows)
 
@@ -140,6 +141,16 @@ def _evolve(tr: Track, **fields: Any) -> Track:
     return new
 
 
+def keep_memory(new: FilterState, old: FilterState) -> FilterState:
+    """``new`` with ``old``'s a-posteriori error memory e_post (an IMM state's and each of its modes'): a further
+    sensor's update leaves the primary sensor's memory, which is in the primary's measurement space [D]."""
+    fields: dict[str, Any] = {"e_post": old.e_post}
+    modes = getattr(new, "modes", None)
+    if modes is not None and len(modes) == len(getattr(old, "modes", ())):
+        fields["modes"] = tuple(keep_memory(m, o) for m, o in zip(modes, old.modes))
+    return derive(new, **fields)
+
+
 def _window(tr: Track, state: RegimeState, capacity: int) -> np.ndarray | None:
     """The track's rolled KS window before this scan: its state's if that holds the last min(len(history),
     capacity) scans, else rebuilt from the history (a track made outside Tracker.step); None before any scan."""
@@ -237,13 +248,7 @@ class Tracker:
         measurement model asks for it (``per_detection``, e.g. the filter key detection_R) and its update takes it
         (trackers.filters.base.takes_detection_R), else ignored (the model's fixed R). Raises ValueError on
         non-finite Z or dt, or an R that is not finite, symmetric and positive definite, before any update."""
-        Z = _check_measurements(Z, self.filter.measurement.ndim)
-        Rz = None
-        if R is not None and takes_detection_R(self.filter):
-            Rz = check_detection_R(R, len(Z), self.filter.measurement.ndim)
-        dt = float(dt)
-        if not math.isfinite(dt) or dt < 0:
-            raise ValueError(f"dt must be finite and >= 0, got {dt}")
+        Z, Rz, dt = self._inputs(Z, R, dt)
         candidates = tuple(tr for tr in tracks if tr.candidate)
         live = tuple(tr for tr in tracks if not tr.candidate)
         pred = self._predict(live, dt, road)
@@ -264,7 +269,57 @@ class Tracker:
                         born_from=born_from)
         return StepResult(tracks=tuple(survivors + births), next_id=int(next_id), deleted=tuple(deleted), info=info)
 
+    def with_measurement(self, model, **association: Any) -> "Tracker":
+        """This tracker with the measurement model ``model`` (trackers.models; e.g. a radar's RangeBearingRate at
+        the scan's pose: detections carry their model) in its filter (trackers.filters.with_measurement) and the
+        associator keys ``association`` replaced (pd, clutter_density in the model's measurement-space units,
+        gate_alpha for its dimension). ValueError (one line) for a filter that cannot take the model."""
+        from roadtrack.trackers.filters import with_measurement
+
+        flt = with_measurement(self.filter, model)
+        assoc = dataclasses.replace(self.association, **association) if association else self.association
+        if flt is self.filter and assoc is self.association:
+            return self
+        return dataclasses.replace(self, filter=flt, association=assoc)
+
+    def update(self, tracks: tuple[Track, ...], Z: np.ndarray, dt: float, pd: PdInput = None,
+               R: np.ndarray | None = None) -> StepResult:
+        """A further sensor's detections Z (M, m) at ``dt`` [s] after the tracks' last scan (0: the same instant):
+        predict, gate, associate and update only, for sequential fusion in time order (Bar-Shalom's sequential
+        multi-sensor update) [D]. The primary sensor's `step` keeps the life cycle (scores, confirmation,
+        deletion, initiation, the KS regime, which are in its measurement space); candidates are left as they
+        are; each state keeps the primary's a-posteriori error memory e_post (the SVSF family's, in the primary's
+        measurement space) [D]. Build the tracker for the sensor with `with_measurement`. pd and R as in
+        `step`. Returns the tracks in input order (nothing deleted or born) and the StepInfo of the update."""
+        Z, Rz, dt = self._inputs(Z, R, dt)
+        idx = [i for i, tr in enumerate(tracks) if not tr.candidate]
+        live = tuple(tracks[i] for i in idx)
+        pred = self._predict(live, dt)
+        inp = self._gate(pred, Z, self._pd(pd, pred), Rz)
+        W, w0, extra = self._associate(inp)
+        states = batch_update(self.filter, pred.states, inp.nu, W, w0, Rz)
+        out = list(tracks)
+        for i, tr, s in zip(idx, live, states):
+            out[i] = _evolve(tr, state=keep_memory(s, tr.state))
+        diag = {"n_gated": inp.gated.sum(axis=1).astype(np.float64), "w0": np.asarray(w0, dtype=np.float64),
+                **{k: np.asarray(v, dtype=np.float64) for k, v in extra.items()}}
+        info = StepInfo(ids=np.array([tr.id for tr in live], dtype=np.int64).reshape(len(live)), z_hat=pred.z_hat,
+                        S=pred.S, gated=inp.gated, W=W, w0=w0, layers=pred.layers, diagnostics=diag)
+        return StepResult(tracks=tuple(out), next_id=-1, deleted=(), info=info)
+
     # ------------------------------------------------------------------ roles
+    def _inputs(self, Z: np.ndarray, R: np.ndarray | None, dt: float) -> tuple[np.ndarray, np.ndarray | None, float]:
+        """The checked measurements Z (M, m), their own covariances when the filter takes them (else None) and dt
+        [s]; ValueError on non-finite Z or dt, or a bad R."""
+        Z = _check_measurements(Z, self.filter.measurement.ndim)
+        Rz = None
+        if R is not None and takes_detection_R(self.filter):
+            Rz = check_detection_R(R, len(Z), self.filter.measurement.ndim)
+        dt = float(dt)
+        if not math.isfinite(dt) or dt < 0:
+            raise ValueError(f"dt must be finite and >= 0, got {dt}")
+        return Z, Rz, dt
+
     def _predict(self, live: tuple[Track, ...], dt: float, road: RoadInput | None = None) -> _Prediction:
         flt, m = self.filter, self.filter.measurement.ndim
         states = batch_predict(flt, [tr.state for tr in live], dt)

@@ -224,6 +224,7 @@ def _print_scores(label: str, scores, m: dict) -> None:
 
 
 def print_run(res, args: argparse.Namespace, out: str) -> None:
+    from ..pipeline.run import further_tables
     from ..scoring.events import format_events
 
     _print_scores(f"{res.scenario.name}/{res.tracker}", res.scores, res.metrics)
@@ -237,6 +238,7 @@ def print_run(res, args: argparse.Namespace, out: str) -> None:
              f"each as the track it continues)" if res.scenario.tracker.stitch_s > 0 else ""))
     written = ["scores.json", "truth.parquet", "detections.parquet", "tracks.parquet", "diagnostics.parquet",
                "events.parquet"]
+    written[3:3] = [f"detections-{n}.parquet" for n in further_tables(res.scenario)]  # the further sensors' tables
     if not args.no_record:
         written.insert(0, "run.rrd")
     if not args.no_plot:

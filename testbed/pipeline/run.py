@@ -24,11 +24,12 @@ from .outdir import write_atomic
 from ..scenario.spec import Scenario
 from ..scoring.events import run_events
 from ..scoring.rates import Scores
-from ..sensing import SensedFrame, rng_streams, scenario_sensors, sense_simulation, sensing_setup
+from ..sensing import (SensedFrame, SensingContext, rng_streams, scenario_sensors, sense_simulation, sensing_setup,
+                       sensor_registry)
 from ..common.errors import interruption_behind
 from ..sensing.cache import SensingCache
 from ..world.simulation import lane_polylines
-from .tables import diagnostics_log, detections_log, tracks_log, truth_log
+from .tables import diagnostics_log, detections_log, sensor_detections_log, tracks_log, truth_log
 from ..tracking import Frame, TrackSet, build_tracker, tracker_label
 
 STAGES = ("simulation", "raycast", "perception", "tracking", "recording")
@@ -110,7 +111,8 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         setup()  # before any output: a traffic that cannot be set up fails with nothing written
     out = Path(out_dir) if out_dir is not None else None
     recorder = _open_outputs(scn, out, record, name, setup, source)
-    tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(), diagnostics=diagnostics_log())
+    tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(), diagnostics=diagnostics_log(),
+                  **{f"detections-{name}": sensor_detections_log() for name in further_tables(scn)})
     watch = Stopwatch()
     state = _Progress()
     overflows = JPDAOverflows()
@@ -176,11 +178,32 @@ class _Progress:
     stitched: int = 0  # TrackSet.stitched summed over the frames done
 
 
-def tracker_frame(sensed: SensedFrame, dt: float) -> Frame:
-    """What a tracker is fed of a sensed frame (testbed.tracking.Frame): the detections without their truth."""
+def further_tables(scn: Scenario) -> list[str]:
+    """The further sensors (sensor.extra) whose detections a run writes to ``detections-<name>.parquet``: those with
+    a ``measurements`` hook (their detections carry a measurement model, so a position to show)."""
+    return [s.name for s in scenario_sensors(scn)[1:] if s.measurements is not None]
+
+
+def further_measurements(sensed: SensedFrame, ctx: SensingContext) -> dict:
+    """The further sensors' detections of ``sensed`` with their measurement models (testbed.sensing.Measurements,
+    by sensor name; sensors without a ``measurements`` hook are left out)."""
+    meas = {}
+    if sensed.others:
+        known = sensor_registry()
+        for name, reading in sensed.others.items():
+            hook = known[name].measurements if name in known else None
+            if hook is not None:
+                meas[name] = hook(ctx, sensed.truth, reading.data)
+    return meas
+
+
+def tracker_frame(sensed: SensedFrame, dt: float, ctx: SensingContext | None = None) -> Frame:
+    """What a tracker is fed of a sensed frame (testbed.tracking.Frame): the detections without their truth, and
+    (given the run's ``ctx``) the further sensors' measurements (their ``measurements`` hook)."""
     d = sensed.detections
+    meas = further_measurements(sensed, ctx) if ctx is not None else {}
     return Frame(index=sensed.index, time=sensed.time, dt=dt, z=d.z, R=d.R, extent=d.extent, heading=d.heading,
-                 pd=sensed.pd, road=sensed.road.lane_frame if sensed.road is not None else None)
+                 pd=sensed.pd, road=sensed.road.lane_frame if sensed.road is not None else None, measurements=meas)
 
 
 def track(frames: Iterable[SensedFrame], tracker, scn: Scenario,
@@ -201,11 +224,12 @@ def track(frames: Iterable[SensedFrame], tracker, scn: Scenario,
 
 def _tracked(frames: Iterator, trk, scn: Scenario, overflows) -> Iterator[tuple[SensedFrame, TrackSet]]:
     moving = MovingTest(scn.moving_test)
+    ctx = SensingContext(scn, None, None)  # what the further sensors' measurements hooks read
     for k, sensed in enumerate(frames):
         if not isinstance(sensed, SensedFrame):
             raise ConfigError("frames", f"item {k} is a {type(sensed).__name__}, not a testbed.sensing.SensedFrame "
                               f"(what testbed.sense yields)")
-        frame = tracker_frame(sensed, scn.dt if sensed.index > 0 else 0.0)
+        frame = tracker_frame(sensed, scn.dt if sensed.index > 0 else 0.0, ctx)
         ts = overflows.call(trk.step, frame) if overflows is not None else trk.step(frame)
         if not isinstance(ts, TrackSet):
             from ..common.errors import RunError
@@ -216,15 +240,17 @@ def _tracked(frames: Iterator, trk, scn: Scenario, overflows) -> Iterator[tuple[
 
 def _frames(scn, tracker, frames, recorder, tables, watch, state: _Progress, overflows, on_frame) -> None:
     """The frame loop: track each sensed frame, log, record; ``state.frames`` counts the frames done."""
+    ctx = SensingContext(scn, None, None)
     for sensed, ts in track(frames, tracker, scn, overflows):
         truth = sensed.truth
         watch.lap("tracking")
         log_tables(truth, sensed.visibility, sensed.detections, ts, tables["truth"], tables["detections"],
                    tables["tracks"])
         log_diagnostics(truth, ts, tables["diagnostics"])
+        others = log_sensor_detections(truth, further_measurements(sensed, ctx), tables)
         if recorder is not None:
             live = sensed.perception is not None  # a cached frame has no point cloud to show
-            recorder.frame(truth, sensed.scan if live else None, sensed.perception, sensed.detections, ts)
+            recorder.frame(truth, sensed.scan if live else None, sensed.perception, sensed.detections, ts, others)
         watch.lap("recording")
         state.rows = {k: log.n_rows for k, log in tables.items()}
         state.fallbacks += ts.fallbacks
@@ -424,6 +450,21 @@ def log_tables(truth, vis, dets, ts: TrackSet, truth_t, det_t, trk_t) -> None:
     trk_t.append(frame=np.full(t, truth.frame), time=np.full(t, truth.time), track_id=ts.ids, status=ts.status,
                  x=ts.xy[:, 0], y=ts.xy[:, 1], vx=ts.v[:, 0], vy=ts.v[:, 1], score=ts.score, regime=ts.regime,
                  cov=ts.cov.reshape(t, 16))
+
+
+def log_sensor_detections(truth, meas: dict, tables: dict) -> dict[str, np.ndarray]:
+    """One frame's rows of each further sensor's table (``detections-<name>``) from its measurements ``meas``;
+    returns the positions they imply by sensor name (M, 2) [m] for the recording."""
+    out = {}
+    for name, m in meas.items():
+        log = tables.get(f"detections-{name}")
+        if log is None:
+            continue
+        n = len(m.z)
+        xy = np.array([m.model.position_of(z)[0][:2] for z in m.z], dtype=np.float64).reshape(n, 2)
+        log.append(frame=np.full(n, truth.frame), time=np.full(n, truth.time), x=xy[:, 0], y=xy[:, 1], z=m.z)
+        out[name] = xy
+    return out
 
 
 def _write_tables(out: Path, tables: dict) -> None:

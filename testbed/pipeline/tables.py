@@ -110,6 +110,13 @@ def detections_log() -> TableLog:
                          r_xx=np.float64, r_xy=np.float64, r_yy=np.float64))
 
 
+def sensor_detections_log() -> TableLog:
+    """A further sensor's detections (``detections-<sensor>.parquet``): frame, time, the position each implies
+    x, y [m] (its measurement model's ``position_of``) and z (m,) as measured (e.g. range [m], azimuth [rad],
+    range-rate [m/s])."""
+    return TableLog(dict(frame=np.int64, time=np.float64, x=np.float64, y=np.float64, z=np.float64))
+
+
 def tracks_log() -> TableLog:
     return TableLog(dict(frame=np.int64, time=np.float64, track_id=np.int64, status=object, x=np.float64,
                          y=np.float64, vx=np.float64, vy=np.float64, score=np.float64, regime=object,

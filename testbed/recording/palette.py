@@ -21,6 +21,7 @@ MERGED = (230, 0, 230)  # fitted box of merged fragments
 SPLIT = (0, 210, 230)  # fitted box split from a larger cluster
 COMPLETED = (240, 210, 40)  # fitted box completed beyond its points
 REJECTED = (150, 110, 70)  # objects the selection removed
+SENSOR = (80, 170, 255)  # a further sensor's detections (a radar's)
 LAYER = (150, 60, 255, 80)  # SVSF boundary layers: translucent violet fill
 SHADOW = (90, 90, 140, 110)  # occlusion shadows: faint, thin
 EVENT = (255, 0, 150)  # rings marking a run's events (relabel, false track, missed car): hot pink

@@ -75,7 +75,7 @@ from .levels import content
 from .events import log_events
 from . import rrd
 from .slots import Slots, colours
-from .scene import (GROUND_LABEL, Trails, boxes, log_detections, log_lidar, log_track_extras,
+from .scene import (GROUND_LABEL, Trails, boxes, log_detections, log_lidar, log_sensor_detections, log_track_extras,
                     log_track_points)
 
 APP_ID = "roadtrack"
@@ -156,10 +156,11 @@ class Recorder:
             self.rec.log("world/roadside", rr.Boxes3D(**boxes(roadside[:, :2], roadside[:, 2:5], roadside[:, 5],
                                                               roadside[:, 6]), colors=[pal.ROADSIDE]), static=True)
 
-    def frame(self, truth, scan, perception, detections, ts) -> None:
+    def frame(self, truth, scan, perception, detections, ts, others: dict[str, np.ndarray] | None = None) -> None:
         """Log one frame. ``ts``: the tracker's testbed.tracking.TrackSet after the step, its status "confirmed",
         "tentative" or "static" (the moving-object test's); its ``info`` (the built-in trackers' StepInfo) adds
-        the gates and boundary layers. ``scan`` and ``perception`` may be None (no point cloud is logged)."""
+        the gates and boundary layers. ``scan`` and ``perception`` may be None (no point cloud is logged).
+        ``others``: the further sensors' detections by name, as the positions they imply (M, 2) [m]."""
         rec, want = self.rec, self.content
         rec.set_time("frame", sequence=int(truth.frame))
         rec.set_time("sim_time", duration=float(truth.time))
@@ -168,6 +169,8 @@ class Recorder:
             log_lidar(rec, scan, perception, want.points, self.ground_decimation, want.lidar_truth, self.occlusion)
         if want.detections:
             log_detections(rec, detections, perception)
+            for name, xy in (others or {}).items():
+                log_sensor_detections(rec, name, xy)
         status = ts.status
         slot = self.slots.update(ts.ids, status == "confirmed")
         colour = colours(slot)

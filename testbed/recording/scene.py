@@ -121,6 +121,12 @@ def log_detections(rec: rr.RecordingStream, detections, perception) -> None:
             labels=[str(r) for r in rj.reason], show_labels=False))
 
 
+def log_sensor_detections(rec: rr.RecordingStream, name: str, xy: np.ndarray) -> None:
+    """A further sensor's detections (``name``, e.g. radar) at the positions they imply, xy (M, 2) [m]."""
+    rec.log(f"world/sensors/{name}", rr.Points3D(np.column_stack([xy, np.full(len(xy), 0.6)]).reshape(-1, 3),
+                                                  radii=0.3, colors=[pal.SENSOR]))
+
+
 def log_track_points(rec: rr.RecordingStream, ts, colour: np.ndarray) -> None:
     """Track estimates (confirmed labelled compactly, :func:`track_label`; tentative, static) and the confirmed
     tracks' velocity over :data:`VELOCITY_S`; ``colour`` (N, 3) uint8 per track (its slot's, testbed/recording/slots.py)."""

@@ -225,6 +225,25 @@ class ClutterSpec:
 
 
 @dataclass(frozen=True)
+class RadarSpec:
+    """The radar of ``sensor.extra = ["radar"]`` (testbed/sensing/radar.py): on the ego's centre, looking along its
+    heading; per vehicle centre within range and field of view a detection [range, azimuth, range-rate] with
+    probability ``pd``, Gaussian noise, and Poisson clutter uniform over range x azimuth x range-rate. It sees
+    through other vehicles (no occlusion model) [D]."""
+
+    range_m: float = field(160.0, doc="largest range [m]", **positive())
+    fov_deg: float = field(90.0, doc="field of view [deg], centred on the ego's heading",
+                           check=(lambda v: 0 < v <= 360, "in (0, 360]"))
+    sigma_r_m: float = field(0.25, doc="range noise std [m]", **positive())
+    sigma_az_deg: float = field(1.0, doc="azimuth noise std [deg]", **positive())
+    sigma_rr_mps: float = field(0.1, doc="range-rate noise std [m/s]", **positive())
+    pd: float = field(0.9, doc="detection probability of a vehicle within range and field of view",
+                      check=(lambda v: 0 <= v <= 1, "in [0, 1]"))
+    clutter_per_scan: float = field(1.0, doc="mean Poisson clutter detections per scan", **non_negative())
+    max_range_rate_mps: float = field(50.0, doc="clutter range-rates are uniform in +-this [m/s]", **positive())
+
+
+@dataclass(frozen=True)
 class OutageSpec:
     """A forced sensor outage over [start_s, end_s): with ``vehicles = []`` the whole sensor returns nothing (no
     points, a range image of inf); with names, those vehicles are taken out of the ray-cast scene (no return from
@@ -282,6 +301,7 @@ class SensorSpec:
     extra: tuple[str, ...] = field((), doc="further sensors by name, sensed beside the LiDAR (testbed/sensing/"
                                    "registry.py, plug-ins of the entry point group roadtrack.sensors); their data "
                                    "is in each sensed frame's others (default: none)")
+    radar: RadarSpec = field(RadarSpec(), doc="the radar's settings, used when sensor.extra names \"radar\"")
     outages: tuple[OutageSpec, ...] = field((), doc="forced sensor outages (default: none), e.g. "
                                             "[{ start_s = 8.0, end_s = 20.0, vehicles = [\"right\"] }]: the "
                                             "named cars vanish from the scan, or with vehicles = [] the whole "
@@ -311,6 +331,12 @@ class TrackerSpec:
                             "lies in that track's constant-velocity prediction (testbed/tracking/stitch.py); the "
                             "run counts the stitches (scores.json stitched_tracks); 0: off",
                             check=(lambda v: 0 <= v <= 60, "in [0, 60]"))
+    sensors: tuple[str, ...] = field(("lidar",), doc="the sensors the built-in tracker takes, in update order: the "
+                                     "first runs the whole step (life cycle, births), each further one a sequential "
+                                     "update of the same frame (Tracker.update); names from lidar and sensor.extra "
+                                     "(e.g. [\"radar\"] or [\"lidar\", \"radar\"]; a radar needs a KF-, EKF- or "
+                                     "IMM-based tracker)", check=(lambda v: len(v) >= 1 and len(set(v)) == len(v),
+                                                                  "one name or more, each once"))
 
     def build(self, name: str | None = None):
         """The trackers.Tracker of this spec; ParamError on bad parameters. ``name`` overrides the preset

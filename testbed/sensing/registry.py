@@ -13,10 +13,12 @@ from ..common import streams
 from ..config import ConfigError
 from ..scenario.spec import Scenario
 from .lidar import LIDAR
+from .radar import RADAR
 from .sensor import Sensor
 
 SENSORS: dict[str, Sensor] = {
     "lidar": LIDAR,
+    "radar": RADAR,
 }
 """The built-in sensors by name (add a sensor: its module and one line here)."""
 

@@ -8,6 +8,8 @@ Per run the loop builds a :class:`SensingContext`; per frame it calls, for each 
     n_hits, in_view = sensor.visibility(ctx, truth, data)   per vehicle of truth (K,): int64 returns on it, bool
                                                     whether it lies in the sensor's field of view
     pd = sensor.pd(ctx)(data) if sensor.pd else None        pd(xy (T, 2) m, nominal, trucks=None) -> (T,) P_D
+    meas = sensor.measurements(ctx, truth, data)            Measurements: what a tracker takes (optional hook;
+                                                            ``tracker.sensors`` names the sensors a tracker uses)
 
 ``truth`` is a testbed.world.simulation.TruthFrame (ids (K,), xy (K, 2) m, velocity (K, 2) m/s, heading (K,) rad,
 size (K, 3) m, ego_pose (3,); row 0 the ego car). Each sensor draws only from its own random streams
@@ -44,9 +46,11 @@ class SensingContext(NamedTuple):
 @dataclass(frozen=True)
 class Sensor:
     """A sensor: ``name`` (its registry name: lower-case letters, digits, hyphens), ``sense``, ``visibility``, ``pd``
-    (None: the tracker gets no P_D from it) and ``streams`` (the random streams it draws from; default
-    ``("sensor.<name>",)``; only the LiDAR keeps the historical ``lidar`` and ``clutter``). The signatures are in
-    the module docstring."""
+    (None: the tracker gets no P_D from it), ``streams`` (the random streams it draws from; default
+    ``("sensor.<name>",)``; only the LiDAR keeps the historical ``lidar`` and ``clutter``) and ``measurements``
+    (None: a tracker cannot take its data; else ``measurements(ctx, truth, data) -> Measurements``, the detections
+    with their measurement model, the sensor's pose from the ego's in ``truth``). The signatures are in the module
+    docstring."""
 
     name: str
     sense: Callable[..., Any]
@@ -54,10 +58,25 @@ class Sensor:
     pd: Callable[..., Callable | None] | None = None
     streams: tuple[str, ...] = field(default=())
     doc: str = ""
+    measurements: Callable[..., "Measurements"] | None = None
 
     def __post_init__(self) -> None:
         if not self.streams:
             object.__setattr__(self, "streams", (f"sensor.{self.name}",))
+
+
+class Measurements(NamedTuple):
+    """One sensor's detections of a frame as a tracker takes them (``tracker.sensors``), each carrying its
+    measurement model: z (M, m) in the model's space; model a trackers.models measurement model (h, its Jacobian,
+    R, residual, the sensor's pose of the frame); R (M, m, m) the detections' own covariances or None (the model's
+    R); pd the sensor's nominal detection probability; clutter_density its clutter density in the measurement
+    space's units (e.g. 1 / (m rad m/s) for range, azimuth, range-rate)."""
+
+    z: np.ndarray
+    model: Any
+    R: np.ndarray | None
+    pd: float
+    clutter_density: float
 
 
 class SensorReading(NamedTuple):

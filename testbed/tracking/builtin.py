@@ -14,6 +14,8 @@ import numpy as np
 from roadtrack import trackers
 from roadtrack.trackers.association.jpda import FALLBACK_DIAGNOSTIC, fallback_clusters
 
+from ..common.errors import RunError
+from ..config import ConfigError
 from .protocol import Frame, TrackSet
 from .stitch import Stitcher
 
@@ -50,9 +52,10 @@ class BuiltinTracker:
     """A ``trackers.Tracker`` as a protocol tracker. ``tracker``: the built tracker (``trackers.make_tracker``);
     ``tracks``: the live tracks after the last step (candidates included), ``next_id`` the next label."""
 
-    def __init__(self, tracker: trackers.Tracker, stitch_s: float = 0.0):
+    def __init__(self, tracker: trackers.Tracker, stitch_s: float = 0.0, sensors: tuple[str, ...] = ("lidar",)):
         self.tracker = tracker
         self.name = tracker.name
+        self.sensors = tuple(sensors)  # tracker.sensors: the first runs the step, the others update (sequential)
         self.tracks: tuple = ()
         self.next_id = 1
         self._trucks: dict[int, bool] = {}
@@ -61,19 +64,19 @@ class BuiltinTracker:
 
     def step(self, frame: Frame) -> TrackSet:
         trk = self.tracker
-        pd = None
-        if frame.pd is not None:
-            live = np.array([self._trucks.get(t.id, False) for t in self.tracks if not t.candidate], dtype=bool)
-            nominal, occ = trk.association.pd, frame.pd
-            pd = lambda z_hat: occ(z_hat[:, :2], nominal, live)  # noqa: E731 - the tracker calls it once
-        res = trk.step(self.tracks, frame.z, frame.dt, self.next_id, pd=pd, road=frame.road, R=frame.R)
-        self.tracks, self.next_id = res.tracks, res.next_id
-        if frame.pd is not None:
-            alive = {t.id for t in res.tracks}
-            self._trucks = {k: v for k, v in truck_tracks(res.info.ids, res.info.W, frame.extent[:, 0], self._trucks,
-                                                          res.info.born_from).items() if k in alive}
-        reported = tuple(t for t in res.tracks if not t.candidate)  # candidates await a second measurement
-        kin, cov = trk.kinematics(reported)
+        if self.sensors[0] == "lidar":
+            res = self._lidar_step(frame)
+        else:  # another sensor's detections, with the measurement model they carry, run the whole step
+            meas = self._measurements(frame, self.sensors[0])
+            trk = self._for(meas)
+            res = trk.step(self.tracks, meas.z, frame.dt, self.next_id, road=frame.road, R=meas.R)
+            self.tracks, self.next_id = res.tracks, res.next_id
+        for name in self.sensors[1:]:  # sequential updates of the same instant, in the order of tracker.sensors
+            meas = self._measurements(frame, name)
+            if len(meas.z):
+                self.tracks = self._for(meas).update(self.tracks, meas.z, 0.0, R=meas.R).tracks
+        reported = tuple(t for t in self.tracks if not t.candidate)  # candidates await a second measurement
+        kin, cov = self.tracker.kinematics(reported)
         xyv, xyv_cov = position_velocity(kin, cov)
         ids, info, stitched = np.array([t.id for t in reported], dtype=np.int64), res.info, []
         if self.stitcher is not None:  # reported under the labels they continue; diagnostic "stitched" marks the scan
@@ -86,8 +89,39 @@ class BuiltinTracker:
             status=np.array(["confirmed" if t.confirmed else "tentative" for t in reported], dtype=object),
             score=np.array([t.score for t in reported], dtype=np.float64),
             regime=np.array([t.regime for t in reported], dtype=object),
-            diagnostics=info.diagnostics, diagnostic_ids=info.ids, info=info,
+            diagnostics=info.diagnostics, diagnostic_ids=info.ids, info=info if trk is self.tracker else None,
             gate_alpha=trk.association.gate_alpha, fallbacks=self.fallbacks(res.info), stitched=len(stitched))
+
+    def _lidar_step(self, frame: Frame):
+        """The step on the LiDAR's detections, with the occlusion-aware P_D (truck boxes for trucks' tracks)."""
+        trk = self.tracker
+        pd = None
+        if frame.pd is not None:
+            live = np.array([self._trucks.get(t.id, False) for t in self.tracks if not t.candidate], dtype=bool)
+            nominal, occ = trk.association.pd, frame.pd
+            pd = lambda z_hat: occ(z_hat[:, :2], nominal, live)  # noqa: E731 - the tracker calls it once
+        res = trk.step(self.tracks, frame.z, frame.dt, self.next_id, pd=pd, road=frame.road, R=frame.R)
+        self.tracks, self.next_id = res.tracks, res.next_id
+        if frame.pd is not None:
+            alive = {t.id for t in res.tracks}
+            self._trucks = {k: v for k, v in truck_tracks(res.info.ids, res.info.W, frame.extent[:, 0], self._trucks,
+                                                          res.info.born_from).items() if k in alive}
+        return res
+
+    @staticmethod
+    def _measurements(frame: Frame, name: str):
+        meas = frame.measurements.get(name)
+        if meas is None:
+            raise RunError(f"tracker.sensors names {name!r}, but frame {frame.index} has no measurements of it")
+        return meas
+
+    def _for(self, meas) -> trackers.Tracker:
+        """The tracker with the measurement model, P_D and clutter density ``meas`` carries (a one-line ConfigError
+        when its filter cannot take the model)."""
+        try:
+            return self.tracker.with_measurement(meas.model, pd=meas.pd, clutter_density=meas.clutter_density)
+        except ValueError as err:
+            raise ConfigError("tracker.sensors", f"{self.name}: {err}") from None
 
     def _stitch(self, time: float, deleted: tuple, reported: tuple, xyv: np.ndarray, xyv_cov: np.ndarray) -> list[int]:
         """The ids of the ``reported`` tracks (their [x, y, vx, vy] (T, 4) and covariance) stitched in this step: the

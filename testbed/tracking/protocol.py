@@ -17,7 +17,7 @@ Units: metres, seconds, world frame (x along the road, y to the left), positions
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Protocol, runtime_checkable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -39,6 +39,9 @@ class Frame:
     road: the lane map, or None when the scenario has none: ``road(xy (T, 2) [m]) -> (heading (T,) [rad], offset
         (T,) [m], half_width (T,) [m], curvature (T,) [1/m])`` of the nearest lane (sensors.RoadMap.lane_frame; what
         the built-in trackers' road-map aid reads, trackers/road.py).
+    measurements: the further sensors' detections by name (sensor.extra), each a testbed.sensing.Measurements
+        (z (M, m) with its measurement model, R, P_D and clutter density); the built-in trackers take those named
+        in ``tracker.sensors``.
     """
 
     index: int
@@ -50,6 +53,7 @@ class Frame:
     heading: np.ndarray
     pd: Callable[..., np.ndarray] | None = None
     road: Callable[[np.ndarray], tuple] | None = None
+    measurements: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)

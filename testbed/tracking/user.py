@@ -36,7 +36,12 @@ def build_tracker(scenario, tracker: Any = None) -> Tracker:
     function of the scenario), or an object with ``step`` already built. ConfigError (one line) when it is none
     of these or the factory does not give an object with ``step``."""
     if tracker is None or (isinstance(tracker, str) and not is_factory_spec(tracker)):
-        return BuiltinTracker(scenario.tracker.build(tracker or scenario.tracker.name), scenario.tracker.stitch_s)
+        check_tracker_sensors(scenario)
+        return BuiltinTracker(scenario.tracker.build(tracker or scenario.tracker.name), scenario.tracker.stitch_s,
+                              scenario.tracker.sensors)
+    if tuple(scenario.tracker.sensors) != ("lidar",) and not isinstance(tracker, BuiltinTracker):  # never left out
+        raise ConfigError("tracker.sensors", "the sensors a tracker takes are a setting of the built-in trackers; a "
+                          "named or a user's tracker gets the LiDAR's detections: leave it at [\"lidar\"]")
     if scenario.tracker.stitch_s > 0 and not isinstance(tracker, BuiltinTracker):  # never silently left out
         raise ConfigError("tracker.stitch_s", "stitching is a step of the built-in trackers, not of a named or a "
                           "user's tracker: set it to 0 for this one")
@@ -55,6 +60,20 @@ def build_tracker(scenario, tracker: Any = None) -> Tracker:
         raise ConfigError("tracker", f"{getattr(factory, '__name__', factory)!r} gave a {type(built).__name__}, "
                           f"which has no step(frame) method")
     return built
+
+
+def check_tracker_sensors(scenario) -> None:
+    """ConfigError (one line naming ``tracker.sensors[i]``) unless every name is the LiDAR or a sensor of
+    ``sensor.extra`` whose data a tracker can take (a ``measurements`` hook)."""
+    from ..sensing.registry import scenario_sensors
+
+    known = {s.name: s for s in scenario_sensors(scenario)}
+    for i, name in enumerate(scenario.tracker.sensors):
+        if name not in known:
+            raise ConfigError(f"tracker.sensors[{i}]", f"{name!r} is not a sensor of this scenario; allowed: "
+                              f"{', '.join(known)} (add further sensors to sensor.extra)")
+        if name != "lidar" and known[name].measurements is None:
+            raise ConfigError(f"tracker.sensors[{i}]", f"sensor {name!r} gives no measurements a tracker can take")
 
 
 def tracker_label(tracker: Any, scenario) -> str:

@@ -7,6 +7,7 @@ contract tests then run it. `make_filter("kf", sigma_v=1.0)` builds one from key
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from roadtrack.trackers.filters.base import Filter, ModelFilter, pda_covariance
@@ -54,6 +55,32 @@ def make_filter(kind: str, **params: Any) -> Filter:
     return build_filter(kind, params, "filter")
 
 
+def with_measurement(filter_: Filter, model) -> Filter:
+    """``filter_`` with the measurement model ``model`` (trackers.models) for one update: the model a sensor's
+    detections carry (a radar's range, azimuth and range-rate from that scan's pose). An IMM gets it in every mode.
+    A KF given a nonlinear model becomes the first-order EKF, which is the KF for a linear one (thesis (1.11)) [D];
+    an EKF keeps its order when the model has ``hessians``. The SVSF family's gains need the measured states
+    themselves (a linear position measurement, thesis ch. 2-4): any other model is a one-line ValueError."""
+    if model is filter_.measurement:
+        return filter_
+    if isinstance(filter_, IMMFilter):
+        return dataclasses.replace(filter_, filters=tuple(with_measurement(f, model) for f in filter_.filters))
+    if isinstance(filter_, KalmanFilter):
+        if model.linear:
+            return dataclasses.replace(filter_, measurement=model)
+        return ExtendedKalmanFilter(filter_.motion, model)
+    if isinstance(filter_, ExtendedKalmanFilter):
+        return ExtendedKalmanFilter(filter_.motion, model, filter_.second_order and hasattr(model, "hessians"))
+    name = type(filter_).__name__
+    if not (model.linear and getattr(model, "ndim", None) == filter_.measurement.ndim
+            and type(model) is type(filter_.measurement)):
+        raise ValueError(f"the {name} takes only its own kind of measurement ({type(filter_.measurement).__name__}), "
+                         f"not {type(model).__name__}: use a KF-, EKF- or IMM-based tracker for this sensor")
+    if not dataclasses.is_dataclass(filter_) or "measurement" not in {f.name for f in dataclasses.fields(filter_)}:
+        raise ValueError(f"the {name} has no measurement field to replace")
+    return dataclasses.replace(filter_, measurement=model)
+
+
 __all__ = ["EKFParams", "ExtendedKalmanFilter", "FILTERS", "Filter", "FilterKind", "GVBLSVSF", "GeneralisedSVSF",
            "IMMFilter", "IMMState", "KalmanFilter", "ModelFilter", "ModelParams", "SVSF", "build_filter", "make_filter",
-           "pda_covariance"]
+           "pda_covariance", "with_measurement"]
