@@ -1,4 +1,5 @@
-"""Position and velocity RMSE of a tracker fed the LiDAR alone, the radar alone and both (sequential updates), issue 32.
+"""Position and velocity RMSE of a tracker fed the LiDAR alone, the radar alone and both (sequential updates), and the
+box-overlap scores of box tracking, issue 32.
 
     .venv/bin/python benchmarks/bench_fusion.py [--scenarios cut_in_out highway_benchmark] [--seeds 0 1 2]
                                                 [--tracker jpda-kf] [--duration S] [--out DIR]
@@ -27,7 +28,9 @@ import numpy as np  # noqa: E402
 from roadtrack.testbed.pipeline.run import run_scenario  # noqa: E402
 from roadtrack.testbed.scenario.spec import load_scenario  # noqa: E402
 
-VARIANTS = {"LiDAR alone": ["lidar"], "radar alone": ["radar"], "LiDAR + radar": ["lidar", "radar"]}
+VARIANTS = {"LiDAR alone": ["lidar"], "radar alone": ["radar"], "LiDAR + radar": ["lidar", "radar"],
+            "LiDAR, boxes": ["lidar"]}
+BOX_KEYS = ("hota", "mota", "idf1", "mean_iou")
 
 
 def measure(scenario: str, seeds: list[int], tracker: str, duration: float | None, out: Path) -> dict[str, dict]:
@@ -35,7 +38,8 @@ def measure(scenario: str, seeds: list[int], tracker: str, duration: float | Non
     rows: dict[str, dict] = {}
     for seed in seeds:
         for label, sensors in VARIANTS.items():
-            over = {"seed": seed, "sensor.extra": ["radar"], "tracker.sensors": sensors, "tracker.name": tracker}
+            over = {"seed": seed, "sensor.extra": ["radar"], "tracker.sensors": sensors, "tracker.name": tracker,
+                    "tracker.box": label == "LiDAR, boxes"}
             if duration is not None:
                 over["duration_s"] = duration
             res = run_scenario(load_scenario(scenario, over), record=False, sensing_cache=out / "cache")
@@ -50,6 +54,9 @@ def measure(scenario: str, seeds: list[int], tracker: str, duration: float | Non
             r["pos"] += s.n_matched_frames * s.pos_rmse_m ** 2
             r["vel"] += s.n_matched_frames * s.vel_rmse_mps ** 2
             r["cover"] += res.n_frames * s.coverage_pct / 100.0
+            for k in BOX_KEYS:
+                r[k] = r.get(k, 0.0) + res.n_frames * res.metrics.get(k, np.nan)
+                r[f"bev_{k}"] = r.get(f"bev_{k}", 0.0) + res.n_frames * res.metrics.get(f"bev_{k}", np.nan)
     return rows
 
 
@@ -57,11 +64,15 @@ def table(scenario: str, tracker: str, seeds: list[int], rows: dict[str, dict]) 
     out = [f"{scenario}, {tracker}, seeds {' '.join(map(str, seeds))}",
            f"{'sensors':<15}{'cars':>6}{'TP %':>8}{'FP %':>7}{'break-up %':>11} |{'cover %':>8}{'pos RMSE m':>11}"
            f"{'vel RMSE m/s':>13}"]
-    for label, r in rows.items():
+    for label, r in ((k, v) for k, v in rows.items() if k != "LiDAR, boxes"):
         n, f, p = max(r["seen"], 1), max(r["frames"], 1), max(r.get("pairs", 0), 1)
         out.append(f"{label:<15}{r['seen']:>6}{100 * r['tp'] / n:>8.2f}{100 * r['fp'] / n:>7.2f}"
                    f"{100 * r['breakups'] / n:>11.2f} |{100 * r['cover'] / f:>8.2f}{np.sqrt(r['pos'] / p):>11.3f}"
                    f"{np.sqrt(r['vel'] / p):>13.3f}")
+    r, f = rows["LiDAR, boxes"], max(rows["LiDAR, boxes"]["frames"], 1)
+    out.append(f"box tracking (LiDAR, tracker.box): by centre distance HOTA {r['hota'] / f:.3f} MOTA "
+               f"{r['mota'] / f:.3f} IDF1 {r['idf1'] / f:.3f}; by BEV IoU HOTA {r['bev_hota'] / f:.3f} MOTA "
+               f"{r['bev_mota'] / f:.3f} IDF1 {r['bev_idf1'] / f:.3f}, mean IoU {r['bev_mean_iou'] / f:.3f}")
     return "\n".join(out)
 
 

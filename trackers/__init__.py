@@ -12,12 +12,14 @@ parameter).
 
 from roadtrack.trackers.association import (ASSOCIATORS, AssociationInput, AssociationParams, AssociatorParams,
                                   global_nearest_neighbour, jpda, nearest_neighbour, pda)
+from roadtrack.trackers.box import BoxParams, box_birth, box_update
 from roadtrack.trackers.errors import FilterError, JPDAOverflowError, JPDAOverflowWarning
 from roadtrack.trackers.filters import FILTERS, ExtendedKalmanFilter, Filter, KalmanFilter, make_filter, pda_covariance
 from roadtrack.trackers.gating import (gate, gate_probability, innovations, log_gaussian, mahalanobis2,
                              mahalanobis2_and_log_gaussian)
 from roadtrack.trackers.management import ManagementParams, initial_score, score_decide, score_increment
-from roadtrack.trackers.models import (ConstantVelocity, CoordinatedTurn, PositionMeasurement, RangeBearing, cv_noise_gain,
+from roadtrack.trackers.models import (ConstantVelocity, CoordinatedTurn, PositionMeasurement, RangeBearing,
+                                       RangeBearingRate, cv_noise_gain,
                              cv_process_noise, cv_transition, measurement_noise, position_measurement_matrix)
 from roadtrack.trackers.params import ParamError
 from roadtrack.trackers.plugins import register_associator, register_filter
@@ -27,7 +29,8 @@ from roadtrack.trackers.state import FilterState
 from roadtrack.trackers.tracker import ScanRecord, StepInfo, StepResult, Track, Tracker
 
 __all__ = [
-    "ASSOCIATORS", "PAPER_TRACKERS", "AssociationInput", "AssociationParams", "AssociatorParams", "ConstantVelocity",
+    "ASSOCIATORS", "PAPER_TRACKERS", "AssociationInput", "AssociationParams", "AssociatorParams", "BoxParams",
+    "ConstantVelocity", "RangeBearingRate", "box_birth", "box_update",
     "CoordinatedTurn", "ExtendedKalmanFilter", "FILTERS", "Filter", "FilterError", "FilterState",
     "JPDAOverflowError", "JPDAOverflowWarning", "KalmanFilter", "ManagementParams", "ParamError",
     "PositionMeasurement", "RangeBearing", "ScanRecord", "StepInfo", "StepResult", "Track", "Tracker", "WRAPPERS",

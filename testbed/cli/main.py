@@ -221,6 +221,10 @@ def _print_scores(label: str, scores, m: dict) -> None:
               f"IDF1 {m['idf1' + sfx]:.3f}  ID switches {m['id_switches' + sfx]:.0f}  GOSPA {m['gospa' + sfx]:.2f} m "
               f"(per frame: missed {m['gospa_missed' + sfx]:.2f}, false {m['gospa_false' + sfx]:.2f}, "
               f"localisation {m['gospa_localisation' + sfx]:.2f} m^2)")
+    if "bev_hota" in m:  # box tracking (tracker.box)
+        print(f"box overlap  : HOTA {m['bev_hota']:.3f}  MOTA {m['bev_mota']:.3f}  MOTP {m['bev_motp']:.3f}  "
+              f"IDF1 {m['bev_idf1']:.3f}  ID switches {m['bev_id_switches']:.0f}  mean IoU {m['bev_mean_iou']:.3f} "
+              "(bird's-eye-view IoU as the similarity, visible truth; a match needs IoU >= 0.5)")
 
 
 def print_run(res, args: argparse.Namespace, out: str) -> None:

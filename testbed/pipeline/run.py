@@ -111,7 +111,8 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         setup()  # before any output: a traffic that cannot be set up fails with nothing written
     out = Path(out_dir) if out_dir is not None else None
     recorder = _open_outputs(scn, out, record, name, setup, source)
-    tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(), diagnostics=diagnostics_log(),
+    tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(scn.tracker.box),
+                  diagnostics=diagnostics_log(),
                   **{f"detections-{name}": sensor_detections_log() for name in further_tables(scn)})
     watch = Stopwatch()
     state = _Progress()
@@ -412,8 +413,9 @@ def score_tables(scn: Scenario, truth_t, trk_t, n_frames: int) -> tuple[Scores, 
     from ..scoring.evaluate import score
 
     cols = ("frame", "vehicle_id", "x", "y", "vx", "vy", "n_points", "is_ego")
-    truth = pd.DataFrame({c: truth_t.array(c) for c in cols})
-    tracks = pd.DataFrame({c: trk_t.array(c) for c in ("frame", "track_id", "x", "y", "vx", "vy", "status")})
+    box = ("heading", "length", "width") if "heading" in trk_t.columns else ()  # box tracking: its scores too
+    truth = pd.DataFrame({c: truth_t.array(c) for c in cols + box})
+    tracks = pd.DataFrame({c: trk_t.array(c) for c in ("frame", "track_id", "x", "y", "vx", "vy", "status") + box})
     ev = score(truth, tracks, scn.scoring, n_frames)
     return ev.scores, ev.metrics
 
@@ -447,9 +449,13 @@ def log_tables(truth, vis, dets, ts: TrackSet, truth_t, det_t, trk_t) -> None:
                  width=dets.extent[:, 1], height=dets.extent[:, 2], r_xx=dets.R[:, 0, 0], r_xy=dets.R[:, 0, 1],
                  r_yy=dets.R[:, 1, 1])
     t = len(ts)
+    box = {}
+    if "heading" in trk_t.columns:  # box tracking (tracker.box)
+        b = ts.box if ts.box is not None else np.full((t, 3), np.nan)
+        box = dict(heading=b[:, 0], length=b[:, 1], width=b[:, 2])
     trk_t.append(frame=np.full(t, truth.frame), time=np.full(t, truth.time), track_id=ts.ids, status=ts.status,
                  x=ts.xy[:, 0], y=ts.xy[:, 1], vx=ts.v[:, 0], vy=ts.v[:, 1], score=ts.score, regime=ts.regime,
-                 cov=ts.cov.reshape(t, 16))
+                 cov=ts.cov.reshape(t, 16), **box)
 
 
 def log_sensor_detections(truth, meas: dict, tables: dict) -> dict[str, np.ndarray]:

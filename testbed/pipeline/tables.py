@@ -117,10 +117,13 @@ def sensor_detections_log() -> TableLog:
     return TableLog(dict(frame=np.int64, time=np.float64, x=np.float64, y=np.float64, z=np.float64))
 
 
-def tracks_log() -> TableLog:
-    return TableLog(dict(frame=np.int64, time=np.float64, track_id=np.int64, status=object, x=np.float64,
-                         y=np.float64, vx=np.float64, vy=np.float64, score=np.float64, regime=object,
-                         cov=np.float64))
+def tracks_log(box: bool = False) -> TableLog:
+    """The tracks table; with ``box`` (box tracking) also each track's heading [rad], length and width [m]."""
+    cols = dict(frame=np.int64, time=np.float64, track_id=np.int64, status=object, x=np.float64, y=np.float64,
+                vx=np.float64, vy=np.float64, score=np.float64, regime=object, cov=np.float64)
+    if box:
+        cols.update(heading=np.float64, length=np.float64, width=np.float64)
+    return TableLog(cols)
 
 
 def diagnostics_log() -> TableLog:

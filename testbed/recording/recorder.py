@@ -75,7 +75,8 @@ from .levels import content
 from .events import log_events
 from . import rrd
 from .slots import Slots, colours
-from .scene import (GROUND_LABEL, Trails, boxes, log_detections, log_lidar, log_sensor_detections, log_track_extras,
+from .scene import (GROUND_LABEL, Trails, boxes, log_detections, log_lidar, log_sensor_detections, log_track_boxes,
+                    log_track_extras,
                     log_track_points)
 
 APP_ID = "roadtrack"
@@ -175,6 +176,8 @@ class Recorder:
         slot = self.slots.update(ts.ids, status == "confirmed")
         colour = colours(slot)
         log_track_points(rec, ts, colour)
+        if ts.box is not None:
+            log_track_boxes(rec, ts, colour)
         if want.track_extras:
             self.layers_logged = log_track_extras(rec, ts, self.layers_logged, colour)
         self.trails.log(rec, ts, colour)

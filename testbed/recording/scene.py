@@ -121,6 +121,14 @@ def log_detections(rec: rr.RecordingStream, detections, perception) -> None:
             labels=[str(r) for r in rj.reason], show_labels=False))
 
 
+def log_track_boxes(rec: rr.RecordingStream, ts, colour: np.ndarray) -> None:
+    """Box tracking (``tracker.box``): each confirmed track's estimated box (heading, length, width; 1.5 m high)."""
+    conf = ts.status == "confirmed"
+    b = ts.box[conf]
+    rec.log("world/tracks/boxes", rr.Boxes3D(**boxes(ts.xy[conf], np.column_stack([b[:, 1:], np.full(len(b), 1.5)]),
+                                                     b[:, 0]), colors=colour[conf], radii=0.04))
+
+
 def log_sensor_detections(rec: rr.RecordingStream, name: str, xy: np.ndarray) -> None:
     """A further sensor's detections (``name``, e.g. radar) at the positions they imply, xy (M, 2) [m]."""
     rec.log(f"world/sensors/{name}", rr.Points3D(np.column_stack([xy, np.full(len(xy), 0.6)]).reshape(-1, 3),

@@ -331,6 +331,10 @@ class TrackerSpec:
                             "lies in that track's constant-velocity prediction (testbed/tracking/stitch.py); the "
                             "run counts the stitches (scores.json stitched_tracks); 0: off",
                             check=(lambda v: 0 <= v <= 60, "in [0, 60]"))
+    box: bool = field(False, doc="box tracking: each track of a built-in tracker also estimates its bird's-eye-view "
+                      "box (heading, length, width) from the perception's fitted boxes (trackers/box.py); "
+                      "tracks.parquet gets heading, length, width, the recording the track boxes, scores.json "
+                      "box-overlap (BEV IoU) HOTA, MOTA, IDF1 beside the centre-distance ones")
     sensors: tuple[str, ...] = field(("lidar",), doc="the sensors the built-in tracker takes, in update order: the "
                                      "first runs the whole step (life cycle, births), each further one a sequential "
                                      "update of the same frame (Tracker.update); names from lidar and sensor.extra "

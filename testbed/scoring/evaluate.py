@@ -9,6 +9,9 @@ truth (README, "Output files", truth.parquet): frame, vehicle_id, x, y [m], vx, 
 tracks: frame (or time [s], matched to the truth's frame times within half a frame), track_id (or id), x, y [m];
     optionally vx, vy [m/s] (else NaN: no velocity RMSE) and status ("confirmed" rows are scored; without the
     column every row is confirmed).
+With box columns heading [rad], length, width [m] in both tables (box tracking, ``tracker.box``), the metrics also
+hold the box-overlap ones as ``bev_*`` (bird's-eye-view IoU as the similarity, testbed/scoring/boxes.py; visible
+truth).
 """
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from ..config import ConfigError
+from .boxes import box_metrics
 from .mot_metrics import mot_metrics, visible_truth
 from ..scenario.spec import ScoringSpec
 from .rates import Scores, score_run
@@ -80,7 +84,18 @@ def score(truth, tracks, scoring: ScoringSpec | None = None, n_frames: int | Non
     kw = dict(similarity_scale_m=scale, gospa_c=sc.match_distance_m)
     metrics = mot_metrics(g_vis, t_vis, n, **kw)
     metrics.update({f"{k}_all": val for k, val in mot_metrics(g_all, t_all, n, **kw).items()})
+    if "box" in truth_rows and "box" in track_rows:  # box tracking: the box-overlap scores beside
+        g_box = {**g_all, "box": truth_rows["box"]}
+        g_vis_b, t_vis_b = visible_truth(g_box, {**t_all, "box": track_rows["box"][conf]}, scale)
+        metrics.update({f"bev_{k}": val for k, val in box_metrics(g_vis_b, t_vis_b, n).items()})
     return Evaluation(scores, metrics)
+
+
+def _boxes(df: pd.DataFrame, what: str) -> np.ndarray | None:
+    """Boxes (N, 5) [x, y, heading, length, width] of a table with heading, length, width columns, else None."""
+    if not {"heading", "length", "width"} <= set(df.columns):
+        return None
+    return np.column_stack([_numbers(df, c, what) for c in ("x", "y", "heading", "length", "width")])
 
 
 def scoring_rows(truth, tracks, sc: ScoringSpec) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -99,6 +114,8 @@ def scoring_rows(truth, tracks, sc: ScoringSpec) -> tuple[dict[str, np.ndarray],
                       xy=np.column_stack([_numbers(g, "x", "truth"), _numbers(g, "y", "truth")]),
                       v=np.column_stack([_numbers(g, "vx", "truth"), _numbers(g, "vy", "truth")]),
                       visible=g["n_points"].to_numpy(dtype=np.int64) >= sc.visible_min_points)
+    if (g_box := _boxes(g, "truth")) is not None:
+        truth_rows["box"] = g_box
     frame = _track_frames(t, g, _column(t, "tracks", "frame", "time"))
     tid = _column(t, "tracks", "track_id", "id")
     try:
@@ -113,6 +130,8 @@ def scoring_rows(truth, tracks, sc: ScoringSpec) -> tuple[dict[str, np.ndarray],
     v = np.column_stack([_numbers(t, c, "tracks") if c in t.columns else np.full(len(t), np.nan) for c in ("vx", "vy")])
     conf = (t["status"].astype(str).to_numpy() == "confirmed") if "status" in t.columns else np.ones(len(t), bool)
     track_rows = dict(frame=frame, track_id=ids, confirmed=conf, xy=xy, v=v)
+    if (t_box := _boxes(t, "tracks")) is not None:
+        track_rows["box"] = t_box
     return truth_rows, track_rows
 
 

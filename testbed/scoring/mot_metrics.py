@@ -205,6 +205,30 @@ def mot_metrics(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray], n_f
     g_frame, g_id, g_xy = _rows("truth", truth, "vehicle_id", n_frames)
     t_frame, t_id, t_xy = _rows("tracks", tracks, "track_id", n_frames)
 
+    g_loc = np.zeros(n_frames)
+    g_mis = np.zeros(n_frames)
+    g_fal = np.zeros(n_frames)
+    g_tot = np.zeros(n_frames)
+
+    def similarity(f: int, gi: np.ndarray, ti: np.ndarray) -> np.ndarray:
+        d = _pairwise(g_xy[gi], t_xy[ti])
+        g_tot[f], g_loc[f], g_mis[f], g_fal[f] = _gospa_from_distances(d, float(gospa_c), float(gospa_p))
+        return np.maximum(0.0, 1.0 - d / similarity_scale_m)
+
+    out = trackeval_scores(g_frame, g_id, t_frame, t_id, n_frames, similarity)
+    return {**out, "gospa": _mean(g_tot), "gospa_localisation": _mean(g_loc), "gospa_missed": _mean(g_mis),
+            "gospa_false": _mean(g_fal)}
+
+
+def _mean(a: np.ndarray) -> float:
+    return float(np.mean(a)) if len(a) else 0.0
+
+
+def trackeval_scores(g_frame: np.ndarray, g_id: np.ndarray, t_frame: np.ndarray, t_id: np.ndarray, n_frames: int,
+                     similarity) -> dict[str, float]:
+    """HOTA, DetA, AssA, LocA, MOTA, MOTP, IDF1 and ID switches (TrackEval, module docstring) of truth rows
+    (frame (N,), id (N,)) and track rows (frame (Q,), id (Q,)) with ``similarity(frame, truth rows (n,), track rows
+    (m,)) -> (n, m)`` in [0, 1] (the rows as indices into the inputs)."""
     # Contiguous ids 0..K-1 (TrackEval indexes count arrays by id) and rows grouped by frame.
     g_uid, g_cid = np.unique(g_id, return_inverse=True)
     t_uid, t_cid = np.unique(t_id, return_inverse=True)
@@ -212,21 +236,13 @@ def mot_metrics(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray], n_f
     t_order = np.argsort(t_frame, kind="stable")
     g_bounds = np.concatenate(([0], np.cumsum(np.bincount(g_frame, minlength=n_frames))))
     t_bounds = np.concatenate(([0], np.cumsum(np.bincount(t_frame, minlength=n_frames))))
-
     gt_ids, tr_ids, sims = [], [], []
-    g_loc = np.zeros(n_frames)
-    g_mis = np.zeros(n_frames)
-    g_fal = np.zeros(n_frames)
-    g_tot = np.zeros(n_frames)
     for f in range(n_frames):
         gi = g_order[g_bounds[f]:g_bounds[f + 1]]
         ti = t_order[t_bounds[f]:t_bounds[f + 1]]
-        d = _pairwise(g_xy[gi], t_xy[ti])
         gt_ids.append(g_cid[gi])
         tr_ids.append(t_cid[ti])
-        sims.append(np.maximum(0.0, 1.0 - d / similarity_scale_m))
-        g_tot[f], g_loc[f], g_mis[f], g_fal[f] = _gospa_from_distances(d, float(gospa_c), float(gospa_p))
-
+        sims.append(similarity(f, gi, ti))
     data = {
         "seq": "run", "num_timesteps": n_frames,
         "num_gt_ids": len(g_uid), "num_tracker_ids": len(t_uid),
@@ -237,15 +253,9 @@ def mot_metrics(truth: dict[str, np.ndarray], tracks: dict[str, np.ndarray], n_f
     hota = hota_m.combine_sequences({"run": hota_m.eval_sequence(data)})
     clear = clear_m.combine_sequences({"run": clear_m.eval_sequence(data)})
     ident = id_m.combine_sequences({"run": id_m.eval_sequence(data)})
-
-    def mean(a: np.ndarray) -> float:
-        return float(np.mean(a)) if len(a) else 0.0
-
     return {
-        "hota": mean(hota["HOTA"]), "deta": mean(hota["DetA"]),
-        "assa": mean(hota["AssA"]), "loca": mean(hota["LocA"]),
+        "hota": _mean(hota["HOTA"]), "deta": _mean(hota["DetA"]),
+        "assa": _mean(hota["AssA"]), "loca": _mean(hota["LocA"]),
         "mota": float(clear["MOTA"]), "motp": float(clear["MOTP"]),
         "idf1": float(ident["IDF1"]), "id_switches": float(clear["IDSW"]),
-        "gospa": mean(g_tot), "gospa_localisation": mean(g_loc),
-        "gospa_missed": mean(g_mis), "gospa_false": mean(g_fal),
     }

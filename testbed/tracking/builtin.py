@@ -48,14 +48,53 @@ def position_velocity(kin: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.
     return kin[:, idx], cov[:, idx][:, :, idx]
 
 
+def along_motion(box: np.ndarray, v: np.ndarray, min_speed_mps: float = 1.0) -> np.ndarray:
+    """Boxes (T, 3) [heading, length, width] with each heading turned by pi where it points against the track's
+    velocity v (T, 2) [m/s] (a fitted box's heading is known modulo pi), for tracks moving at min_speed_mps or more."""
+    out = box.copy()
+    speed = np.hypot(v[:, 0], v[:, 1])
+    back = (speed >= min_speed_mps) & (np.cos(box[:, 0] - np.arctan2(v[:, 1], v[:, 0])) < 0)
+    out[back, 0] = (box[back, 0] + 2.0 * np.pi) % (2.0 * np.pi) - np.pi
+    return out
+
+
+class BoxTracks:
+    """Box tracking (``tracker.box``): each track's bird's-eye-view box [heading, length, width] and its variances,
+    filtered beside the kinematic state with the association weights of each step (trackers.box), started from
+    the detection the track was started on (StepInfo.born_from)."""
+
+    def __init__(self, params: trackers.BoxParams | None = None):
+        self.params = params or trackers.BoxParams()
+        self.state: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def update(self, res, y: np.ndarray, dt: float) -> None:
+        """After a step (StepResult ``res``) on detections whose fitted boxes are y (M, 3) [heading, length, width]."""
+        info = res.info
+        ids = [int(i) for i in info.ids]
+        b = np.array([self.state[i][0] for i in ids]).reshape(-1, 3)
+        var = np.array([self.state[i][1] for i in ids]).reshape(-1, 3)
+        b, var = trackers.box_update(b, var, y, info.W, info.w0, dt, self.params)
+        new = {i: (b[t], var[t]) for t, i in enumerate(ids)}
+        for i, j in info.born_from.items():
+            new[int(i)] = trackers.box_birth(y[j], self.params)
+        alive = {t.id for t in res.tracks}
+        self.state = {i: v for i, v in new.items() if i in alive}
+
+    def of(self, ids: list[int]) -> np.ndarray:
+        """The boxes (T, 3) of tracks ``ids``."""
+        return np.array([self.state[i][0] for i in ids], dtype=np.float64).reshape(len(ids), 3)
+
+
 class BuiltinTracker:
     """A ``trackers.Tracker`` as a protocol tracker. ``tracker``: the built tracker (``trackers.make_tracker``);
     ``tracks``: the live tracks after the last step (candidates included), ``next_id`` the next label."""
 
-    def __init__(self, tracker: trackers.Tracker, stitch_s: float = 0.0, sensors: tuple[str, ...] = ("lidar",)):
+    def __init__(self, tracker: trackers.Tracker, stitch_s: float = 0.0, sensors: tuple[str, ...] = ("lidar",),
+                 box: bool = False):
         self.tracker = tracker
         self.name = tracker.name
         self.sensors = tuple(sensors)  # tracker.sensors: the first runs the step, the others update (sequential)
+        self.boxes = BoxTracks() if box else None  # box tracking (tracker.box): each track's [heading, l, w]
         self.tracks: tuple = ()
         self.next_id = 1
         self._trucks: dict[int, bool] = {}
@@ -66,6 +105,8 @@ class BuiltinTracker:
         trk = self.tracker
         if self.sensors[0] == "lidar":
             res = self._lidar_step(frame)
+            if self.boxes is not None:
+                self.boxes.update(res, np.c_[frame.heading, frame.extent[:, :2]], frame.dt)
         else:  # another sensor's detections, with the measurement model they carry, run the whole step
             meas = self._measurements(frame, self.sensors[0])
             trk = self._for(meas)
@@ -90,7 +131,8 @@ class BuiltinTracker:
             score=np.array([t.score for t in reported], dtype=np.float64),
             regime=np.array([t.regime for t in reported], dtype=object),
             diagnostics=info.diagnostics, diagnostic_ids=info.ids, info=info if trk is self.tracker else None,
-            gate_alpha=trk.association.gate_alpha, fallbacks=self.fallbacks(res.info), stitched=len(stitched))
+            gate_alpha=trk.association.gate_alpha, fallbacks=self.fallbacks(res.info), stitched=len(stitched),
+            box=None if self.boxes is None else along_motion(self.boxes.of([t.id for t in reported]), xyv[:, 2:]))
 
     def _lidar_step(self, frame: Frame):
         """The step on the LiDAR's detections, with the occlusion-aware P_D (truck boxes for trucks' tracks)."""

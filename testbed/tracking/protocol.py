@@ -71,6 +71,8 @@ class TrackSet:
     (a JPDA cluster over max_nodes; the run sums them into scores.json's ``association_fallbacks``).
     stitched: tracks of this scan given the label of a recently deleted track (track-to-track stitching,
     ``tracker.stitch_s``; testbed/tracking/stitch.py); the run sums them into scores.json's ``stitched_tracks``.
+    box: (T, 3) each track's bird's-eye-view box [heading (rad), length (m), width (m)] (box tracking,
+    ``tracker.box``), or None.
     """
 
     ids: np.ndarray
@@ -86,6 +88,7 @@ class TrackSet:
     gate_alpha: float = 9.21
     fallbacks: int = 0
     stitched: int = 0
+    box: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         ids = np.asarray(self.ids)
@@ -116,6 +119,11 @@ class TrackSet:
             n = getattr(self, name)
             if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
                 raise ValueError(f"TrackSet.{name}: expected an int >= 0, got {n!r}")
+        if self.box is not None:
+            box = np.asarray(self.box, dtype=np.float64)
+            if box.shape != (t, 3) or not np.isfinite(box).all():
+                raise ValueError(f"TrackSet.box: expected finite (T, 3) = ({t}, 3), got {box.shape}")
+            object.__setattr__(self, "box", box)
         diag_ids = ids if self.diagnostic_ids is None else np.asarray(self.diagnostic_ids, dtype=np.int64).reshape(-1)
         diag = {}
         for name, values in self.diagnostics.items():

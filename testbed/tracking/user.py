@@ -38,7 +38,10 @@ def build_tracker(scenario, tracker: Any = None) -> Tracker:
     if tracker is None or (isinstance(tracker, str) and not is_factory_spec(tracker)):
         check_tracker_sensors(scenario)
         return BuiltinTracker(scenario.tracker.build(tracker or scenario.tracker.name), scenario.tracker.stitch_s,
-                              scenario.tracker.sensors)
+                              scenario.tracker.sensors, scenario.tracker.box)
+    if scenario.tracker.box and not isinstance(tracker, BuiltinTracker):  # never silently left out
+        raise ConfigError("tracker.box", "box tracking is a step of the built-in trackers, not of a named or a "
+                          "user's tracker: set it to false for this one")
     if tuple(scenario.tracker.sensors) != ("lidar",) and not isinstance(tracker, BuiltinTracker):  # never left out
         raise ConfigError("tracker.sensors", "the sensors a tracker takes are a setting of the built-in trackers; a "
                           "named or a user's tracker gets the LiDAR's detections: leave it at [\"lidar\"]")
@@ -74,6 +77,9 @@ def check_tracker_sensors(scenario) -> None:
                               f"{', '.join(known)} (add further sensors to sensor.extra)")
         if name != "lidar" and known[name].measurements is None:
             raise ConfigError(f"tracker.sensors[{i}]", f"sensor {name!r} gives no measurements a tracker can take")
+    if scenario.tracker.box and scenario.tracker.sensors[0] != "lidar":
+        raise ConfigError("tracker.box", "box tracking reads the LiDAR's fitted boxes: tracker.sensors must start "
+                          "with \"lidar\"")
 
 
 def tracker_label(tracker: Any, scenario) -> str:
