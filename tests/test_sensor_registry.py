@@ -34,8 +34,8 @@ def in_view(truth):
     return np.hypot(*(truth.xy - truth.xy[0]).T) <= RANGE_M
 
 
-def sense(ctx, truth, rngs):
-    noise = rngs["sensor.beacon"].normal(0.0, SIGMA_M, size=(len(truth.ids), 2))  # for every car, seen or not
+def sense(ctx, truth, rngs, stream="sensor.beacon"):
+    noise = rngs[stream].normal(0.0, SIGMA_M, size=(len(truth.ids), 2))  # for every car, seen or not
     seen = in_view(truth)
     seen[0] = False  # not the ego
     return {"id": truth.ids[seen], "z": truth.xy[seen] + noise[seen]}
@@ -46,6 +46,18 @@ def visibility(ctx, truth, data):
 
 
 SENSOR = Sensor("beacon", sense, visibility, doc="toy beacon receiver")
+
+
+def measurements(ctx, truth, data):
+    from roadtrack.testbed.sensing import Measurements
+    from roadtrack.trackers.models import PositionMeasurement
+
+    return Measurements(data["z"], PositionMeasurement(SIGMA_M), None, 0.95, 1e-4)
+
+
+TRACKED = Sensor("tracked", lambda ctx, truth, rngs: sense(ctx, truth, rngs, "sensor.beacon2"), visibility,
+                 streams=("sensor.beacon2",), measurements=measurements,
+                 doc="the beacon, its detections given to trackers")
 LISTY = Sensor("listy", lambda ctx, truth, rngs: [1.0, 2.0], lambda ctx, truth, data: (None, None))
 THIEF = Sensor("thief", sense, visibility, streams=("lidar",))
 '''
@@ -59,7 +71,8 @@ def beacon(tmp_path, monkeypatch):
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: toy-beacon\nVersion: 0.1\n")
     (info / "entry_points.txt").write_text("[roadtrack.sensors]\nbeacon = toy_beacon:SENSOR\n"
-                                           "listy = toy_beacon:LISTY\nthief = toy_beacon:THIEF\n")
+                                           "listy = toy_beacon:LISTY\nthief = toy_beacon:THIEF\n"
+                                           "tracked = toy_beacon:TRACKED\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     sensor_registry.cache_clear()
     yield
@@ -182,3 +195,26 @@ def test_the_cache_stores_the_toy_sensor_and_refuses_data_it_cannot_store(beacon
                                           r"not a dict") as err:
         list(cache.frames(bad))
     assert "\n" not in str(err.value) and not cache.has(bad)
+
+
+def test_a_toy_sensor_with_measurements_is_tracked_and_written_without_other_changes(beacon, tmp_path):
+    """1 module + 1 registry line (an entry point) is all a sensor a tracker takes needs: its detections, with the
+    model they carry, update the LiDAR's tracks and are written to detections-<name>.parquet."""
+    import pandas as pd
+
+    from roadtrack.testbed.pipeline.run import run_scenario
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PluginWarning)
+        sensor_registry()
+    base = run_scenario(load_scenario("cut_in_out", {"duration_s": 2.0}), out_dir=tmp_path / "a",
+                                record=False)
+    scn = load_scenario("cut_in_out", {"duration_s": 2.0, "sensor.extra": ["tracked"],
+                                       "tracker.sensors": ["lidar", "tracked"]})
+    fused = run_scenario(scn, out_dir=tmp_path / "b", record=False)
+    got = pd.read_parquet(tmp_path / "b" / "detections-tracked.parquet")
+    assert len(got) > 0 and got.frame.nunique() == 21
+    np.testing.assert_allclose(np.stack(got.z), got[["x", "y"]].to_numpy())  # a position model: z is x, y
+    a, b = pd.read_parquet(tmp_path / "a" / "tracks.parquet"), pd.read_parquet(tmp_path / "b" / "tracks.parquet")
+    assert len(a) == len(b) and not np.allclose(a[["x", "y"]], b[["x", "y"]])  # the beacon moved the estimates
+    assert fused.scores.cars_tracked == base.scores.cars_tracked
