@@ -341,7 +341,8 @@ class Tracker:
         """With a road and `max_gate_m2`: the tracks whose predicted gate exceeds it leave before association (a
         track is deleted before its gate passes the bound, not after); returns the rest and the dropped."""
         mp = self.management
-        if road is None or not mp.road_life or mp.max_gate_m2 is None or not live:
+        if (road is None or not mp.road_life or mp.max_gate_m2 is None or not live
+                or not self.filter.measurement.linear):  # a nonlinear model's gate (a radar's) is not in m^2
             return live, pred, pdt, []
         wide = gate_volume(pred.S, CREDIBLE_GATE_ALPHA) > mp.max_gate_m2
         if not wide.any():
