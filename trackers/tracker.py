@@ -225,12 +225,15 @@ class Tracker:
         """`kinematics` of filter states (T of them): kin (T, 2d) [p; v], cov (T, 2d, 2d)."""
         mot = self.filter.motion
         idx = np.array(list(mot.position) + list(mot.velocity))
-        kin = np.zeros((len(states), idx.size))
-        cov = np.zeros((len(states), idx.size, idx.size))
-        for t, s in enumerate(states):
-            x, P = self.filter.output(s)
-            kin[t], cov[t] = x[idx], P[np.ix_(idx, idx)]
-        return kin, cov
+        if not states:
+            return np.zeros((0, idx.size)), np.zeros((0, idx.size, idx.size))
+        out = [self.filter.output(s) for s in states]
+        n = {x.size for x, _ in out}
+        if len(n) != 1:  # outputs of several sizes: track by track
+            return (np.array([x[idx] for x, _ in out]),
+                    np.array([P[np.ix_(idx, idx)] for _, P in out]))
+        X, P = np.array([x for x, _ in out]), np.array([P for _, P in out])
+        return X[:, idx], P[:, idx][:, :, idx]
 
     @property
     def pg(self) -> float:
