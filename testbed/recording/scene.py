@@ -130,8 +130,9 @@ def log_track_boxes(rec: rr.RecordingStream, ts, colour: np.ndarray) -> None:
 
 
 def log_sensor_detections(rec: rr.RecordingStream, name: str, xy: np.ndarray) -> None:
-    """A further sensor's detections (``name``, e.g. radar) at the positions they imply, xy (M, 2) [m]."""
-    rec.log(f"world/sensors/{name}", rr.Points3D(np.column_stack([xy, np.full(len(xy), 0.6)]).reshape(-1, 3),
+    """A further sensor's detections (``name``, e.g. radar) at the positions they imply, xy (M, 2) [m], drawn 2 m up
+    (above the cars' boxes, where the top-down view shows them)."""
+    rec.log(f"world/sensors/{name}", rr.Points3D(np.column_stack([xy, np.full(len(xy), 2.0)]).reshape(-1, 3),
                                                   radii=0.3, colors=[pal.SENSOR]))
 
 
