@@ -135,3 +135,13 @@ def test_box_tracking_needs_a_built_in_tracker_reading_the_lidar(tmp_path):
     with pytest.raises(ConfigError, match=r"^tracker\.box: box tracking is a step of the built-in trackers"):
         run_scenario(load_scenario("cut_in_out", {"duration_s": 0.3, "tracker.box": True}), out_dir=tmp_path / "b",
                      record=False, tracker=Mine())
+
+
+def test_the_html_replay_draws_the_track_boxes(runs):
+    from roadtrack.testbed.export.html import replay_data
+    from roadtrack.testbed.pipeline.runfolder import read_run
+
+    on, off = runs
+    data = replay_data(read_run(on.out_dir), [])
+    assert len(data["tracks"]["h"]) == len(data["tracks"]["x"]) and min(data["tracks"]["l"]) > 0
+    assert "h" not in replay_data(read_run(off.out_dir), [])["tracks"] and data["sensors"]["x"] == []

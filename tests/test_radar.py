@@ -193,3 +193,16 @@ def test_measurements_carry_the_frames_pose():
         m = further_measurements(sf, SensingContext(scn, None, None))["radar"]
         assert isinstance(m, Measurements) and m.model.pose == tuple(sf.truth.ego_pose)
         assert m.model.velocity == tuple(sf.truth.velocity[0]) and m.z.shape[1] == 3 and m.clutter_density > 0
+
+
+def test_the_html_replay_and_read_run_carry_the_radars_detections(runs):
+    from roadtrack.testbed.export.html import replay_data
+    from roadtrack.testbed.pipeline.runfolder import read_run
+
+    run = read_run(runs["fused"].out_dir)
+    assert set(run.sensors) == {"radar"} and len(run.sensors["radar"]) > 0
+    # sensed with the radar, tracked on the LiDAR alone: the radar's detections are written all the same
+    pd.testing.assert_frame_equal(read_run(runs["lidar"].out_dir).sensors["radar"], run.sensors["radar"])
+    data = replay_data(run, [])
+    assert len(data["sensors"]["x"]) == len(run.sensors["radar"]) and len(data["sensors"]["start"]) == 62
+    assert "h" not in data["tracks"]

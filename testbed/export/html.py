@@ -4,7 +4,8 @@ The page (template ``replay.html`` beside this module: a canvas, a time slider, 
 carries the run's data inline as JSON, so it opens from disk in any browser, without a GPU, a server or a
 network, in well under a second for a 60 s motorway run (the rerun viewer needs WebGL and, with software
 rendering, minutes). It draws, per frame: the lanes, the true vehicle boxes (the sensor car solid vermilion),
-the detections (green from a vehicle, red clutter), the tentative tracks (grey), the confirmed tracks in their
+the detections (green from a vehicle, red clutter; a further sensor's, e.g. the radar's, blue diamonds), the tentative
+tracks (grey), with box tracking each confirmed track's box (dashed), the confirmed tracks in their
 viewer colours (testbed/recording/slots.py) with their labels (tags that never overlap), 0.5 s velocity arrows and 2 s trails of fading dots, and a ring
 on each event for 3 s (testbed/scoring/events.py). ``replay.html#t=12.5`` or ``#event=3`` opens at a time or
 an event.
@@ -98,7 +99,7 @@ def replay_data(run, lanes: list[np.ndarray]) -> dict:
     """The page's data: ``meta`` (scenario, tracker, seed, rate_hz, frames), ``time`` (F,) [s], ``lanes``
     (flat [x0, y0, x1, y1, ...] per border line) [m], ``truth`` (per frame: id, x, y [m], h [rad], l, w [m],
     ego 0/1), ``dets`` (x, y, c: 1 clutter), ``tracks`` (id, x, y, vx, vy [m/s], s: 0 confirmed, 1 tentative,
-    2 static), per-frame columns with ``start`` (F+1,) (frame f's rows: start[f]:start[f+1]); ``colours``
+    2 static; with box tracking h [rad], l, w [m]), ``sensors`` (x, y: the further sensors' detections), per-frame columns with ``start`` (F+1,) (frame f's rows: start[f]:start[f+1]); ``colours``
     {track id: "#rrggbb"} (the viewer's); ``events`` [{n, frame, time, kind, cause, text, car, track}];
     ``style``: the scene's colours."""
     truth, tracks, dets = run.truth, run.tracks, run.detections
@@ -120,6 +121,10 @@ def replay_data(run, lanes: list[np.ndarray]) -> dict:
             events.append(dict(n=int(r["event"]), frame=int(r["frame"]), time=round(float(r["time"]), 3),
                                kind=str(r["kind"]), cause=str(r["cause"]), text=describe_event(r),
                                car=int(r["car"]), track=track))
+    box = {k: (c, 3 if k == "h" else 2) for k, c in (("h", "heading"), ("l", "length"), ("w", "width"))
+           if {"heading", "length", "width"} <= set(tracks.columns)}  # box tracking: the tracks' boxes
+    sensors = pd.concat([d[["frame", "x", "y"]] for d in run.sensors.values()]) if run.sensors else \
+        pd.DataFrame({"frame": np.zeros(0, np.int64), "x": np.zeros(0), "y": np.zeros(0)})
     return dict(
         meta=meta, time=_round(time, 3),
         lanes=[_round(np.asarray(ln).reshape(-1), 2) for ln in lanes],
@@ -127,9 +132,10 @@ def replay_data(run, lanes: list[np.ndarray]) -> dict:
                                      l=("length", 2), w=("width", 2), ego=("ego", -1))),
         dets=_per_frame(dt, n, dict(x=("x", 2), y=("y", 2), c=("c", -1))),
         tracks=_per_frame(tk, n, dict(id=("track_id", -1), x=("x", 2), y=("y", 2), vx=("vx", 2), vy=("vy", 2),
-                                      s=("s", -1))),
+                                      s=("s", -1), **box)),
+        sensors=_per_frame(sensors, n, dict(x=("x", 2), y=("y", 2))),
         colours={str(t): _hex(c) for t, c in track_colours(tracks).items()},
         events=events,
-        style=dict(ego=_hex(pal.EGO), detection=_hex(pal.DETECTION), clutter=_hex(pal.CLUTTER),
+        style=dict(ego=_hex(pal.EGO), detection=_hex(pal.DETECTION), clutter=_hex(pal.CLUTTER), sensor=_hex(pal.SENSOR),
                    tentative=_hex(pal.UNSLOTTED), event=_hex(pal.EVENT)),
     )

@@ -21,7 +21,8 @@ class RunData:
     scores: scores.json as a dict (scenario, seed, tracker, frames, scores, mot_metrics, timings, config), or {}
     when the run stopped before it. scenario: the Scenario it ran (from scores.json's config), or None.
     incomplete: the run was cut short (INCOMPLETE holds why). events: events.parquet (testbed.scoring.events), or
-    None for a run without one (cut short, or written before it existed)."""
+    None for a run without one (cut short, or written before it existed). sensors: the further sensors' detections
+    by sensor name (``detections-<name>.parquet``: frame, time, x, y, z), empty without any."""
 
     folder: Path
     truth: pd.DataFrame
@@ -32,6 +33,7 @@ class RunData:
     scenario: Scenario | None = None
     incomplete: str | None = None
     events: pd.DataFrame | None = None
+    sensors: dict[str, pd.DataFrame] = field(default_factory=dict)
 
     @property
     def n_frames(self) -> int:
@@ -71,4 +73,13 @@ def read_run(folder: str | Path) -> RunData:
             events = pd.read_parquet(ev)
         except Exception as err:  # noqa: BLE001 - a damaged file is the folder's error
             raise ConfigError(str(ev), f"cannot be read ({type(err).__name__})") from None
-    return RunData(path, **tables, scores=scores, scenario=scenario, incomplete=incomplete, events=events)
+    further = {}
+    for f in sorted(path.glob("detections-*.parquet")):
+        if f.is_symlink() or not f.is_file():  # nothing planted in a run folder is followed
+            continue
+        try:
+            further[f.stem[len("detections-"):]] = pd.read_parquet(f)
+        except Exception as err:  # noqa: BLE001 - a damaged file is the folder's error
+            raise ConfigError(str(f), f"cannot be read ({type(err).__name__})") from None
+    return RunData(path, **tables, scores=scores, scenario=scenario, incomplete=incomplete, events=events,
+                   sensors=further)
