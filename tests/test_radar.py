@@ -135,18 +135,17 @@ def test_the_radar_senses_on_its_own_stream_and_leaves_the_lidar_as_it_was():
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """cut_in_out, 6 s, with the radar: LiDAR alone, radar alone, fused; the fused one recorded and then again from
-    a sensing cache."""
+    """cut_in_out, 6 s, with the radar: fused, sensed live and recorded; LiDAR alone (filling a sensing cache),
+    radar alone and fused again from that cache."""
     root = tmp_path_factory.mktemp("radar")
-    out = {}
-    for name, sensors in (("lidar", ["lidar"]), ("radar", ["radar"]), ("fused", ["lidar", "radar"])):
-        scn = load_scenario("cut_in_out", {"duration_s": 6.0, "sensor.extra": ["radar"], "tracker.sensors": sensors,
-                                           "record.level": "light"})
-        out[name] = run_scenario(scn, out_dir=root / name, record=name == "fused")
-    scn = load_scenario("cut_in_out", {"duration_s": 6.0, "sensor.extra": ["radar"],
-                                       "tracker.sensors": ["lidar", "radar"]})
-    run_scenario(scn, out_dir=root / "cache-1", record=False, sensing_cache=root / "cache")
-    out["cached"] = run_scenario(scn, out_dir=root / "cache-2", record=False, sensing_cache=root / "cache")
+
+    def scn(sensors):
+        return load_scenario("cut_in_out", {"duration_s": 6.0, "sensor.extra": ["radar"], "tracker.sensors": sensors,
+                                            "record.level": "light"})
+
+    out = {"fused": run_scenario(scn(["lidar", "radar"]), out_dir=root / "fused", record=True)}
+    for name, sensors in (("lidar", ["lidar"]), ("radar", ["radar"]), ("cached", ["lidar", "radar"])):
+        out[name] = run_scenario(scn(sensors), out_dir=root / name, record=False, sensing_cache=root / "cache")
     return out
 
 
