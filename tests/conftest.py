@@ -57,3 +57,19 @@ def short_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
     the finished ``testbed run`` process.)"""
     folder, facts = made_once(tmp_path_factory, "short_run", _record_short_run)
     return folder / "run", subprocess.CompletedProcess(**facts)
+
+
+@pytest.fixture(scope="session")
+def short_run_csv(short_run, tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+    """:func:`short_run` exported by ``testbed export RUN --format csv`` (made once per test session, read only by
+    the tests of the export and of the trackers that read it). (The CSV folder, the finished ``testbed export``
+    process.)"""
+    run, _ = short_run
+
+    def export(folder: Path) -> dict:
+        proc = cli("export", str(run), "--format", "csv", "--out", str(folder / "csv"), timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        return {"args": proc.args, "returncode": proc.returncode, "stdout": proc.stdout, "stderr": proc.stderr}
+
+    folder, facts = made_once(tmp_path_factory, "short_run_csv", export)
+    return folder / "csv", subprocess.CompletedProcess(**facts)
