@@ -73,3 +73,20 @@ def short_run_csv(short_run, tmp_path_factory) -> tuple[Path, subprocess.Complet
 
     folder, facts = made_once(tmp_path_factory, "short_run_csv", export)
     return folder / "csv", subprocess.CompletedProcess(**facts)
+
+
+def _sense_cut_in_out(folder: Path) -> dict:
+    from roadtrack import testbed
+
+    frames = sum(1 for _ in testbed.sense(testbed.load_scenario("cut_in_out"), sensing_cache=folder / "cache"))
+    return {"frames": frames}
+
+
+@pytest.fixture(scope="session")
+def cut_in_out_sensing(tmp_path_factory) -> Path:
+    """A sensing cache (testbed.sensing.cache) holding the shipped cut_in_out's sensed frames (all 16 s), sensed once
+    per test session for the tests that run trackers on that traffic (a run from the cache is identical to one
+    from scratch: tests/test_sensing_cache.py). (The cache folder, for ``sensing_cache=``.)"""
+    folder, facts = made_once(tmp_path_factory, "cut_in_out_sensing", _sense_cut_in_out)
+    assert facts["frames"] == 161
+    return folder / "cache"
