@@ -57,3 +57,36 @@ def short_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
     the finished ``testbed run`` process.)"""
     folder, facts = made_once(tmp_path_factory, "short_run", _record_short_run)
     return folder / "run", subprocess.CompletedProcess(**facts)
+
+
+@pytest.fixture(scope="session")
+def short_run_csv(short_run, tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+    """:func:`short_run` exported by ``testbed export RUN --format csv`` (made once per test session, read only by
+    the tests of the export and of the trackers that read it). (The CSV folder, the finished ``testbed export``
+    process.)"""
+    run, _ = short_run
+
+    def export(folder: Path) -> dict:
+        proc = cli("export", str(run), "--format", "csv", "--out", str(folder / "csv"), timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        return {"args": proc.args, "returncode": proc.returncode, "stdout": proc.stdout, "stderr": proc.stderr}
+
+    folder, facts = made_once(tmp_path_factory, "short_run_csv", export)
+    return folder / "csv", subprocess.CompletedProcess(**facts)
+
+
+def _sense_cut_in_out(folder: Path) -> dict:
+    from roadtrack import testbed
+
+    frames = sum(1 for _ in testbed.sense(testbed.load_scenario("cut_in_out"), sensing_cache=folder / "cache"))
+    return {"frames": frames}
+
+
+@pytest.fixture(scope="session")
+def cut_in_out_sensing(tmp_path_factory) -> Path:
+    """A sensing cache (testbed.sensing.cache) holding the shipped cut_in_out's sensed frames (all 16 s), sensed once
+    per test session for the tests that run trackers on that traffic (a run from the cache is identical to one
+    from scratch: tests/test_sensing_cache.py). (The cache folder, for ``sensing_cache=``.)"""
+    folder, facts = made_once(tmp_path_factory, "cut_in_out_sensing", _sense_cut_in_out)
+    assert facts["frames"] == 161
+    return folder / "cache"

@@ -15,13 +15,13 @@ AWK = shutil.which("awk")
 
 
 @pytest.mark.skipif(AWK is None, reason="no awk on this machine (every CI image has one)")
-def test_the_awk_tracker_tracks_the_exported_detections_and_testbed_score_scores_it(short_run, tmp_path):
+def test_the_awk_tracker_tracks_the_exported_detections_and_testbed_score_scores_it(short_run, short_run_csv, tmp_path):
     out, _ = short_run
-    proc = cli("export", str(out), "--format", "csv", "--out", str(tmp_path / "csv"), timeout=120)
+    csv, proc = short_run_csv  # `testbed export RUN --format csv`, run once for the session (conftest)
     assert proc.returncode == 0, proc.stderr
     tracks = tmp_path / "awk_tracks.csv"
     with open(tracks, "w") as fh:
-        subprocess.run([AWK, "-f", str(REPO / "examples" / "nn_tracker.awk"), str(tmp_path / "csv" / "detections.csv")],
+        subprocess.run([AWK, "-f", str(REPO / "examples" / "nn_tracker.awk"), str(csv / "detections.csv")],
                        stdout=fh, check=True, timeout=60)
     t = pd.read_csv(tracks)
     assert list(t.columns) == ["frame", "time", "track_id", "status", "x", "y", "vx", "vy"]

@@ -99,14 +99,15 @@ def reference(tmp_path_factory):
 
 def test_each_traffic_is_sensed_once_and_every_run_equals_one_without_the_cache(reference, tmp_path):
     """Sense once, track many (issue 18): 8 runs, 2 seeds, one sensing-cache entry per seed (the grid key and
-    the trackers do not change sensing); the same results as every run sensing its own traffic."""
+    the trackers do not change sensing); the same results as every run sensing its own traffic (run here in this
+    process: the pool is the reference's)."""
     out, ref = reference
     entries = [p for p in (out / store.SENSING_DIR).iterdir() if not p.name.startswith(".")]
     assert len(entries) == 2 and all((p / "meta.json").is_file() for p in entries)
     path = _write(tmp_path, CAMPAIGN)
     campaign = load_campaign(path)
     store.create(tmp_path / "plain", path, campaign)
-    outcome = run_campaign(campaign, tmp_path / "plain", EngineOptions(workers=2, sensing_cache=False), quiet=True)
+    outcome = run_campaign(campaign, tmp_path / "plain", EngineOptions(workers=0, sensing_cache=False), quiet=True)
     assert outcome.complete and not (tmp_path / "plain" / store.SENSING_DIR).exists()
     assert_same_results(pd.read_parquet(tmp_path / "plain" / store.RESULTS_FILE), ref)
 

@@ -201,14 +201,30 @@ def test_visibility_columns_agree_with_the_detections(recorded):
     assert ((truth.n_points > 0) & far).sum() == 0 and (~truth.in_range == far).all()
 
 
+NAMED = {"duration_s": 4.0, "record.lidar_every": 0}
+
+
+@pytest.fixture(scope="module")
+def named_sensing(tmp_path_factory) -> Path:
+    """A sensing cache (testbed.sensing.cache) holding the NAMED cut_in_out's sensed frames, sensed once for every
+    named tracker below (a tracker gets from it exactly what it gets live: tests/test_sensing_cache.py)."""
+    from roadtrack import testbed
+
+    cache = tmp_path_factory.mktemp("named-sensing")
+    assert sum(1 for _ in testbed.sense(load_scenario("cut_in_out", NAMED), sensing_cache=cache)) == 41
+    return cache
+
+
 @pytest.mark.parametrize("name", __import__("roadtrack.trackers").trackers.PAPER_TRACKERS)
-def test_every_named_tracker_runs_a_scenario_and_reports_its_diagnostics(name, tmp_path):
+def test_every_named_tracker_runs_a_scenario_and_reports_its_diagnostics(name, tmp_path, named_sensing):
     """Each of the papers' named trackers runs 4 s of cut_in_out through the testbed (recording included) and
     tracks at least 2 of the 3 cars it sees (with the scenario's [tracker.filter.svsf] layer psi = 0.2 m; with
     the default 3 sigma_w = 1.5 m pda-svsf tracks none in 4 s, see docs/trackers.md); SVSF-family filters
-    report boundary layers (drawn as world/tracks/layers), IMMs their mode probabilities."""
-    scn = load_scenario("cut_in_out", {"duration_s": 4.0, "record.lidar_every": 0})
-    res = run_scenario(scn, out_dir=tmp_path, record=True, tracker=name)
+    report boundary layers (drawn as world/tracks/layers), IMMs their mode probabilities. The traffic is sensed
+    once for all of them (named_sensing)."""
+    scn = load_scenario("cut_in_out", NAMED)
+    res = run_scenario(scn, out_dir=tmp_path, record=True, tracker=name, sensing_cache=named_sensing)
+    assert res.timings_ms["raycast"] == 0.0  # read from the cache, not sensed again
     assert res.scores.cars_seen == 3 and res.scores.cars_tracked >= 2, res.scores
     names = set(pd.read_parquet(tmp_path / "diagnostics.parquet").name.unique())
     rows = _entity_rows(tmp_path / "run.rrd")

@@ -15,16 +15,15 @@ from roadtrack.testbed.export.csv_tables import COV_COLUMNS
 from conftest import cli
 
 
-def test_csv_export_holds_every_table_bit_for_bit_with_r_and_the_flattened_covariance(short_run, tmp_path):
+def test_csv_export_holds_every_table_bit_for_bit_with_r_and_the_flattened_covariance(short_run, short_run_csv):
     out, _ = short_run
-    proc = cli("export", str(out), "--format", "csv", "--out", str(tmp_path / "csv"), timeout=120)
+    csv, proc = short_run_csv  # `testbed export RUN --format csv --out CSV`, run once for the session (conftest)
     assert proc.returncode == 0, proc.stderr
-    assert f"wrote {tmp_path / 'csv'}" in proc.stdout
-    assert sorted(p.name for p in (tmp_path / "csv").iterdir()) == ["detections.csv", "events.csv", "tracks.csv",
-                                                                    "truth.csv"]
+    assert f"wrote {csv}" in proc.stdout
+    assert sorted(p.name for p in csv.iterdir()) == ["detections.csv", "events.csv", "tracks.csv", "truth.csv"]
     for name in ("truth", "detections", "events"):
         want = pd.read_parquet(out / f"{name}.parquet")
-        got = pd.read_csv(tmp_path / "csv" / f"{name}.csv", float_precision="round_trip")
+        got = pd.read_csv(csv / f"{name}.csv", float_precision="round_trip")
         assert list(got.columns) == list(want.columns)
         for col in want.columns:
             w = want[col].to_numpy()
@@ -36,10 +35,10 @@ def test_csv_export_holds_every_table_bit_for_bit_with_r_and_the_flattened_covar
                 np.testing.assert_array_equal(g, w)  # shortest round-trip form: the same float64, not close
             else:
                 assert (g == w).all(), (name, col)
-    det = pd.read_csv(tmp_path / "csv" / "detections.csv")
+    det = pd.read_csv(csv / "detections.csv")
     assert {"r_xx", "r_xy", "r_yy"} <= set(det.columns) and (det.r_xx > 0).all() and (det.r_yy > 0).all()
     tracks = pd.read_parquet(out / "tracks.parquet")
-    got = pd.read_csv(tmp_path / "csv" / "tracks.csv", float_precision="round_trip")
+    got = pd.read_csv(csv / "tracks.csv", float_precision="round_trip")
     assert list(got.columns) == [c for c in tracks.columns if c != "cov"] + list(COV_COLUMNS)
     np.testing.assert_array_equal(got[list(COV_COLUMNS)].to_numpy(), np.stack(tracks["cov"].to_numpy()))
     assert COV_COLUMNS[1] == "cov_x_y" and COV_COLUMNS[4] == "cov_y_x" and COV_COLUMNS[15] == "cov_vy_vy"
@@ -48,11 +47,11 @@ def test_csv_export_holds_every_table_bit_for_bit_with_r_and_the_flattened_covar
     assert (got["status"] == tracks["status"]).all() and (got["track_id"] == tracks["track_id"]).all()
 
 
-def test_the_exported_tracks_csv_scores_as_the_runs_own_tracks(short_run, tmp_path):
+def test_the_exported_tracks_csv_scores_as_the_runs_own_tracks(short_run, short_run_csv):
     out, _ = short_run
-    export_run(out, "csv", tmp_path / "csv")
+    csv, _ = short_run_csv
     own = cli("score", str(out), "--json", timeout=120)
-    other = cli("score", str(out), "--tracks", str(tmp_path / "csv" / "tracks.csv"), "--json", timeout=120)
+    other = cli("score", str(out), "--tracks", str(csv / "tracks.csv"), "--json", timeout=120)
     assert own.returncode == 0 and other.returncode == 0, own.stderr + other.stderr
     a, b = json.loads(own.stdout), json.loads(other.stdout)
     assert a["scores"] == b["scores"] and a["mot_metrics"] == b["mot_metrics"]

@@ -19,6 +19,7 @@ import signal
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
@@ -184,35 +185,52 @@ print(f"exit at {{time.time():.3f}}", flush=True)
 """
 
 
-@pytest.mark.skipif(shutil.which("unshare") is None, reason="needs unshare")
-@pytest.mark.parametrize("attempt", range(10))  # 10 times in a row (issue 16): a race would show within them
-def test_a_recording_rerun_cannot_finish_is_given_up_and_the_process_exits(tmp_path, attempt):
-    """rerun 0.41 blocks forever in flush()/disconnect() when its file writer dies on a full disk while the
-    recording is closed (a 256 kB tmpfs in a private mount namespace, filled by the last frames): close()
-    gives up within CLOSE_STALL_S (3 s here) of no progress, and the process still exits (rerun's own
-    exit-time flush would wait on the stuck recording forever)."""
-    probe = subprocess.run(["unshare", "-rm", "sh", "-c", f"mount -t tmpfs -o size=1m tmpfs {tmp_path}"],
-                           capture_output=True)
-    if probe.returncode != 0:
-        pytest.skip("no private tmpfs mount here")
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    script = tmp_path / "stuck.py"
+ATTEMPTS = 10  # 10 times (issue 16): a race would show within them
+
+
+def _stuck_attempt(folder: Path) -> subprocess.Popen:
+    """One attempt: STUCK writing onto a 256 kB tmpfs of its own (a private mount namespace) in ``folder``."""
+    disk = folder / "disk"
+    disk.mkdir(parents=True)
+    script = folder / "stuck.py"
     script.write_text(STUCK.format(stall=3.0, path=disk / "run.rrd"))
-    child = subprocess.Popen(["unshare", "-rm", "sh", "-c", f"mount -t tmpfs -o size=256k tmpfs {disk} && "
-                              f"exec {sys.executable} {script}"], cwd=REPO, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True, start_new_session=True,
-                             env=dict(os.environ, RERUN_ANALYTICS="0", PYTHONPATH=str(REPO)))
+    return subprocess.Popen(["unshare", "-rm", "sh", "-c", f"mount -t tmpfs -o size=256k tmpfs {disk} && "
+                             f"exec {sys.executable} {script}"], cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            env=dict(os.environ, RERUN_ANALYTICS="0", PYTHONPATH=str(REPO)))
+
+
+def _finish(child: subprocess.Popen) -> tuple[str, str, float | None]:
+    """(stdout, stderr, the time.time() the process was seen to end; None if it did not end within 120 s)."""
     try:
         out, err = child.communicate(timeout=120)
     except subprocess.TimeoutExpired:
         os.killpg(child.pid, signal.SIGKILL)
         out, err = child.communicate()
-        pytest.fail(f"the process did not end within 120 s: {out} {err[-2000:]}")
-    ended = time.time()
-    assert child.returncode == 0, err
-    lines = out.splitlines()
-    # rerun stuck (every time here), or, should it not be, its own error at once
-    assert lines[0] == "TimeoutError: no progress for 3 s, given up" or lines[0].startswith("RuntimeError: "), out
-    assert float(lines[1].split()[1]) < 3.0 + 2.0, out  # the stall bound and one poll, and some slack
-    assert ended - float(lines[2].split()[2]) < 10.0, out  # interpreter exit is not held by the stuck thread
+        return out, err, None
+    return out, err, time.time()
+
+
+@pytest.mark.skipif(shutil.which("unshare") is None, reason="needs unshare")
+def test_a_recording_rerun_cannot_finish_is_given_up_and_the_process_exits(tmp_path):
+    """rerun 0.41 blocks forever in flush()/disconnect() when its file writer dies on a full disk while the
+    recording is closed (a 256 kB tmpfs in a private mount namespace, filled by the last frames): close()
+    gives up within CLOSE_STALL_S (3 s here) of no progress, and the process still exits (rerun's own
+    exit-time flush would wait on the stuck recording forever). ATTEMPTS processes, started together (each
+    mostly waits out the stall bound), each checked on its own: a race would show within them."""
+    probe = subprocess.run(["unshare", "-rm", "sh", "-c", f"mount -t tmpfs -o size=1m tmpfs {tmp_path}"],
+                           capture_output=True)
+    if probe.returncode != 0:
+        pytest.skip("no private tmpfs mount here")
+    children = [_stuck_attempt(tmp_path / f"attempt{k}") for k in range(ATTEMPTS)]
+    with ThreadPoolExecutor(ATTEMPTS) as pool:  # one waiter per child: each end time is seen when it happens
+        results = list(pool.map(_finish, children))
+    for attempt, (child, (out, err, ended)) in enumerate(zip(children, results)):
+        assert ended is not None, f"attempt {attempt}: the process did not end within 120 s: {out} {err[-2000:]}"
+        assert child.returncode == 0, (attempt, err)
+        lines = out.splitlines()
+        # rerun stuck (every time here), or, should it not be, its own error at once
+        assert lines[0] == "TimeoutError: no progress for 3 s, given up" or lines[0].startswith("RuntimeError: "), \
+            (attempt, out)
+        assert float(lines[1].split()[1]) < 3.0 + 2.0, (attempt, out)  # the stall bound and one poll, and some slack
+        assert ended - float(lines[2].split()[2]) < 10.0, (attempt, out)  # exit is not held by the stuck thread

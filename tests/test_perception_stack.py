@@ -39,7 +39,15 @@ def roadside_scenario():
     return load_scenario("cut_in_out", ROADSIDE)
 
 
-def test_no_bush_becomes_a_confirmed_track_with_the_map_roi(roadside_scenario):
+@pytest.fixture(scope="module")
+def no_roi_sensing(tmp_path_factory):
+    """A sensing cache for ROADSIDE without the map ROI: the moving-object test is not a sensing key
+    (testbed.sensing.cache), so the runs with and without it below are sensed once, whichever comes first (a run
+    from the cache is identical to one from scratch: tests/test_sensing_cache.py)."""
+    return tmp_path_factory.mktemp("no-roi-sensing")
+
+
+def test_no_bush_becomes_a_confirmed_track_with_the_map_roi(roadside_scenario, no_roi_sensing):
     static = _static_boxes(roadside_scenario)
     assert len(static) > 20
     roi_only = run_scenario(load_scenario("cut_in_out", {**ROADSIDE, "moving_test.enabled": False}), record=False)
@@ -47,13 +55,15 @@ def test_no_bush_becomes_a_confirmed_track_with_the_map_roi(roadside_scenario):
     assert roi_only.scores.false_tracks == 0 and roi_only.scores.cars_tracked == roi_only.scores.cars_seen
     # the same run without the ROI does confirm tracks on roadside objects: the check above can fail
     plain = run_scenario(load_scenario("cut_in_out", {**ROADSIDE, "moving_test.enabled": False,
-                                                      "sensor.perception.roi": False}), record=False)
+                                                      "sensor.perception.roi": False}), record=False,
+                         sensing_cache=no_roi_sensing)
     assert _reported_near_static(plain, static) > 0 and plain.scores.false_tracks > 0
 
 
-def test_the_moving_object_test_alone_keeps_static_objects_out_of_the_report(roadside_scenario):
+def test_the_moving_object_test_alone_keeps_static_objects_out_of_the_report(roadside_scenario, no_roi_sensing):
     static = _static_boxes(roadside_scenario)
-    res = run_scenario(load_scenario("cut_in_out", {**ROADSIDE, "sensor.perception.roi": False}), record=False)
+    res = run_scenario(load_scenario("cut_in_out", {**ROADSIDE, "sensor.perception.roi": False}), record=False,
+                       sensing_cache=no_roi_sensing)
     assert _reported_near_static(res, static) == 0
     status = res.tables["tracks"].array("status")
     assert (status == "static").any()  # tracked, withheld

@@ -21,8 +21,8 @@ from roadtrack.testbed.tracking.stonesoup import RunDetectionReader, components
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory):
-    cache = tmp_path_factory.mktemp("sensing")
+def runs(tmp_path_factory, cut_in_out_sensing):
+    cache = cut_in_out_sensing  # the session's sensing of cut_in_out (conftest)
     scn = testbed.load_scenario("cut_in_out")
     out = {}
     for name in ("jpda-kf", "gnn-kf", "stonesoup-gnn-kf", "stonesoup-jpda-kf"):

@@ -2,7 +2,6 @@
 covered it, relabels and false tracks marked, and the per-car position error; written by `testbed run`."""
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -59,11 +58,8 @@ def test_timeline_has_the_cars_tracks_relabels_and_false_tracks_the_scores_count
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
 
 
-def test_testbed_run_writes_the_timeline(tmp_path):
-    out = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "roadtrack.testbed.cli.main", "run", "cut_in_out", "--set", "duration_s=3",
-                           "--record", "tracks", "--out", str(out), "--quiet"], capture_output=True, text=True,
-                          cwd=REPO, timeout=300, env=dict(os.environ, RERUN_ANALYTICS="0"))
+def test_testbed_run_writes_the_timeline(tmp_path, short_run):
+    out, proc = short_run  # `testbed run cut_in_out ... --quiet`, recorded, run once for the session (conftest)
     assert proc.returncode == 0, proc.stderr
     assert "timeline.png" in proc.stdout
     assert (out / "timeline.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
