@@ -17,8 +17,6 @@ import math
 
 import numpy as np
 
-from roadtrack.trackers.models import RangeBearingRate
-
 from .sensor import Measurements, SensingContext, Sensor
 
 
@@ -26,8 +24,12 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def model_of(ctx: SensingContext, truth) -> RangeBearingRate:
-    """The measurement model of the frame: the radar's noise at the ego's pose and velocity in ``truth``."""
+def model_of(ctx: SensingContext, truth):
+    """The measurement model of the frame (trackers.models.RangeBearingRate): the radar's noise at the ego's pose
+    and velocity in ``truth``."""
+    from roadtrack.trackers.models import RangeBearingRate  # not at import: importing trackers loads its plug-ins,
+    # whose warnings the CLI shows as one line only once its commands run (testbed/cli/main.py)
+
     spec = ctx.scn.sensor.radar
     pose = truth.ego_pose
     return RangeBearingRate(spec.sigma_r_m, math.radians(spec.sigma_az_deg), spec.sigma_rr_mps,
