@@ -151,3 +151,14 @@ def test_blueprint_has_one_diagnostics_tab_per_quantity_and_the_legend(tmp_path)
     for key, title in dg.titles():
         assert views.get(title) == f"/diagnostics/{key}", (title, views.get(title))
     assert views.get("legend") == "/legend"
+
+
+def test_the_legend_grows_only_by_what_a_run_draws():
+    from roadtrack.testbed.recording.legend import EXTRAS, entries
+
+    assert entries() == ENTRIES  # a run without a further sensor or track boxes: the legend as before
+    both = entries(("boxes", "sensors"))
+    assert len(both) == len(ENTRIES) + 2
+    for name, (after, row) in EXTRAS.items():
+        assert both[[e[0] for e in both].index(after) + 1] == row
+    assert legend_image(("sensors",)).shape[0] == ROW_PX * (len(ENTRIES) + 2)

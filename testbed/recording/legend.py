@@ -29,16 +29,20 @@ ENTRIES: tuple[tuple[str, str, tuple], ...] = (
     ("clutter detection", "dot", pal.CLUTTER),
     ("box: merged / split / completed", "box", (pal.MERGED, pal.SPLIT, pal.COMPLETED)),
     ("rejected object", "dot", pal.REJECTED),
-    ("further sensor's detection (radar), above", "dot", pal.SENSOR),
     ("track (colour: as in the plots) / tentative", "dot", (*_SLOTS, pal.UNSLOTTED)),
     ("track velocity (0.5 s)", "arrow", _SLOTS[:1]),
     ("2-sigma ellipse and gate", "ring", _SLOTS[:2]),
-    ("track box (tracker.box)", "box", _SLOTS[:2]),
     ("track trail (a dot per 0.5 s, last 5 s)", "dot", _SLOTS[1:3]),
     ("SVSF layer (true size, >= 0.6 m, above car)", "fill", pal.LAYER),
     ("occlusion shadow (full level)", "line", pal.SHADOW),
     ("ground error (full level)", "dot", (pal.OBJECT_AS_ROAD, pal.ROAD_AS_OBJECT)),
 )
+EXTRAS: dict[str, tuple[str, tuple[str, str, tuple]]] = {
+    "sensors": ("rejected object", ("further sensor's detection (radar), above", "dot", pal.SENSOR)),
+    "boxes": ("2-sigma ellipse and gate", ("track box (tracker.box)", "box", _SLOTS[:2])),
+}
+"""Rows a run adds when it draws them: name -> (the row they follow, the row): a further sensor's detections,
+box tracking's track boxes."""
 BACKGROUND = (24, 24, 28)
 ROW_PX, WIDTH_PX, SWATCH_PX = 25, 330, 54
 
@@ -47,18 +51,28 @@ def _colours(c) -> list[tuple]:
     return [tuple(c)] if isinstance(c[0], (int, np.integer)) else [tuple(x) for x in c]
 
 
-@functools.lru_cache(maxsize=1)
-def legend_image() -> np.ndarray:
+def entries(extras: tuple[str, ...] = ()) -> tuple[tuple[str, str, tuple], ...]:
+    """:data:`ENTRIES` with the :data:`EXTRAS` rows named in ``extras``, each after the row it follows."""
+    out = list(ENTRIES)
+    for name in extras:
+        after, row = EXTRAS[name]
+        out.insert([e[0] for e in out].index(after) + 1, row)
+    return tuple(out)
+
+
+@functools.lru_cache(maxsize=4)
+def legend_image(extras: tuple[str, ...] = ()) -> np.ndarray:
     """The colour key (H, W, 3) uint8: one row per :data:`ENTRIES` entry, a swatch in the entry's style
     and colour(s) on the left, the label on the right; translucent colours blended on the background."""
     from PIL import Image, ImageDraw, ImageFont
 
-    h = ROW_PX * (len(ENTRIES) + 1)
+    rows = entries(extras)
+    h = ROW_PX * (len(rows) + 1)
     img = Image.new("RGB", (WIDTH_PX, h), BACKGROUND)
     d = ImageDraw.Draw(img)
     font = ImageFont.load_default(size=15)
     d.text((8, 4), "legend", fill=(235, 235, 235), font=font)
-    for row, (label, kind, colour) in enumerate(ENTRIES, start=1):
+    for row, (label, kind, colour) in enumerate(rows, start=1):
         y0 = row * ROW_PX
         cols = [_blend(c) for c in _colours(colour)]
         _swatch(d, kind, cols, 8, y0 + 4, SWATCH_PX, ROW_PX - 8)
@@ -66,15 +80,15 @@ def legend_image() -> np.ndarray:
     return np.asarray(img, dtype=np.uint8)
 
 
-@functools.lru_cache(maxsize=1)
-def legend_png() -> bytes:
+@functools.lru_cache(maxsize=4)
+def legend_png(extras: tuple[str, ...] = ()) -> bytes:
     """:func:`legend_image` as PNG bytes."""
     import io
 
     from PIL import Image
 
     buf = io.BytesIO()
-    Image.fromarray(legend_image()).save(buf, format="PNG", optimize=True)
+    Image.fromarray(legend_image(extras)).save(buf, format="PNG", optimize=True)
     return buf.getvalue()
 
 

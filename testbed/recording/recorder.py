@@ -139,6 +139,7 @@ class Recorder:
             style = dict(colors=[METRIC_COLOURS[name]]) if name in METRIC_COLOURS else {}
             self.rec.log(f"metrics/{name}", rr.SeriesLines(names=name.replace("_", " "), **style), static=True)
         self.rec.log("legend", rr.EncodedImage(contents=legend_png(), media_type="image/png"), static=True)
+        self.legend_extras: tuple[str, ...] = ()  # legend rows added by what the run draws (legend.EXTRAS)
         self.trails = Trails(rate_hz)
         self.slots = Slots()
         self.series: dict[tuple[str, int], tuple[list[int], list[float], list[float]]] = {}
@@ -157,6 +158,14 @@ class Recorder:
             self.rec.log("world/roadside", rr.Boxes3D(**boxes(roadside[:, :2], roadside[:, 2:5], roadside[:, 5],
                                                               roadside[:, 6]), colors=[pal.ROADSIDE]), static=True)
 
+    def _legend(self, extras: tuple[str, ...]) -> None:
+        """Re-log the legend (static) with the rows of ``extras`` once the run first draws them."""
+        if set(extras) <= set(self.legend_extras):
+            return
+        self.legend_extras = tuple(sorted(set(extras) | set(self.legend_extras)))
+        self.rec.log("legend", rr.EncodedImage(contents=legend_png(self.legend_extras), media_type="image/png"),
+                     static=True)
+
     def frame(self, truth, scan, perception, detections, ts, others: dict[str, np.ndarray] | None = None) -> None:
         """Log one frame. ``ts``: the tracker's testbed.tracking.TrackSet after the step, its status "confirmed",
         "tentative" or "static" (the moving-object test's); its ``info`` (the built-in trackers' StepInfo) adds
@@ -172,6 +181,7 @@ class Recorder:
             log_detections(rec, detections, perception)
             for name, xy in (others or {}).items():
                 log_sensor_detections(rec, name, xy)
+        self._legend(("sensors",) * bool(others and want.detections) + ("boxes",) * (ts.box is not None))
         status = ts.status
         slot = self.slots.update(ts.ids, status == "confirmed")
         colour = colours(slot)
