@@ -100,30 +100,33 @@ class ModelFilter:
         dt = float(dt)
         if not math.isfinite(dt) or dt < 0:
             raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
-        if not states or type(self).predict is not ModelFilter.predict:
+        if not states or not self.predicts_arrays():
             return [self.predict(s, dt) for s in states]  # a subclass's own predict is its reference
-        if not self.motion.linear:
-            if not (hasattr(self.motion, "f_many") and hasattr(self.motion, "jacobian_many")):
-                return [self.predict(s, dt) for s in states]
-            return self.nonlinear_predict_many(states, dt)
-        A, Q = self.motion.transition(dt), self.motion.process_noise(dt)
-        X = np.array([s.x for s in states]) @ A.T  # (4.24) x = A x
-        P = A @ np.array([s.P for s in states]) @ A.T + Q  # (4.26) P = A P A^T + Q
-        P = 0.5 * (P + np.swapaxes(P, 1, 2))
-        check_covariance(P, "predicted covariance P")
-        freeze(X, P, A)
-        return [derive(s, x=X[t], P=P[t], F=A, info={}) for t, s in enumerate(states)]
+        X, P, F = self.predict_arrays(np.array([s.x for s in states]), np.array([s.P for s in states]), dt)
+        return [derive(s, x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], info={}) for t, s in enumerate(states)]
 
-    def nonlinear_predict_many(self, states: list[FilterState], dt: float) -> list[FilterState]:
-        """`predict` of T tracks with the motion model's `f_many` / `jacobian_many`: x = f(x), P = F P F^T + Q."""
-        X = np.array([s.x for s in states])
-        F = self.motion.jacobian_many(X, dt)  # (T, n, n), the EKF (1.11) Jacobians
-        Xn = self.motion.f_many(X, dt)  # (4.24) predict, EKF (1.11) for a nonlinear f
-        P = F @ np.array([s.P for s in states]) @ np.swapaxes(F, 1, 2) + self.motion.process_noise(dt)  # (4.26)
+    def predicts_arrays(self) -> bool:
+        """True if `predict_arrays` is this filter's predict: its class keeps ModelFilter's predict and its motion
+        model is linear or has `f_many` and `jacobian_many`."""
+        return type(self).predict is ModelFilter.predict and (
+            self.motion.linear or (hasattr(self.motion, "f_many") and hasattr(self.motion, "jacobian_many")))
+
+    def predict_arrays(self, X: np.ndarray, P: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`predict` on stacked states X (T, n), P (T, n, n) (dt >= 0 checked by the caller): the predicted X, P and
+        the transition Jacobian F, (n, n) for a linear model or (T, n, n), all read-only."""
+        if self.motion.linear:
+            A, Q = self.motion.transition(dt), self.motion.process_noise(dt)
+            Xn = X @ A.T  # (4.24) x = A x
+            P = A @ P @ A.T + Q  # (4.26) P = A P A^T + Q
+            F = A
+        else:
+            F = self.motion.jacobian_many(X, dt)  # (T, n, n), the EKF (1.11) Jacobians
+            Xn = self.motion.f_many(X, dt)  # (4.24) predict, EKF (1.11) for a nonlinear f
+            P = F @ P @ np.swapaxes(F, 1, 2) + self.motion.process_noise(dt)  # (4.26)
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
         freeze(Xn, P, F)
-        return [derive(s, x=Xn[t], P=P[t], F=F[t], info={}) for t, s in enumerate(states)]
+        return Xn, P, F
 
     def predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
         """z_hat (T, m) and S (T, m, m) of T predicted states: vectorised for a linear measurement model, else

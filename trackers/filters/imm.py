@@ -295,8 +295,15 @@ class IMMFilter:
         with np.errstate(divide="ignore"):
             log_w = np.log(self.transition)[None] + np.log(mu)[:, :, None]  # (T, r_j, r_i): log p_ji mu_j
         log_c = logsumexp(log_w, axis=1)  # (2.101) c_i = sum_j p_ji mu_j, (T, r)
-        mixed = self._mix_many(states, log_w, log_c)
-        modes = [batch_predict(f, ms, dt) for f, ms in zip(self.filters, mixed)]
+        modes = []
+        for i, (f, (x0, P0, e0, reach)) in enumerate(zip(self.filters, self._mix_many(states, log_w, log_c))):
+            if getattr(f, "predicts_arrays", None) is not None and f.predicts_arrays():  # straight from the arrays
+                X, P, F = f.predict_arrays(x0, P0, dt)
+                modes.append([derive(s.modes[i], x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], e_post=e0[t], info={})
+                              for t, s in enumerate(states)])
+            else:  # the mode filter's own batched predict of the mixed states
+                modes.append(batch_predict(f, [derive(s.modes[i], x=x0[t], P=P0[t], e_post=e0[t]) if reach[t]
+                                               else s.modes[i] for t, s in enumerate(states)], dt))
         return self._states_many(states, modes, np.exp(log_c - logsumexp(log_c, axis=1)[:, None]))
 
     def mode_measurements_many(self, preds: list[IMMState]) -> tuple[np.ndarray, np.ndarray]:
@@ -411,12 +418,13 @@ class IMMFilter:
         sizes = {tuple(m.x.size for m in s.modes) for s in states}
         return len(sizes) <= 1 and len({m.e_post.shape for s in states for m in s.modes}) <= 1
 
-    def _mix_many(self, states: list[IMMState], log_w: np.ndarray, log_c: np.ndarray) -> list[list[FilterState]]:
-        """Mixed initial conditions (2.101)-(2.102) of T tracks: per mode i the T mixed mode-i states (a mode
-        unreachable this scan keeps its own state). log_w (T, r, r) = log p_ji mu_j, log_c (T, r) = log c_i."""
+    def _mix_many(self, states: list[IMMState], log_w: np.ndarray, log_c: np.ndarray) -> list[tuple]:
+        """Mixed initial conditions (2.101)-(2.102) of T tracks: per mode i (x0 (T, n_i), P0 (T, n_i, n_i), e0 (T, m),
+        reach (T,) bool), read-only; a mode unreachable this scan (reach False) keeps its own state in its rows.
+        log_w (T, r, r) = log p_ji mu_j, log_c (T, r) = log c_i."""
         r = len(self.filters)
         X, P, E = zip(*(stacked([s.modes[j] for s in states]) for j in range(r)))
-        E = np.stack(E, axis=1)  # (T, r, m) mode memories
+        Es = np.stack(E, axis=1)  # (T, r, m) mode memories
         out = []
         for i, f in enumerate(self.filters):
             reach = np.isfinite(log_c[:, i])  # mode unreachable this scan: nothing to mix into it
@@ -424,10 +432,13 @@ class IMMFilter:
             w = np.where(reach[:, None], w, 0.0)
             xs, Ps = zip(*(layout_many(X[j], P[j], f.motion) for j in range(r)))
             x0, P0 = moments_many(np.stack(xs, axis=1), np.stack(Ps, axis=1), w)  # (2.102) mixed initial condition
-            e0 = np.einsum("tj,tjm->tm", w, E)  # §5 [D] mixed memories
+            e0 = np.einsum("tj,tjm->tm", w, Es)  # §5 [D] mixed memories
+            if not reach.all():
+                x0 = np.where(reach[:, None], x0, X[i])
+                P0 = np.where(reach[:, None, None], P0, P[i])
+                e0 = np.where(reach[:, None], e0, E[i])
             freeze(x0, P0, e0)
-            out.append([derive(s.modes[i], x=x0[t], P=P0[t], e_post=e0[t]) if reach[t] else s.modes[i]
-                        for t, s in enumerate(states)])
+            out.append((x0, P0, e0, reach))
         return out
 
     def _combine_many(self, zs: np.ndarray, Ss: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

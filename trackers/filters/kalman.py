@@ -78,21 +78,8 @@ class KalmanFilter(ModelFilter):
         K = np.linalg.solve(S, H @ s_pred.P).T  # (4.3)-(4.8) KF gain K = P H^T S^-1
         return gain_update(s_pred, H, R, S, K, nu, beta, beta0)
 
-    # ---- batched forms (same equations over T tracks at once; used by the tracker)
-    def predict_many(self, states: list[FilterState], dt: float) -> list[FilterState]:
-        dt = float(dt)
-        if not np.isfinite(dt) or dt < 0:
-            raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
-        if not states:
-            return []
-        A, Q = self.motion.transition(dt), self.motion.process_noise(dt)
-        X = np.array([s.x for s in states]) @ A.T  # (4.3)-(4.8) KF predict: x = A x
-        P = A @ np.array([s.P for s in states]) @ A.T + Q  # P = A P A^T + G Qv G^T (§1.1 [R])
-        P = 0.5 * (P + np.swapaxes(P, 1, 2))
-        check_covariance(P, "predicted covariance P")
-        freeze(X, P, A)
-        return [derive(s, x=X[t], P=P[t], F=A, info={}) for t, s in enumerate(states)]
-
+    # ---- batched forms (same equations over T tracks at once; used by the tracker; predict: ModelFilter's
+    # predict_arrays, (4.3)-(4.8) x = A x, P = A P A^T + G Qv G^T (§1.1 [R]))
     def predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
         m = self.measurement.ndim
         if not preds:
