@@ -295,16 +295,18 @@ class IMMFilter:
         with np.errstate(divide="ignore"):
             log_w = np.log(self.transition)[None] + np.log(mu)[:, :, None]  # (T, r_j, r_i): log p_ji mu_j
         log_c = logsumexp(log_w, axis=1)  # (2.101) c_i = sum_j p_ji mu_j, (T, r)
-        modes = []
+        modes, arrays = [], []
         for i, (f, (x0, P0, e0, reach)) in enumerate(zip(self.filters, self._mix_many(states, log_w, log_c))):
             if getattr(f, "predicts_arrays", None) is not None and f.predicts_arrays():  # straight from the arrays
                 X, P, F = f.predict_arrays(x0, P0, dt)
                 modes.append([derive(s.modes[i], x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], e_post=e0[t], info={})
                               for t, s in enumerate(states)])
+                arrays.append((X, P, e0))
             else:  # the mode filter's own batched predict of the mixed states
                 modes.append(batch_predict(f, [derive(s.modes[i], x=x0[t], P=P0[t], e_post=e0[t]) if reach[t]
                                                else s.modes[i] for t, s in enumerate(states)], dt))
-        return self._states_many(states, modes, np.exp(log_c - logsumexp(log_c, axis=1)[:, None]))
+                arrays.append(stacked(modes[-1]))
+        return self._states_many(states, modes, np.exp(log_c - logsumexp(log_c, axis=1)[:, None]), arrays)
 
     def mode_measurements_many(self, preds: list[IMMState]) -> tuple[np.ndarray, np.ndarray]:
         """`mode_measurements` of T predicted states: z (T, r, m), S (T, r, m, m), each mode by its filter's
@@ -465,13 +467,15 @@ class IMMFilter:
             log_post = log_lam + np.log(mu)
         return np.exp(log_post - logsumexp(log_post, axis=1)[:, None])  # (2.104) mu_i = Lambda_i c_i / sum_l
 
-    def _states_many(self, like: list[IMMState], modes: list[list[FilterState]], mu: np.ndarray) -> list[IMMState]:
+    def _states_many(self, like: list[IMMState], modes: list[list[FilterState]], mu: np.ndarray,
+                     arrays: list | None = None) -> list[IMMState]:
         """`_state` of T tracks: modes[i][t] the mode-i state of track t, mu (T, r); the combined output
-        (1.17)-(1.18) vectorised; `like` (T IMMStates) gives each new state's type."""
+        (1.17)-(1.18) vectorised; `like` (T IMMStates) gives each new state's type. arrays: per mode its states'
+        stacked (x, P, e_post) when the caller has them (else stacked here)."""
         mts = list(zip(*modes))  # T tuples of r mode states
         if len({m.e_post.shape for mt in mts for m in mt}) > 1:
             return [self._state(mt, mu[t]) for t, mt in enumerate(mts)]
-        xs, Ps, Es = zip(*(stacked(ms) for ms in modes))
+        xs, Ps, Es = zip(*(arrays or [stacked(ms) for ms in modes]))
         xs, Ps = zip(*(layout_many(x, P, self.motion) for x, P in zip(xs, Ps)))
         x, P = moments_many(np.stack(xs, axis=1), np.stack(Ps, axis=1), mu)  # (1.17)-(1.18) output combination
         check_covariance(P, "IMM combined covariance P")
