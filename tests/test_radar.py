@@ -80,7 +80,7 @@ def test_a_further_sensors_update_is_the_hand_computed_ekf_update():
     Z = np.array([RADAR.h(np.r_[truth[i, :2] + 0.1, truth[i, 2:]], CV) for i in range(2)])
     radar = trk.with_measurement(RADAR, clutter_density=1e-4)
     res = radar.update(tracks, Z, 0.0)
-    assert res.deleted == () and len(res.tracks) == len(tracks)
+    assert len(res.tracks) == len(tracks) and res.info.W.shape == (len(res.info.ids), len(Z))
     for before, after in zip(tracks, res.tracks):
         assert (before.id, before.score, before.age, before.hits) == (after.id, after.score, after.age, after.hits)
         if before.candidate:

@@ -114,6 +114,15 @@ class StepResult:
 
 
 @dataclass(frozen=True, eq=False)
+class UpdateResult:
+    """`Tracker.update` of a further sensor: tracks (the input tracks, input order, states updated) and the StepInfo
+    of the update."""
+
+    tracks: tuple[Track, ...]
+    info: StepInfo
+
+
+@dataclass(frozen=True, eq=False)
 class _Prediction:
     states: list
     z_hat: np.ndarray  # (T, m)
@@ -286,7 +295,7 @@ class Tracker:
         return dataclasses.replace(self, filter=flt, association=assoc)
 
     def update(self, tracks: tuple[Track, ...], Z: np.ndarray, dt: float, pd: PdInput = None,
-               R: np.ndarray | None = None) -> StepResult:
+               R: np.ndarray | None = None) -> UpdateResult:
         """A further sensor's detections Z (M, m) at ``dt`` [s] after the tracks' last scan (0: the same instant):
         predict, gate, associate and update only, for sequential fusion in time order (Bar-Shalom's sequential
         multi-sensor update) [D]. The primary sensor's `step` keeps the life cycle (scores, confirmation,
@@ -308,7 +317,7 @@ class Tracker:
                 **{k: np.asarray(v, dtype=np.float64) for k, v in extra.items()}}
         info = StepInfo(ids=np.array([tr.id for tr in live], dtype=np.int64).reshape(len(live)), z_hat=pred.z_hat,
                         S=pred.S, gated=inp.gated, W=W, w0=w0, layers=pred.layers, diagnostics=diag)
-        return StepResult(tracks=tuple(out), next_id=-1, deleted=(), info=info)
+        return UpdateResult(tracks=tuple(out), info=info)
 
     # ------------------------------------------------------------------ roles
     def _inputs(self, Z: np.ndarray, R: np.ndarray | None, dt: float) -> tuple[np.ndarray, np.ndarray | None, float]:

@@ -111,9 +111,7 @@ def run_scenario(scn: Scenario, out_dir: str | Path | None = None, record: bool 
         setup()  # before any output: a traffic that cannot be set up fails with nothing written
     out = Path(out_dir) if out_dir is not None else None
     recorder = _open_outputs(scn, out, record, name, setup, source)
-    tables = dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(scn.tracker.box),
-                  diagnostics=diagnostics_log(),
-                  **{f"detections-{name}": sensor_detections_log() for name in further_tables(scn)})
+    tables = run_tables(scn)
     watch = Stopwatch()
     state = _Progress()
     overflows = JPDAOverflows()
@@ -179,6 +177,14 @@ class _Progress:
     stitched: int = 0  # TrackSet.stitched summed over the frames done
 
 
+def run_tables(scn: Scenario) -> dict:
+    """The empty tables of a run of ``scn`` by file stem (README, "Output files"): truth, detections, tracks (with
+    box columns under box tracking), diagnostics and each further sensor's ``detections-<name>``."""
+    return dict(truth=truth_log(), detections=detections_log(), tracks=tracks_log(scn.tracker.box),
+                diagnostics=diagnostics_log(),
+                **{f"detections-{sensor}": sensor_detections_log() for sensor in further_tables(scn)})
+
+
 def further_tables(scn: Scenario) -> list[str]:
     """The further sensors (sensor.extra) whose detections a run writes to ``detections-<name>.parquet``: those with
     a ``measurements`` hook (their detections carry a measurement model, so a position to show)."""
@@ -214,6 +220,13 @@ def track(frames: Iterable[SensedFrame], tracker, scn: Scenario,
     test's status ("confirmed", "tentative", "static"). ``overflows``: JPDA overflow warnings counted there
     instead of shown one by one. The tracker is built and ``frames`` checked at the call (an unknown tracker or
     frames that are not iterable fail there, in one line), the frames are tracked as the iterator is read."""
+    return (pair for pair, _ in _track(frames, tracker, scn, overflows))
+
+
+def _track(frames: Iterable[SensedFrame], tracker, scn: Scenario,
+           overflows: "JPDAOverflows | None" = None) -> Iterator[tuple[tuple[SensedFrame, TrackSet], Frame]]:
+    """:func:`track`, each (sensed frame, TrackSet) with the tracker's Frame (its further sensors' measurements are
+    logged from it, not made twice)."""
     trk = build_tracker(scn, tracker)
     try:
         frames = iter(frames)
@@ -223,7 +236,7 @@ def track(frames: Iterable[SensedFrame], tracker, scn: Scenario,
     return _tracked(frames, trk, scn, overflows)
 
 
-def _tracked(frames: Iterator, trk, scn: Scenario, overflows) -> Iterator[tuple[SensedFrame, TrackSet]]:
+def _tracked(frames: Iterator, trk, scn: Scenario, overflows) -> Iterator[tuple[tuple[SensedFrame, TrackSet], Frame]]:
     moving = MovingTest(scn.moving_test)
     ctx = SensingContext(scn, None, None)  # what the further sensors' measurements hooks read
     for k, sensed in enumerate(frames):
@@ -236,19 +249,18 @@ def _tracked(frames: Iterator, trk, scn: Scenario, overflows) -> Iterator[tuple[
             from ..common.errors import RunError
 
             raise RunError(f"the tracker's step returned a {type(ts).__name__}, not a testbed.tracking.TrackSet")
-        yield sensed, ts.with_status(track_status(ts, moving, sensed.time))
+        yield (sensed, ts.with_status(track_status(ts, moving, sensed.time))), frame
 
 
 def _frames(scn, tracker, frames, recorder, tables, watch, state: _Progress, overflows, on_frame) -> None:
     """The frame loop: track each sensed frame, log, record; ``state.frames`` counts the frames done."""
-    ctx = SensingContext(scn, None, None)
-    for sensed, ts in track(frames, tracker, scn, overflows):
+    for (sensed, ts), frame in _track(frames, tracker, scn, overflows):
         truth = sensed.truth
         watch.lap("tracking")
         log_tables(truth, sensed.visibility, sensed.detections, ts, tables["truth"], tables["detections"],
                    tables["tracks"])
         log_diagnostics(truth, ts, tables["diagnostics"])
-        others = log_sensor_detections(truth, further_measurements(sensed, ctx), tables)
+        others = log_sensor_detections(truth, frame.measurements, tables)
         if recorder is not None:
             live = sensed.perception is not None  # a cached frame has no point cloud to show
             recorder.frame(truth, sensed.scan if live else None, sensed.perception, sensed.detections, ts, others)

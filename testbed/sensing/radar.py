@@ -79,7 +79,8 @@ def radar_visibility(ctx: SensingContext, truth, data: dict) -> tuple[np.ndarray
 
 def radar_measurements(ctx: SensingContext, truth, data: dict) -> Measurements:
     """The frame's detections with their model; the clutter density is the mean clutter over the measurement
-    volume range x field of view x range-rate span [1 / (m rad m/s)]."""
+    volume range x field of view x range-rate span [1 / (m rad m/s)], with at least 1e-3 clutter per scan (a
+    PDA's clutter density must be > 0; clutter_per_scan = 0 gives the tracker that floor)."""
     spec = ctx.scn.sensor.radar
     volume = spec.range_m * math.radians(spec.fov_deg) * 2.0 * spec.max_range_rate_mps
     return Measurements(np.asarray(data["z"], dtype=np.float64).reshape(-1, 3), model_of(ctx, truth), None, spec.pd,

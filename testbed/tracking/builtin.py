@@ -54,7 +54,7 @@ def along_motion(box: np.ndarray, v: np.ndarray, min_speed_mps: float = 1.0) -> 
     out = box.copy()
     speed = np.hypot(v[:, 0], v[:, 1])
     back = (speed >= min_speed_mps) & (np.cos(box[:, 0] - np.arctan2(v[:, 1], v[:, 0])) < 0)
-    out[back, 0] = (box[back, 0] + 2.0 * np.pi) % (2.0 * np.pi) - np.pi
+    out[back, 0] = (box[back, 0] + 2.0 * np.pi) % (2.0 * np.pi) - np.pi  # heading + pi, in [-pi, pi)
     return out
 
 
