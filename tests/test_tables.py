@@ -47,6 +47,19 @@ def test_written_file_holds_every_row_in_bounded_row_groups(tmp_path, monkeypatc
     meta = pq.ParquetFile(tmp_path / "t.parquet").metadata
     assert meta.num_rows == log.n_rows and meta.num_row_groups == -(-log.n_rows // 10)
     assert pq.read_table(tmp_path / "t.parquet").equals(log.table())
+    # written one row group at a time: the very file the whole table gives
+    pq.write_table(log.table(), tmp_path / "whole.parquet", row_group_size=10, use_dictionary=["frame", "status"])
+    assert (tmp_path / "t.parquet").read_bytes() == (tmp_path / "whole.parquet").read_bytes()
+
+
+@pytest.mark.parametrize("chunk_rows", [1, 3, 7, 4096])
+def test_a_row_range_is_the_slice_of_the_whole_table(chunk_rows):
+    log = TableLog(COLUMNS, chunk_rows=chunk_rows)
+    for cols in _frames(np.random.default_rng(2), 40):
+        log.append(**cols)
+    whole = log.table()
+    for start, stop in [(0, log.n_rows), (0, 1), (5, 17), (7, 14), (log.n_rows - 1, log.n_rows)]:
+        assert log.table(start, stop).equals(whole.slice(start, stop - start))
 
 
 def test_empty_logs_keep_their_column_shapes():

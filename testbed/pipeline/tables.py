@@ -78,11 +78,13 @@ class TableLog:
         parts = self._filled(name)
         return np.concatenate(parts) if parts else np.empty((0, *self._row_shapes[name]), self.columns[name])
 
-    def table(self) -> pa.Table:
-        """The rows as a pyarrow Table, one record batch per chunk (numeric columns wrap the chunks, no copy)."""
+    def table(self, start: int = 0, stop: int | None = None) -> pa.Table:
+        """Rows ``start:stop`` (default all) as a pyarrow Table, one record batch per chunk they touch (numeric
+        columns wrap the chunks, no copy; object columns are converted, so only these rows' strings are built)."""
+        stop = self.n_rows if stop is None else stop
         data = {}
         for name in self.columns:
-            parts = self._filled(name) or [self.array(name)]
+            parts = self._rows(name, start, stop) or [self.array(name)]
             if parts[0].ndim == 2:  # fixed-size list column (e.g. a flattened covariance)
                 width = parts[0].shape[1]
                 arrays = [pa.FixedSizeListArray.from_arrays(pa.array(p.reshape(-1)), width) for p in parts]
@@ -91,10 +93,43 @@ class TableLog:
             data[name] = pa.chunked_array(arrays)
         return pa.table(data)
 
+    def _rows(self, name: str, start: int, stop: int) -> list[np.ndarray]:
+        """Views of column ``name``'s rows ``start:stop``, one per chunk they touch ([] for no rows)."""
+        parts = []
+        for i, chunk in enumerate(self._filled(name)):
+            lo, hi = max(start - i * self.chunk_rows, 0), min(stop - i * self.chunk_rows, len(chunk))
+            if lo < hi:
+                parts.append(chunk[lo:hi])
+        return parts
+
+    def dictionary_columns(self) -> list[str]:
+        """The columns Parquet dictionary-encodes: all but the float ones. Measured floats (positions,
+        covariances) hardly repeat, so their dictionary is dropped after its first page anyway, and building it
+        took the writer's memory up by 50 MB at one row group of a 16-float covariance column."""
+        return [name for name, dtype in self.columns.items() if np.dtype(dtype).kind != "f"]
+
     def write(self, path: Path) -> None:
-        """Write the rows to Parquet in row groups of at most ``ROW_GROUP_ROWS`` rows: the writer buffers a
-        whole row group (~1 kB a row for the tracks table), so a long run's file is written in bounded memory."""
-        pq.write_table(self.table(), path, row_group_size=ROW_GROUP_ROWS)
+        """Write the rows to Parquet in row groups of at most ``ROW_GROUP_ROWS`` rows, one row group at a time:
+        the strings of object columns (a long run's diagnostics: about 700,000 names) are converted per row group,
+        not for the whole table at once, so a long run's file is written in bounded memory. The file is the one
+        ``pq.write_table(self.table(), path, row_group_size=ROW_GROUP_ROWS, use_dictionary=dictionary_columns())``
+        writes."""
+        options = dict(row_group_size=ROW_GROUP_ROWS, use_dictionary=self.dictionary_columns())
+        if self.n_rows == 0:
+            pq.write_table(self.table(), path, **options)
+            return
+        parts = (self.table(start, min(start + ROW_GROUP_ROWS, self.n_rows))
+                 for start in range(0, self.n_rows, ROW_GROUP_ROWS))
+        first = next(parts)
+        with pq.ParquetWriter(path, first.schema, use_dictionary=options["use_dictionary"]) as writer:
+            writer.write_table(first, row_group_size=ROW_GROUP_ROWS)
+            for part in parts:
+                if not part.schema.equals(first.schema):  # e.g. an object column all None in one group
+                    break
+                writer.write_table(part, row_group_size=ROW_GROUP_ROWS)
+            else:
+                return
+        pq.write_table(self.table(), path, **options)  # the whole table's own types
 
 
 def truth_log() -> TableLog:
