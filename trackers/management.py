@@ -8,9 +8,12 @@ Score L of a track = log likelihood ratio 'real target' vs 'clutter', updated ad
     delete tentative:     L <= T_d = ln(beta_TM / (1 - alpha_FC))
     delete confirmed:     max_score - L >= delta_del; by default (coast_scans + 1/2) |ln(1 - P_D P_G)|,
                           so a confirmed track coasts through `coast_scans` missed scans in a row.
-    tentative grace [D]:  a tentative track is judged against T_d + (tentative_misses - 1) ln(1 - P_D P_G), so a
-                          two-point initiation survives one missed scan; its score uses the nominal P_D (a
-                          caller's P_D of ~0 in a sensor shadow never keeps a tentative track alive).
+    tentative grace [D]:  a tentative track is judged against T_d + (tentative_misses - 1) ln(1 - P_D P_G) (nominal
+                          P_D), so a two-point initiation survives one missed scan. A missed scan is priced with
+                          the caller's P_D as a confirmed track's is (`tentative_pd`): a miss in a sensor shadow
+                          (P_D ~0) costs nothing, and the life bounds below end a tentative track the sensor cannot
+                          see; a detected scan with at least the nominal P_D (the caller's may be wrong: a car
+                          detected 4 scans running under an occlusion P_D of 0.02-0.1 on highway_benchmark).
 m-of-n (thesis §1.3.4, the alternative): confirm with >= m detections in the last n scans; delete a
 tentative track that can no longer reach m; delete a confirmed one after coast_scans + 1 misses in a row.
 Life bounds [D] (whatever the manager and the P_D; as Stone Soup's CovarianceBasedDeleter and
@@ -30,9 +33,11 @@ the road (lane width) and the track's own uncertainty. A track the sensor should
 loses score and is deleted by the score rule as without a road.
 Initiation [D]: a measurement starts a track unless it lies in the gate of a track that is well localised
 (gate standard deviation, sqrt of the largest eigenvalue of S, at most `claim_std_m`) or young and just detected
-(at most `claim_age_scans` old, detected in the last scan), or lies within `claim_radius_m` of the track's
-predicted position: the huge gate of a coasting track, or of an old one held wide by the spread of several
-measurements it keeps gating, blocks no new track beyond that radius.
+(at most `claim_age_scans` old, detected in the last scan) and within `claim_d2` of its prediction (the 99 % point
+of chi^2_2: where the track's own car's measurement falls; a young track's gate, 4.9 m wide, reaches the car in the
+next lane), or lies within `claim_radius_m` of the track's predicted position: the huge gate of a coasting track,
+or of an old one held wide by the spread of several measurements it keeps gating, blocks no new track beyond that
+radius.
 Duplicates [D]: two confirmed tracks sharing a gated measurement whose predicted positions lie within
 `merge_d2` of each other, in the squared Mahalanobis distance under the smaller of their two S (the better
 localised one's), are a duplicate pair; the worse of the two (more scans since its last detection, then the
@@ -62,6 +67,7 @@ def _regime_config(n: int, alphas: tuple[float, ...], adaptive: bool, n_min: int
 INITIATIONS = ("two_point", "single")
 DELETIONS = ("manager", "ks", "manager+ks")
 SCORE_MODES = ("gate", "exclusive")
+TENTATIVE_PDS = ("misses", "nominal")
 
 
 WINDOW_MAX = 3000
@@ -112,6 +118,11 @@ class ManagementParams:
                                          "car it follows); farther ones, e.g. of a car a wide track trails by "
                                          "5-8 m, may start tracks [D]; None: such tracks claim nothing",
                                          check=POSITIVE)
+    claim_d2: float | None = param(9.21, "a track claims a gated measurement (by claim_std_m or claim_age_scans) only "
+                                   "within this squared Mahalanobis distance of its prediction (default: the 99 % point of "
+                                   "chi^2_2, where its own car's measurement falls), or within claim_radius_m: a young "
+                                   "track's gate (std 1.2 m, radius 4.9 m at alpha = 16) reaches the car in the next lane, "
+                                   "4 m away [D]; None: its whole gate", check=POSITIVE)
     claim_age_scans: int = param(3, "a track at most this many scans old that was detected in the last scan claims "
                                  "its gated measurements whatever its gate std (a young track's S is wide) [D]",
                                  check=POSITIVE, bounds=(1, WINDOW_MAX))
@@ -142,6 +153,12 @@ class ManagementParams:
     tentative_misses: int = param(2, "missed scans in a row a tentative track may take below the SPRT deletion "
                                   "threshold: it is judged against T_d + (tentative_misses - 1) ln(1 - P_D P_G) "
                                   "(1: the plain SPRT) [D]", check=POSITIVE, bounds=(1, WINDOW_MAX))
+    tentative_pd: str = param("misses", "P_D in a tentative track's score on a scan without a gated measurement: "
+                              "misses (the caller's per-track P_D, as in a confirmed track's: a miss in a sensor shadow "
+                              "costs nothing, and the life bounds end a tentative track the sensor cannot see) or "
+                              "nominal (at least the associator's pd: each such miss costs |ln(1 - P_D P_G)|, as before "
+                              "issue 29); a scan with one uses at least the associator's pd either way [D]",
+                              choices=TENTATIVE_PDS)
     history_length: int = param(32, "scans of innovations, S, gated counts and gate volumes kept per track "
                                 "(at least the KS regime window)", check=POSITIVE, bounds=(1, WINDOW_MAX))
     deletion: str = param("manager", "manager: the manager's own deletion (score drop or m-of-n misses); ks: a "

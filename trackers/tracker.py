@@ -395,11 +395,17 @@ class Tracker:
         return W, w0, (out[2] if len(out) > 2 else {})
 
     def _score(self, live, inp: AssociationInput, W: np.ndarray) -> np.ndarray:
-        """Scores after this scan. A tentative track's increment uses the nominal P_D [D]: a caller's P_D of ~0
-        (a sensor shadow) keeps a confirmed track's score, never a tentative one alive."""
+        """Scores after this scan, with the caller's per-track P_D. A tentative track's scan with a gated measurement
+        uses at least the nominal P_D [D] (a detection is full evidence whatever the caller's P_D says), and so does
+        a missed one with `tentative_pd` "nominal" (a miss in a sensor shadow then costs as a miss in view); with
+        "misses" (default) a missed scan uses the caller's P_D, which prices it: nothing in a shadow. Per scan this
+        is the P_D in [caller's, nominal] most favourable to the target (a generalised likelihood ratio)."""
         score = np.array([tr.score for tr in live], dtype=np.float64).reshape(len(live))
         confirmed = np.array([tr.confirmed for tr in live], dtype=bool).reshape(len(live))
-        pd = np.where(confirmed, inp.pd, np.maximum(inp.pd, self.association.pd))
+        lift = ~confirmed
+        if self.management.tentative_pd == "misses":
+            lift &= inp.gated.any(axis=1)
+        pd = np.where(lift, np.maximum(inp.pd, self.association.pd), inp.pd)
         lam = self.association.clutter_density
         if self.management.score_mode == "gate":
             return score + score_increment(inp.log_lik, inp.gated, pd, inp.pg, lam)  # §7.2 / (1.35)
@@ -579,25 +585,34 @@ class Tracker:
         info_diagnostics(states, diag)
         return records, diag
 
+    def _claims(self, live, Z: np.ndarray, inp: AssociationInput, pred: _Prediction) -> np.ndarray:
+        """(T, M) the gated measurements each live track claims (they start no new track; trackers.management,
+        "Initiation"): in the gate of a track whose gate std is at most `claim_std_m`, or that is young and was
+        detected in the last scan (its S is wide), within `claim_d2` of its prediction (a measurement it would take
+        for its own car's, not one of the car in the next lane that its wide gate reaches); or within
+        `claim_radius_m` of its predicted position, whatever its gate."""
+        mp, claims = self.management, inp.gated
+        if mp.claim_std_m is None or not len(pred.S):
+            return claims
+        fresh = np.array([tr.misses_in_a_row == 0 and tr.age <= mp.claim_age_scans for tr in live],
+                         dtype=bool).reshape(len(live))
+        owns = ((position_std(pred.S) <= mp.claim_std_m) | fresh)[:, None]
+        if mp.claim_d2 is not None:
+            owns = owns & (inp.d2 <= mp.claim_d2)  # [D] the claim test: the 99 % point of chi^2_2 by default
+        if mp.claim_radius_m is not None and Z.size:
+            d = pred.z_hat[:, None, :2] - Z[None, :, :2]
+            owns = owns | (np.einsum("tmk,tmk->tm", d, d) <= mp.claim_radius_m**2)  # (T, M)
+        return claims & owns
+
     def _initiate(self, candidates, live, Z: np.ndarray, inp: AssociationInput, dt: float, next_id: int,
                   pred: _Prediction, R: np.ndarray | None = None):
-        """New tentative tracks from measurements in no gate of a well-localised or young, just-detected live track
-        (§7.2; `claim_std_m` [D]): at once ("single") or from a candidate of the previous scan paired within reach ("two_point",
+        """New tentative tracks from measurements no live track claims (§7.2; `_claims` [D]): at once ("single") or from a candidate of the previous scan paired within reach ("two_point",
         [D]). A candidate keeps its position in x[:d]. With the measurements' own covariances R (M, m, m) a new
         track's position covariance is its measurement's."""
         mp, flt, meas = self.management, self.filter, self.filter.measurement
         lam, pd = self.association.clutter_density, self.association.pd
         score0 = initial_score(mp, lam, pd)
-        claims = inp.gated
-        if mp.claim_std_m is not None and len(pred.S):  # a young track detected last scan claims: its S is wide
-            fresh = np.array([tr.misses_in_a_row == 0 and tr.age <= mp.claim_age_scans for tr in live],
-                             dtype=bool).reshape(len(live))
-            owns = ((position_std(pred.S) <= mp.claim_std_m) | fresh)[:, None]
-            if mp.claim_radius_m is not None and Z.size:
-                d = pred.z_hat[:, None, :2] - Z[None, :, :2]
-                owns = owns | (np.einsum("tmk,tmk->tm", d, d) <= mp.claim_radius_m**2)  # (T, M)
-            claims = claims & owns
-        free = np.flatnonzero(~claims.any(axis=0))
+        free = np.flatnonzero(~self._claims(live, Z, inp, pred).any(axis=0))
         out, used, born_from = [], set(), {}
 
         def new(state, score, label, age, candidate=False):
