@@ -389,7 +389,11 @@ def track_status(ts: TrackSet, moving: MovingTest, time: float) -> np.ndarray:
     not yet seen to move, testbed/tracking/moving.py: tracked, not reported, not scored)."""
     moved = moving.update(ts.ids, ts.xy, time)
     conf = ts.status == "confirmed"
-    return np.where(conf, np.where(moved, "confirmed", "static"), "tentative").astype(object)
+    # three shared str objects, not one new str per row (a long run keeps every frame's rows in memory)
+    return _STATUS_LABELS[np.where(conf, np.where(moved, 2, 1), 0)]
+
+
+_STATUS_LABELS = np.array(["tentative", "static", "confirmed"], dtype=object)
 
 
 def _recorder(scn: Scenario, path: Path, tracker_name: str, lanes: list, static: np.ndarray):
