@@ -62,6 +62,16 @@ def derive(s: FilterState, **arrays: np.ndarray) -> FilterState:
     return new
 
 
+def derive_frozen(s: FilterState, **fields) -> FilterState:
+    """`derive` for fields whose arrays are read-only already (rows of batches made read-only by `freeze`): the same
+    state without a check per array (the batched filters' per-track hot path)."""
+    new = object.__new__(type(s))
+    d = new.__dict__
+    d.update(s.__dict__)
+    d.update(fields)
+    return new
+
+
 def freeze(*arrays: np.ndarray) -> None:
     """Make batched arrays read-only at once, so that `derive` given their rows (read-only views) has nothing to
     freeze per row."""

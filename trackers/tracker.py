@@ -7,6 +7,7 @@ random numbers and reads no clock.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -15,8 +16,8 @@ import numpy as np
 from scipy.special import gammaln
 
 from roadtrack.trackers.association.roles import AssociationInput, AssociatorKind, AssociatorParams
-from roadtrack.trackers.filters.base import (Filter, batch_predict, batch_predicted_measurements, batch_update, check_detection_R,
-                                   pair_covariances, takes_detection_R, weighted_R)
+from roadtrack.trackers.filters.base import (Filter, batch_layers, batch_predict, batch_predicted_measurements, batch_update,
+                                             check_detection_R, pair_covariances, takes_detection_R, weighted_R)
 from roadtrack.trackers.gating import gate, mahalanobis2_and_log_gaussian
 from roadtrack.trackers.initiation import pair_candidates, single_point, two_point
 from roadtrack.trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
@@ -129,6 +130,11 @@ class _Prediction:
     S: np.ndarray  # (T, m, m)
     layers: np.ndarray  # (T, m)
 
+    @functools.cached_property
+    def half_logdet(self) -> np.ndarray:
+        """ln|S| / 2 (T,), computed once for both gate volumes of a scan (`gate_volume`)."""
+        return half_log_det(self.S)
+
 
 def _check_measurements(Z, m: int) -> np.ndarray:
     Z = np.asarray(Z, dtype=np.float64)
@@ -140,6 +146,13 @@ def _check_measurements(Z, m: int) -> np.ndarray:
     if bad.size:
         raise ValueError(f"Z has non-finite rows {bad.tolist()}")
     return Z
+
+
+def _record(**fields: Any) -> ScanRecord:
+    """A ScanRecord of checked fields without running the frozen dataclass's __init__ (T per scan)."""
+    new = object.__new__(ScanRecord)
+    new.__dict__.update(fields)
+    return new
 
 
 def _evolve(tr: Track, **fields: Any) -> Track:
@@ -170,11 +183,18 @@ def _window(tr: Track, state: RegimeState, capacity: int) -> np.ndarray | None:
     return window_of_records(tr.history[len(tr.history) - length:], WINDOW_LOW, capacity) if length else None
 
 
-def gate_volume(S: np.ndarray, alpha: float) -> np.ndarray:
-    """V = c_m alpha^(m/2) sqrt|S| (T,), c_m the unit-ball volume (thesis §4.1 [R]; c_2 = pi)."""
+def gate_volume(S: np.ndarray, alpha: float, half_logdet: np.ndarray | None = None) -> np.ndarray:
+    """V = c_m alpha^(m/2) sqrt|S| (T,), c_m the unit-ball volume (thesis §4.1 [R]; c_2 = pi); half_logdet (T,):
+    ln|S| / 2 when the caller has it (`half_log_det`)."""
     m = S.shape[-1]
     log_cm = 0.5 * m * math.log(math.pi) - float(gammaln(0.5 * m + 1.0))
-    return np.exp(log_cm + 0.5 * m * math.log(alpha) + 0.5 * np.linalg.slogdet(S)[1])
+    h = half_logdet if half_logdet is not None else half_log_det(S)
+    return np.exp(log_cm + 0.5 * m * math.log(alpha) + h)  # thesis §4.1: V = c_m alpha^(m/2) |S|^(1/2)
+
+
+def half_log_det(S: np.ndarray) -> np.ndarray:
+    """ln|S| / 2 (T,) of S (T, m, m) (slogdet's log; 0 tracks: empty)."""
+    return 0.5 * np.linalg.slogdet(S)[1] if len(S) else np.zeros(0)
 
 
 def _expand(name: str, v: Any, T: int, out: dict[str, np.ndarray], t: int) -> None:
@@ -342,12 +362,7 @@ class Tracker:
                 states = flt.shift_many(states, shift, self.management.road_curvature_spread)
         z_hat, S = batch_predicted_measurements(flt, states)
         T = len(live)
-        layers = np.full((T, m), np.nan)
-        for t, s in enumerate(states):
-            lay = flt.layer(s)
-            if lay is not None:
-                layers[t] = lay
-        return _Prediction(states, z_hat.reshape(T, m), S.reshape(T, m, m), layers)
+        return _Prediction(states, z_hat.reshape(T, m), S.reshape(T, m, m), batch_layers(flt, states, m))
 
     def _drop_wide(self, live, pred: _Prediction, pdt: np.ndarray, road: RoadInput | None):
         """With a road and `max_gate_m2`: the tracks whose predicted gate exceeds it leave before association (a
@@ -356,7 +371,7 @@ class Tracker:
         if (road is None or not mp.road_life or mp.max_gate_m2 is None or not live
                 or not self.filter.measurement.linear):  # a nonlinear model's gate (a radar's) is not in m^2
             return live, pred, pdt, []
-        wide = gate_volume(pred.S, CREDIBLE_GATE_ALPHA) > mp.max_gate_m2
+        wide = gate_volume(pred.S, CREDIBLE_GATE_ALPHA, pred.half_logdet) > mp.max_gate_m2
         if not wide.any():
             return live, pred, pdt, []
         keep = np.flatnonzero(~wide)
@@ -383,7 +398,7 @@ class Tracker:
         d2, log_lik = mahalanobis2_and_log_gaussian(nu, pred.S if S_pairs is None else S_pairs)
         alpha = self.association.gate_alpha
         return AssociationInput(log_lik=log_lik, gated=gate(d2, alpha), d2=d2, nu=nu, S=pred.S, pd=pdt, pg=self.pg,
-                                gate_volume=gate_volume(pred.S, alpha) if len(pred.S) else np.zeros(0),
+                                gate_volume=gate_volume(pred.S, alpha, pred.half_logdet) if len(pred.S) else np.zeros(0),
                                 layers=pred.layers, S_pairs=S_pairs)
 
     def _associate(self, inp: AssociationInput) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -571,9 +586,9 @@ class Tracker:
         nis = np.einsum("tm,tm->t", nu_c, np.linalg.solve(S, nu_c[..., None])[..., 0]) if T else np.zeros(0)
         n_gated = inp.gated.sum(axis=1)
         root_det = np.sqrt(np.linalg.det(S)) if T else np.zeros(0)  # once per record, for the KS windows
-        records = [ScanRecord(nu_c=nu_c[t], S=S[t], n_gated=int(n_gated[t]), gate_volume=float(inp.gate_volume[t]),
-                              nis=float(nis[t]), detected=bool(hit[t]), pd=float(inp.pd[t]), d2=inp.d2[t],
-                              root_det=float(root_det[t])) for t in range(T)]
+        records = [_record(nu_c=a, S=b, n_gated=c, gate_volume=d, nis=e, detected=f, pd=g, d2=h, root_det=i)
+                   for a, b, c, d, e, f, g, h, i in zip(nu_c, S, n_gated.tolist(), inp.gate_volume.tolist(), nis.tolist(),
+                                                        hit.tolist(), inp.pd.tolist(), inp.d2, root_det.tolist())]
         diag = {"nis": nis, "n_gated": n_gated.astype(np.float64), "gate_volume": inp.gate_volume.astype(np.float64),
                 "pd": inp.pd.astype(np.float64)}
         info_diagnostics(states, diag)

@@ -35,7 +35,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from roadtrack.trackers.errors import FilterError
-from roadtrack.trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze
 
 
 @runtime_checkable
@@ -93,6 +93,11 @@ class ModelFilter:
     def layer(self, s_pred: FilterState) -> np.ndarray | None:
         return None
 
+    @property
+    def layered(self) -> bool:
+        """False if `layer` is ModelFilter's (None for every state): the tracker then skips the per-track calls."""
+        return type(self).layer is not ModelFilter.layer
+
     # Batched forms used by the tracker; a filter may override them with vectorised code (the KF does).
     def predict_many(self, states: list[FilterState], dt: float) -> list[FilterState]:
         """`predict` of T tracks at once: vectorised for a linear motion model or one with `f_many` and
@@ -103,7 +108,7 @@ class ModelFilter:
         if not states or not self.predicts_arrays():
             return [self.predict(s, dt) for s in states]  # a subclass's own predict is its reference
         X, P, F = self.predict_arrays(np.array([s.x for s in states]), np.array([s.P for s in states]), dt)
-        return [derive(s, x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], info={}) for t, s in enumerate(states)]
+        return [derive_frozen(s, x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], info={}) for t, s in enumerate(states)]
 
     def predicts_arrays(self) -> bool:
         """True if `predict_arrays` is this filter's predict: its class keeps ModelFilter's predict and its motion
@@ -120,8 +125,11 @@ class ModelFilter:
             P = A @ P @ A.T + Q  # (4.26) P = A P A^T + Q
             F = A
         else:
-            F = self.motion.jacobian_many(X, dt)  # (T, n, n), the EKF (1.11) Jacobians
-            Xn = self.motion.f_many(X, dt)  # (4.24) predict, EKF (1.11) for a nonlinear f
+            if hasattr(self.motion, "f_and_jacobian_many"):  # both from one pass over the tracks (the CT model)
+                Xn, F = self.motion.f_and_jacobian_many(X, dt)  # (4.24) predict and the EKF (1.11) Jacobians
+            else:
+                F = self.motion.jacobian_many(X, dt)  # (T, n, n), the EKF (1.11) Jacobians
+                Xn = self.motion.f_many(X, dt)  # (4.24) predict, EKF (1.11) for a nonlinear f
             P = F @ P @ np.swapaxes(F, 1, 2) + self.motion.process_noise(dt)  # (4.26)
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
@@ -204,6 +212,18 @@ def batch_predict(filter_, states: list[FilterState], dt: float) -> list[FilterS
     """`predict_many` of any filter (the per-track loop for filters without one)."""
     many = getattr(filter_, "predict_many", None)
     return many(states, dt) if many is not None else [filter_.predict(s, dt) for s in states]
+
+
+def batch_layers(filter_, states: list[FilterState], m: int) -> np.ndarray:
+    """Boundary-layer half widths (T, m) of T predicted states (`layer`), NaN rows where a state has none; no
+    per-track call for a filter whose `layered` is False (every layer None)."""
+    layers = np.full((len(states), m), np.nan)
+    if getattr(filter_, "layered", True):
+        for t, s in enumerate(states):
+            lay = filter_.layer(s)
+            if lay is not None:
+                layers[t] = lay
+    return layers
 
 
 def batch_predicted_measurements(filter_, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:

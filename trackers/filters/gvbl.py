@@ -66,7 +66,7 @@ from roadtrack.trackers.filters.svsf import (EY_MEMORY, GAMMA, MEMORY_AFTER_MISS
                                    lower_error, maps_many, promote_state, svsf_gain_factor)
 from roadtrack.trackers.filters.params import ModelParams
 from roadtrack.trackers.params import POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive
+from roadtrack.trackers.state import FilterState, derive_frozen, freeze
 
 SWITCH_RULES = ("z_any", "all_any", "per_partition")
 ROBUST_LOWER = ("optimal", "psi_max")
@@ -245,10 +245,11 @@ class GVBLSVSF(ModelFilter):
         check_covariance(Pn, "GVBL-SVSF updated covariance P")
         post = e - Ke @ H.T  # (3.65)
         layer = np.minimum(psi_z, self.psi_max)  # [D] effective layer
+        freeze(Xn, Pn, post, layer)
         for i, t in enumerate(active):
             info = {"psi_z": psi_z[i], "psi_y": psi_y[i], "regime": float(robust_u[i]),
                     "regime_y": float(robust_l[i]), "chatter": np.maximum(0.0, np.abs(e[i]) - layer[i])}  # (5.37)
-            out[t] = derive(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info, psi_layer=layer[i])
+            out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info, psi_layer=layer[i])
         return out
 
 

@@ -59,7 +59,7 @@ from roadtrack.trackers.filters.base import (ModelFilter, batch_predict, batch_p
 from roadtrack.trackers.gating import log_gaussian
 from roadtrack.trackers.models import MOTION_MODELS
 from roadtrack.trackers.params import NON_NEGATIVE, POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze
 
 
 # --------------------------------------------------------------------------------------------- state
@@ -270,6 +270,11 @@ class IMMFilter:
         """Combined estimate (1.17)-(1.18) in the largest mode's layout: (n,), (n, n)."""
         return s.x, s.P
 
+    @property
+    def layered(self) -> bool:
+        """False if a mode's layer is always None (its `layered` False): `layer` is then None for every state."""
+        return all(getattr(f, "layered", True) for f in self.filters)
+
     def layer(self, s_pred: IMMState) -> np.ndarray | None:
         """c-weighted mean of the modes' boundary layers (m,) if every mode has one, else None ([D])."""
         layers = [f.layer(m) for f, m in zip(self.filters, s_pred.modes)]
@@ -299,7 +304,7 @@ class IMMFilter:
         for i, (f, (x0, P0, e0, reach)) in enumerate(zip(self.filters, self._mix_many(states, log_w, log_c))):
             if getattr(f, "predicts_arrays", None) is not None and f.predicts_arrays():  # straight from the arrays
                 X, P, F = f.predict_arrays(x0, P0, dt)
-                modes.append([derive(s.modes[i], x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], e_post=e0[t], info={})
+                modes.append([derive_frozen(s.modes[i], x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], e_post=e0[t], info={})
                               for t, s in enumerate(states)])
                 arrays.append((X, P, e0))
             else:  # the mode filter's own batched predict of the mixed states
@@ -488,7 +493,7 @@ class IMMFilter:
             for name, m in zip(self.mode_names, mt):
                 for key, v in m.info.items():
                     info[f"{name}.{key}"] = v
-            out.append(derive(s, x=x[t], P=P[t], e_post=e[t], F=None, info=info, modes=mt, mu=mu[t]))
+            out.append(derive_frozen(s, x=x[t], P=P[t], e_post=e[t], F=None, info=info, modes=mt, mu=mu[t]))
         return out
 
     def _combine_measurements(self, zs: np.ndarray, Ss: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

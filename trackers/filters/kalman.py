@@ -15,7 +15,7 @@ import numpy as np
 from roadtrack.trackers.errors import FilterError
 from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
                                    combined_innovation, pda_covariance, symmetrise)
-from roadtrack.trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.state import FilterState, derive_frozen, freeze
 
 
 def gain_update(s_pred: FilterState, H: np.ndarray, R: np.ndarray, S: np.ndarray, K: np.ndarray,
@@ -115,7 +115,7 @@ def gain_update_many(preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0
         Xn, Pn, e_post = detection_update(X, P, H, np.asarray(R_det, dtype=np.float64), nua, Wa, b0)
         freeze(Xn, Pn, e_post)
         for i, t in enumerate(active):
-            out[t] = derive(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
+            out[t] = derive_frozen(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
         return out
     HPH = H @ P @ H.T
     S = HPH + R
@@ -138,7 +138,7 @@ def gain_update_many(preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0
     e_post = nu_c - np.einsum("im,am->ai", H, np.einsum("anm,am->an", K, nu_c))  # (3.65)
     freeze(Xn, Pn, e_post)
     for i, t in enumerate(active):
-        out[t] = derive(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
+        out[t] = derive_frozen(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
     return out
 
 

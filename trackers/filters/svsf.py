@@ -43,7 +43,7 @@ from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_c
                                    combined_innovation, pda_covariance, symmetrise, weighted_R)
 from roadtrack.trackers.filters.params import ModelParams
 from roadtrack.trackers.params import POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze
 
 EY_MEMORY = ("a_priori", "a_posteriori")
 COVARIANCES = ("mse", "joseph", "short")
@@ -386,7 +386,7 @@ class SVSF(ModelFilter):
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
         freeze(X, P, A)
-        return [derive(s, x=X[t], P=P[t], F=A, info={}, tau=s.tau + dt) for t, s in enumerate(states)]
+        return [derive_frozen(s, x=X[t], P=P[t], F=A, info={}, tau=s.tau + dt) for t, s in enumerate(states)]
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
                     w0: np.ndarray, R: np.ndarray | None = None) -> list[FilterState]:
@@ -622,10 +622,11 @@ class GeneralisedSVSF(ModelFilter):
             raise FilterError("generalised SVSF updated state x is not finite")
         check_covariance(Pn, "generalised SVSF updated covariance P")
         post = e - Ke @ H.T  # (3.65)
+        freeze(Xn, Pn, post)
         for i, t in enumerate(active):
             info = {"psi_z": psi_z.copy(), "psi_y": np.array(psi_y[i]),
                     "chatter": np.maximum(0.0, np.abs(e[i]) - psi_z)}  # (5.37)
-            out[t] = derive(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info)
+            out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info)
         return out
 
 
