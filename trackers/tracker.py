@@ -453,7 +453,7 @@ class Tracker:
         was_confirmed = np.array([tr.confirmed for tr in live], dtype=bool)
         misses = np.array([0 if hit[t] else tr.misses_in_a_row + 1 for t, tr in enumerate(live)], dtype=np.int64)
         unseen = np.array([0.0 if hit[t] else tr.unseen_s + dt for t, tr in enumerate(live)], dtype=np.float64)
-        records, diag = self._records(states, inp, W, hit, R)
+        records, diag, root_det = self._records(states, inp, W, hit, R)
         if self.manager == "m_of_n":
             det, known = self._windows(live, hit)
             confirmed, delete = m_of_n_decide(det, misses, was_confirmed, mp, known)
@@ -476,7 +476,7 @@ class Tracker:
                                misses)
         keep = max(mp.history_length, mp.regime_config.longest)
         histories = [(tr.history + (records[t],))[-keep:] for t, tr in enumerate(live)]
-        regimes = self._regimes(live, histories, inp.d2, diag)
+        regimes = self._regimes(live, histories, inp.d2, diag, root_det, inp.pd)
         lost = np.array([r.label == "track-lost" for r in regimes], dtype=bool).reshape(T)
         if mp.deletion == "ks":  # paper 002: a confirmed track goes when its KS regime is track-lost
             delete = np.where(confirmed, lost, delete)
@@ -527,22 +527,26 @@ class Tracker:
             out |= ~updated & (d2 <= mp.credible_d2).any(axis=1)
         return out
 
-    def _regimes(self, live, histories, d2: np.ndarray, diag: dict[str, np.ndarray]) -> list[RegimeState]:
+    def _regimes(self, live, histories, d2: np.ndarray, diag: dict[str, np.ndarray], root_det: np.ndarray,
+                 pd: np.ndarray) -> list[RegimeState]:
         """Each track's KS regime after this scan (paper 002 §V) from its rolled window (this scan's row from the
-        new record and d2 (T, M), the distances of every measurement), with the manager's clutter density for the
+        new record: |S|^(1/2) root_det (T,), P_D pd (T,) and d2 (T, M), the distances of every measurement), with the
+        manager's clutter density for the
         regime (default: the associator's) and the per-scan P_D; one batch per window length. The same tests as
         on the histories (trackers.trackloss.regime.assess_rolled). Adds the diagnostics ks_regime (1 tracking,
         0 ambiguous, -1 track-lost), ks_D_T, ks_D_L, ks_d_n, ks_n (NaN while unknown)."""
         mp, T, nz = self.management, len(live), self.filter.measurement.ndim
         cfg = mp.regime_config
         lam = mp.regime_clutter_density or self.association.clutter_density
-        new = [h[-1] for h in histories]
-        rows = window_rows(np.array([r.root_det for r in new], dtype=np.float64).reshape(T),
-                           np.array([r.pd for r in new], dtype=np.float64).reshape(T), d2, WINDOW_LOW)
-        states = [tr.regime_state or initial_state(cfg) for tr in live]
+        rows = window_rows(root_det.reshape(T), pd.reshape(T), d2, WINDOW_LOW)  # the new records' row
         cap = cfg.longest
-        windows = roll_windows([_window(tr, s, cap) for tr, s in zip(live, states)], rows, cap)  # (T, cap, 3 + k)
-        ready = [min(len(h), cap) >= s.n for s, h in zip(states, histories)]
+        states, old, ready = [], [], []
+        for tr, h in zip(live, histories):
+            s = tr.regime_state or initial_state(cfg)
+            states.append(s)
+            old.append(_window(tr, s, cap))
+            ready.append(min(len(h), cap) >= s.n)
+        windows = roll_windows(old, rows, cap)  # (T, cap, 3 + k)
         out = [None if ok else advance(s, None, cfg, w) for s, w, ok in zip(states, windows, ready)]
         for n in sorted({s.n for s, ok in zip(states, ready) if ok}):  # one batch per window length (adaptive: several)
             group = [t for t in range(T) if ready[t] and states[t].n == n]
@@ -574,9 +578,10 @@ class Tracker:
         return det, known
 
     def _records(self, states, inp: AssociationInput, W, hit, R: np.ndarray | None = None
-                 ) -> tuple[list[ScanRecord], dict[str, np.ndarray]]:
-        """Each track's ScanRecord and the per-track diagnostics. With the measurements' own covariances R (M, m, m),
-        a track's record S (and its NIS) uses the association-weighted R of its measurements (`weighted_R`)."""
+                 ) -> tuple[list[ScanRecord], dict[str, np.ndarray], np.ndarray]:
+        """Each track's ScanRecord, the per-track diagnostics and the records' |S|^(1/2) (T,). With the measurements'
+        own covariances R (M, m, m), a track's record S (and its NIS) uses the association-weighted R of its
+        measurements (`weighted_R`)."""
         T = len(states)
         nu_c = np.einsum("tj,tjm->tm", W, inp.nu) if T else np.zeros((0, inp.nu.shape[-1]))
         S = inp.S
@@ -592,7 +597,7 @@ class Tracker:
         diag = {"nis": nis, "n_gated": n_gated.astype(np.float64), "gate_volume": inp.gate_volume.astype(np.float64),
                 "pd": inp.pd.astype(np.float64)}
         info_diagnostics(states, diag)
-        return records, diag
+        return records, diag, root_det
 
     def _initiate(self, candidates, live, Z: np.ndarray, inp: AssociationInput, dt: float, next_id: int,
                   pred: _Prediction, R: np.ndarray | None = None):

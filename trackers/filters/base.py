@@ -35,7 +35,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from roadtrack.trackers.errors import FilterError
-from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze
+from roadtrack.trackers.state import FilterState, StateRows, derive, derive_frozen, freeze, rows_of
 
 
 @runtime_checkable
@@ -107,8 +107,9 @@ class ModelFilter:
             raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
         if not states or not self.predicts_arrays():
             return [self.predict(s, dt) for s in states]  # a subclass's own predict is its reference
-        X, P, F = self.predict_arrays(np.array([s.x for s in states]), np.array([s.P for s in states]), dt)
-        return [derive_frozen(s, x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], info={}) for t, s in enumerate(states)]
+        X, P, F = self.predict_arrays(rows_of(states, "x"), rows_of(states, "P"), dt)
+        return StateRows([derive_frozen(s, x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], info={})
+                          for t, s in enumerate(states)], x=X, P=P)
 
     def predicts_arrays(self) -> bool:
         """True if `predict_arrays` is this filter's predict: its class keeps ModelFilter's predict and its motion
@@ -151,8 +152,8 @@ class ModelFilter:
     def linear_predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
         """z_hat = H x (T, m), S = H P H^T + R (T, m, m) of T >= 1 predicted states (H: the linear measurement's)."""
         H = self.measurement.matrix(self.motion)
-        S = H @ np.array([s.P for s in preds]) @ H.T + self.measurement.R  # (4.3)-(4.8) innovation covariance S
-        return np.array([s.x for s in preds]) @ H.T, 0.5 * (S + np.swapaxes(S, 1, 2))
+        S = H @ rows_of(preds, "P") @ H.T + self.measurement.R  # (4.3)-(4.8) innovation covariance S
+        return rows_of(preds, "x") @ H.T, 0.5 * (S + np.swapaxes(S, 1, 2))
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
                     w0: np.ndarray, R: np.ndarray | None = None) -> list[FilterState]:

@@ -59,7 +59,7 @@ from roadtrack.trackers.filters.base import (ModelFilter, batch_predict, batch_p
 from roadtrack.trackers.gating import log_gaussian
 from roadtrack.trackers.models import MOTION_MODELS
 from roadtrack.trackers.params import NON_NEGATIVE, POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze
+from roadtrack.trackers.state import FilterState, StateRows, derive, derive_frozen, freeze, rows_of, take_rows
 
 
 # --------------------------------------------------------------------------------------------- state
@@ -147,9 +147,19 @@ def moments_many(xs: np.ndarray, Ps: np.ndarray, w: np.ndarray) -> tuple[np.ndar
 
 
 def stacked(states: list[FilterState]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """x (T, n), P (T, n, n), e_post (T, m) of T states of one layout."""
-    return (np.array([s.x for s in states]), np.array([s.P for s in states]),
-            np.array([s.e_post for s in states]))
+    """x (T, n), P (T, n, n), e_post (T, m) of T states of one layout (the rows a StateRows carries)."""
+    return rows_of(states, "x"), rows_of(states, "P"), rows_of(states, "e_post")
+
+
+class IMMRows(list):
+    """T IMMStates made by one batched call (`IMMFilter._states_many`), with their mode probabilities mu (T, r) and,
+    per mode i, the list of their mode states (mode_lists[i][t] is item t's modes[i]; a StateRows carrying the
+    modes' x, P, e_post), so that the next batched call of the scan stacks nothing again. A copy or slice of it is a
+    plain list."""
+
+    def __init__(self, states, mu: np.ndarray, mode_lists: list):
+        super().__init__(states)
+        self.mu, self.mode_lists = mu, mode_lists
 
 
 # -------------------------------------------------------------------------------------------- filter
@@ -296,7 +306,7 @@ class IMMFilter:
             return []
         if not self._stackable(states):
             return [self.predict(s, dt) for s in states]  # unusual states: the per-track reference
-        mu = np.array([s.mu for s in states])  # (T, r)
+        mu = self._mus(states)  # (T, r)
         with np.errstate(divide="ignore"):
             log_w = np.log(self.transition)[None] + np.log(mu)[:, :, None]  # (T, r_j, r_i): log p_ji mu_j
         log_c = logsumexp(log_w, axis=1)  # (2.101) c_i = sum_j p_ji mu_j, (T, r)
@@ -304,8 +314,8 @@ class IMMFilter:
         for i, (f, (x0, P0, e0, reach)) in enumerate(zip(self.filters, self._mix_many(states, log_w, log_c))):
             if getattr(f, "predicts_arrays", None) is not None and f.predicts_arrays():  # straight from the arrays
                 X, P, F = f.predict_arrays(x0, P0, dt)
-                modes.append([derive_frozen(s.modes[i], x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], e_post=e0[t], info={})
-                              for t, s in enumerate(states)])
+                modes.append(StateRows([derive_frozen(s.modes[i], x=X[t], P=P[t], F=F if F.ndim == 2 else F[t],
+                                                      e_post=e0[t], info={}) for t, s in enumerate(states)], X, P, e0))
                 arrays.append((X, P, e0))
             else:  # the mode filter's own batched predict of the mixed states
                 modes.append(batch_predict(f, [derive(s.modes[i], x=x0[t], P=P0[t], e_post=e0[t]) if reach[t]
@@ -316,7 +326,11 @@ class IMMFilter:
     def mode_measurements_many(self, preds: list[IMMState]) -> tuple[np.ndarray, np.ndarray]:
         """`mode_measurements` of T predicted states: z (T, r, m), S (T, r, m, m), each mode by its filter's
         batched `predicted_measurements`."""
-        zS = [batch_predicted_measurements(f, [s.modes[i] for s in preds]) for i, f in enumerate(self.filters)]
+        return self._mode_measurements(self._mode_lists(preds))
+
+    def _mode_measurements(self, lists: list) -> tuple[np.ndarray, np.ndarray]:
+        """`mode_measurements_many` of the mode states lists[i] (T each) of every mode i."""
+        zS = [batch_predicted_measurements(f, ms) for f, ms in zip(self.filters, lists)]
         return np.stack([z for z, _ in zS], axis=1), np.stack([S for _, S in zS], axis=1)
 
     def predicted_measurements(self, preds: list[IMMState]) -> tuple[np.ndarray, np.ndarray]:
@@ -325,7 +339,7 @@ class IMMFilter:
         if not preds:
             return np.zeros((0, m)), np.zeros((0, m, m))
         zs, Ss = self.mode_measurements_many(preds)
-        return self._combine_many(zs, Ss, np.array([s.mu for s in preds]))
+        return self._combine_many(zs, Ss, self._mus(preds))
 
     def update_many(self, preds: list[IMMState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray,
                     R: np.ndarray | None = None) -> list[IMMState]:
@@ -353,9 +367,10 @@ class IMMFilter:
         if active.size == 0:
             return out
         ps = [preds[t] for t in active]
+        lists = [take_rows(ms, active) for ms in self._mode_lists(preds)]  # per mode the active tracks' mode states
         nua, Wa, b0 = nu_u[active], W_u[active], w0[active]
-        zs, Ss = self.mode_measurements_many(ps)  # (A, r, m), (A, r, m, m)
-        mu_c = np.array([s.mu for s in ps])
+        zs, Ss = self._mode_measurements(lists)  # (A, r, m), (A, r, m, m)
+        mu_c = self._mus(preds)[active]
         z_c, S_c = self._combine_many(zs, Ss, mu_c)
         meas = self.measurement
         nus = meas.residual(nua[:, None] + meas.residual(z_c[:, None], zs)[:, :, None], np.zeros(m))  # z_j - z_i
@@ -364,7 +379,7 @@ class IMMFilter:
             Ss = pair_covariances(Ss.reshape(A * r, m, m), R, meas.R).reshape(A, r, len(R), m, m)
             S_c = pair_covariances(S_c, R, meas.R)
         mu = self._mode_probabilities_many(nus, Ss, nua, S_c, Wa, b0, mu_c)
-        modes = [batch_update(f, [s.modes[i] for s in ps], nus[:, i], Wa, b0, R) for i, f in enumerate(self.filters)]
+        modes = [batch_update(f, ms, nus[:, i], Wa, b0, R) for i, (f, ms) in enumerate(zip(self.filters, lists))]
         for t, s in zip(active, self._states_many(ps, modes, mu)):
             out[t] = s
         return out
@@ -393,8 +408,8 @@ class IMMFilter:
     def _per_mode(self, states: list[IMMState], fn) -> list[IMMState]:
         if not states:
             return []
-        modes = [fn(f, [s.modes[i] for s in states]) for i, f in enumerate(self.filters)]
-        return self._states_many(states, modes, np.array([s.mu for s in states]))
+        modes = [fn(f, ms) for f, ms in zip(self.filters, self._mode_lists(states))]
+        return self._states_many(states, modes, self._mus(states))
 
     def _missed_many(self, preds: list[IMMState], idle: np.ndarray, nu: np.ndarray, W: np.ndarray,
                      w0: np.ndarray) -> dict[int, IMMState]:
@@ -406,8 +421,8 @@ class IMMFilter:
         if idle.size == 0:
             return {}
         ps = [preds[t] for t in idle]
-        modes = [batch_update(f, [s.modes[i] for s in ps], nu[idle], W[idle], w0[idle])
-                 for i, f in enumerate(self.filters)]  # (4.16) with beta0 = 1 per mode, its memory rule [D]
+        modes = [batch_update(f, take_rows(ms, idle), nu[idle], W[idle], w0[idle])
+                 for f, ms in zip(self.filters, self._mode_lists(preds))]  # (4.16) with beta0 = 1 per mode, its memory rule [D]
         changed = [j for j, s in enumerate(ps) if any(ms[j] is not m for ms, m in zip(modes, s.modes))]
         if not changed:
             return {}
@@ -420,17 +435,20 @@ class IMMFilter:
         """True if T states can be stacked: IMMStates of r modes, mode i of one size in every track, one memory
         size (else the batched forms use the per-track reference)."""
         r = len(self.filters)
+        if type(states) is IMMRows:  # made by _states_many from stacked modes: stackable
+            return True
         if not all(isinstance(s, IMMState) and len(s.modes) == r for s in states):
             return False
-        sizes = {tuple(m.x.size for m in s.modes) for s in states}
-        return len(sizes) <= 1 and len({m.e_post.shape for s in states for m in s.modes}) <= 1
+        if any(len({s.modes[i].x.size for s in states}) > 1 for i in range(r)):
+            return False
+        return len({s.modes[i].e_post.shape for i in range(r) for s in states}) <= 1
 
     def _mix_many(self, states: list[IMMState], log_w: np.ndarray, log_c: np.ndarray) -> list[tuple]:
         """Mixed initial conditions (2.101)-(2.102) of T tracks: per mode i (x0 (T, n_i), P0 (T, n_i, n_i), e0 (T, m),
         reach (T,) bool), read-only; a mode unreachable this scan (reach False) keeps its own state in its rows.
         log_w (T, r, r) = log p_ji mu_j, log_c (T, r) = log c_i."""
         r = len(self.filters)
-        X, P, E = zip(*(stacked([s.modes[j] for s in states]) for j in range(r)))
+        X, P, E = zip(*(stacked(ms) for ms in self._mode_lists(states)))
         Es = np.stack(E, axis=1)  # (T, r, m) mode memories
         out = []
         for i, f in enumerate(self.filters):
@@ -480,21 +498,33 @@ class IMMFilter:
         mts = list(zip(*modes))  # T tuples of r mode states
         if len({m.e_post.shape for mt in mts for m in mt}) > 1:
             return [self._state(mt, mu[t]) for t, mt in enumerate(mts)]
-        xs, Ps, Es = zip(*(arrays or [stacked(ms) for ms in modes]))
+        arrays = arrays or [stacked(ms) for ms in modes]
+        xs, Ps, Es = zip(*arrays)
         xs, Ps = zip(*(layout_many(x, P, self.motion) for x, P in zip(xs, Ps)))
         x, P = moments_many(np.stack(xs, axis=1), np.stack(Ps, axis=1), mu)  # (1.17)-(1.18) output combination
         check_covariance(P, "IMM combined covariance P")
         e = np.einsum("tj,tjm->tm", mu, np.stack(Es, axis=1))
-        mu = np.array(mu, dtype=np.float64)  # the states' own copy
+        mu, mu_info = np.array(mu, dtype=np.float64), np.array(mu, dtype=np.float64)  # the states' and info's copies
         freeze(x, P, e, mu)
         out = []
         for t, (s, mt) in enumerate(zip(like, mts)):
-            info: dict[str, Any] = {"mu": np.array(mu[t], dtype=np.float64)}
+            info: dict[str, Any] = {"mu": mu_info[t]}
             for name, m in zip(self.mode_names, mt):
                 for key, v in m.info.items():
                     info[f"{name}.{key}"] = v
             out.append(derive_frozen(s, x=x[t], P=P[t], e_post=e[t], F=None, info=info, modes=mt, mu=mu[t]))
-        return out
+        return IMMRows(out, mu, [StateRows(ms, *a) for ms, a in zip(modes, arrays)])
+
+    def _mode_lists(self, states: list[IMMState]) -> list:
+        """Per mode i the list of the states' mode-i states (the carried StateRows of an IMMRows)."""
+        if type(states) is IMMRows:
+            return states.mode_lists
+        return [[s.modes[i] for s in states] for i in range(len(self.filters))]
+
+    @staticmethod
+    def _mus(states: list[IMMState]) -> np.ndarray:
+        """Mode probabilities (T, r) of the states (an IMMRows' carried mu)."""
+        return states.mu if type(states) is IMMRows else np.array([s.mu for s in states])
 
     def _combine_measurements(self, zs: np.ndarray, Ss: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         meas = self.measurement

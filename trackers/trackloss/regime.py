@@ -422,9 +422,11 @@ def advance(state: RegimeState, test: RegimeTest | None, cfg: RegimeConfig,
     held = {} if window is None else {"window": window}
     if test is None:
         return state if state.label == "unknown" and not held else _with(state, label="unknown", **held)
+    if not cfg.adaptive:
+        return _with(state, label=test.label, last=test, **held)
     previous = state.last.verdict if state.last is not None else None
     state = _with(state, label=test.label, last=test, **held)
-    return _adapt(state, test.verdict, previous, cfg) if cfg.adaptive else state
+    return _adapt(state, test.verdict, previous, cfg)
 
 
 def _with(state: RegimeState, **fields) -> RegimeState:
