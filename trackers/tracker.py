@@ -83,6 +83,9 @@ class Track:
         return np.array([getattr(r, name) for r in self.history])
 
 
+_TRACK_DEFAULTS = {f.name: f.default for f in dataclasses.fields(Track) if f.default is not dataclasses.MISSING}
+
+
 @dataclass(frozen=True, eq=False)
 class StepInfo:
     """Per-step internals for viewers, for the T tracks that existed at the start of the step (input order),
@@ -131,9 +134,14 @@ class _Prediction:
     layers: np.ndarray  # (T, m)
 
     @functools.cached_property
+    def logdet(self) -> np.ndarray:
+        """ln|S| (T,), computed once for a scan's gate volumes and duplicate test."""
+        return np.linalg.slogdet(self.S)[1] if len(self.S) else np.zeros(0)
+
+    @functools.cached_property
     def half_logdet(self) -> np.ndarray:
         """ln|S| / 2 (T,), computed once for both gate volumes of a scan (`gate_volume`)."""
-        return half_log_det(self.S)
+        return 0.5 * self.logdet
 
 
 def _check_measurements(Z, m: int) -> np.ndarray:
@@ -151,6 +159,15 @@ def _check_measurements(Z, m: int) -> np.ndarray:
 def _record(**fields: Any) -> ScanRecord:
     """A ScanRecord of checked fields without running the frozen dataclass's __init__ (T per scan)."""
     new = object.__new__(ScanRecord)
+    new.__dict__.update(fields)
+    return new
+
+
+def _new_track(**fields: Any) -> Track:
+    """Track(**fields) without running the frozen dataclass's __init__ (the tracker's births and candidates), the
+    fields not given at their defaults."""
+    new = object.__new__(Track)
+    new.__dict__.update(_TRACK_DEFAULTS)
     new.__dict__.update(fields)
     return new
 
@@ -473,7 +490,7 @@ class Tracker:
         ids = np.array([tr.id for tr in live], dtype=np.int64).reshape(T)
         dup = duplicate_counts(pred.z_hat, pred.S, inp.gated, confirmed & was_confirmed, ids,
                                np.array([tr.duplicate_scans for tr in live], dtype=np.int64).reshape(T), mp.merge_d2,
-                               misses)
+                               misses, pred.logdet)
         keep = max(mp.history_length, mp.regime_config.longest)
         histories = [(tr.history + (records[t],))[-keep:] for t, tr in enumerate(live)]
         regimes = self._regimes(live, histories, inp.d2, diag, root_det, inp.pd)
@@ -621,8 +638,8 @@ class Tracker:
         out, used, born_from = [], set(), {}
 
         def new(state, score, label, age, candidate=False):
-            return Track(id=label, state=state, score=score, max_score=score, confirmed=False, age=age,
-                         hits=age, misses_in_a_row=0, candidate=candidate)
+            return _new_track(id=label, state=state, score=score, max_score=score, confirmed=False, age=age,
+                              hits=age, misses_in_a_row=0, candidate=candidate)
 
         if mp.initiation == "single":
             for j in free:

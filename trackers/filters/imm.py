@@ -506,13 +506,14 @@ class IMMFilter:
         e = np.einsum("tj,tjm->tm", mu, np.stack(Es, axis=1))
         mu, mu_info = np.array(mu, dtype=np.float64), np.array(mu, dtype=np.float64)  # the states' and info's copies
         freeze(x, P, e, mu)
-        out = []
-        for t, (s, mt) in enumerate(zip(like, mts)):
-            info: dict[str, Any] = {"mu": mu_info[t]}
-            for name, m in zip(self.mode_names, mt):
-                for key, v in m.info.items():
-                    info[f"{name}.{key}"] = v
-            out.append(derive_frozen(s, x=x[t], P=P[t], e_post=e[t], F=None, info=info, modes=mt, mu=mu[t]))
+        out, names = [], self.mode_names
+        for s, mt, xt, Pt, et, mut, mui in zip(like, mts, x, P, e, mu, mu_info):
+            info: dict[str, Any] = {"mu": mui}
+            for name, m in zip(names, mt):
+                if m.info:
+                    for key, v in m.info.items():
+                        info[f"{name}.{key}"] = v
+            out.append(derive_frozen(s, x=xt, P=Pt, e_post=et, F=None, info=info, modes=mt, mu=mut))
         return IMMRows(out, mu, [StateRows(ms, *a) for ms, a in zip(modes, arrays)])
 
     def _mode_lists(self, states: list[IMMState]) -> list:
