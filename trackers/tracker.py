@@ -402,7 +402,7 @@ class Tracker:
             return np.full(T, self.association.pd)
         values = pd(pred.z_hat) if callable(pd) else pd
         out = np.broadcast_to(np.asarray(values, dtype=np.float64), (T,)).copy()
-        if not np.all((out >= 0.0) & (out <= 1.0)):
+        if not ((out >= 0.0) & (out <= 1.0)).all():
             raise ValueError("per-track detection probabilities must lie in [0, 1]")
         return out
 

@@ -179,17 +179,18 @@ class ModelFilter:
         if not states or not mot.linear or len(mot.position) < 2 or len(mot.velocity) < 2:
             return list(states)
         idx = list(mot.position[:2]) + list(mot.velocity[:2])
-        block = np.ix_(idx, idx)
-        out = []
-        for s, d in zip(states, dkin):
-            x = s.x.copy()
-            x[idx] += d
-            if spread and d.any():  # a straight lane (u = 0) adds nothing: no copy on the hot path
-                P = s.P.copy()
-                P[block] += np.outer(d, d)  # Q_u = B Sigma_u B^T with Sigma_u = u u^T [D]
-                out.append(derive(s, x=x, P=P))
-            else:
-                out.append(derive(s, x=x))
+        X = np.array(rows_of(states, "x"))  # a copy, rows shifted below
+        X[:, idx] += dkin  # x + B u
+        moved = (dkin.any(axis=1) if spread else np.zeros(len(states), dtype=bool)).tolist()
+        P = rows_of(states, "P")
+        if any(moved):  # a straight lane (u = 0) adds nothing: no copy on the hot path
+            P, rows = np.array(P), np.flatnonzero(moved)
+            d = dkin[rows]
+            P[np.ix_(rows, idx, idx)] += d[:, :, None] * d[:, None, :]  # Q_u = B Sigma_u B^T, Sigma_u = u u^T [D]
+        freeze(X, P)
+        out = StateRows([derive_frozen(s, x=x, P=p) if m else derive_frozen(s, x=x)
+                         for s, x, p, m in zip(states, X, P, moved)], X, P)
+        out.e_post = states.e_post if type(states) is StateRows else None
         return out
 
     def pseudo_update_many(self, states: list[FilterState], h: np.ndarray, y: np.ndarray,
@@ -337,7 +338,7 @@ def batch_weights(nu: np.ndarray, W: np.ndarray, w0: np.ndarray, active: np.ndar
     nua = np.where((Wa > 0.0)[..., None], nu[active], 0.0)  # what the per-track update is given
     if not (np.isfinite(nua).all() and np.isfinite(Wa).all() and np.isfinite(b0).all()):
         raise ValueError("update got non-finite innovations or weights")
-    if np.any(Wa < 0.0) or np.any(b0 < 0.0) or np.any(np.abs(b0 + Wa.sum(axis=1) - 1.0) > 1e-9):
+    if (Wa < 0.0).any() or (b0 < 0.0).any() or (np.abs(b0 + Wa.sum(axis=1) - 1.0) > 1e-9).any():
         raise ValueError("update weights must be >= 0 and sum to 1")
     return nua, Wa, b0
 
