@@ -23,7 +23,7 @@ from roadtrack.trackers.initiation import pair_candidates, single_point, two_poi
 from roadtrack.trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
                                  position_std, score_decide, score_increment)
 from roadtrack.trackers.road import RoadInput, centripetal_input, cross_lane_std, input_shift, lane_pseudo_measurement
-from roadtrack.trackers.state import FilterState, derive
+from roadtrack.trackers.state import FilterState, derive, freeze
 from roadtrack.trackers.trackloss.regime import (ROW_FIXED, WINDOW_LOW, RegimeState, advance, alpha_of, assess_rolled,
                                       initial_state, roll_windows, window_holds, window_of_records, window_rows)
 
@@ -160,6 +160,16 @@ def _record(**fields: Any) -> ScanRecord:
     """A ScanRecord of checked fields without running the frozen dataclass's __init__ (T per scan)."""
     new = object.__new__(ScanRecord)
     new.__dict__.update(fields)
+    return new
+
+
+def _candidate_state(p: np.ndarray, m: int) -> FilterState:
+    """A candidate's state: x = [p; 0] (2d,), P = I, e_post = 0 (m,), as FilterState(...) makes it (fresh read-only
+    float64 arrays), without its __init__ (several candidates per scan)."""
+    x, P, e = np.concatenate([p, np.zeros(len(p))]).astype(np.float64, copy=False), np.eye(2 * len(p)), np.zeros(m)
+    freeze(x, P, e)
+    new = object.__new__(FilterState)
+    new.__dict__.update(x=x, P=P, e_post=e, F=None, info={})
     return new
 
 
@@ -663,7 +673,5 @@ class Tracker:
                 next_id += 1
         for f, (p, Rp) in enumerate(positions):
             if f not in used:
-                d = len(p)
-                out.append(new(FilterState(x=np.concatenate([p, np.zeros(d)]), P=np.eye(2 * d), e_post=np.zeros(meas.ndim)),
-                               score0, -1, 1, candidate=True))
+                out.append(new(_candidate_state(p, meas.ndim), score0, -1, 1, candidate=True))
         return out, next_id, born_from

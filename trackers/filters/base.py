@@ -204,10 +204,19 @@ class ModelFilter:
             H[pos] = hp
             PH = s.P @ H
             K = PH / (H @ PH + rt)  # Kalman gain of a scalar measurement, §1.1 (1.6)
-            I_KH = np.eye(len(s.x)) - np.outer(K, H)
+            I_KH = identity(len(s.x)) - np.outer(K, H)
             P = symmetrise(I_KH @ s.P @ I_KH.T + rt * np.outer(K, K))  # Joseph form, §1.1 (1.8)
             out.append(derive(s, x=s.x + K * yt, P=check_covariance(P, "lane-kept covariance P")))
         return out
+
+
+@functools.lru_cache(maxsize=16)
+def identity(n: int) -> np.ndarray:
+    """The identity I (n, n), read-only, made once per size (np.eye's wrapper costs more than the Joseph form's
+    subtraction it feeds)."""
+    eye = np.eye(n)
+    eye.setflags(write=False)
+    return eye
 
 
 def batch_predict(filter_, states: list[FilterState], dt: float) -> list[FilterState]:

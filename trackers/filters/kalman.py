@@ -14,7 +14,7 @@ import numpy as np
 
 from roadtrack.trackers.errors import FilterError
 from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
-                                   combined_innovation, pda_covariance, symmetrise)
+                                   combined_innovation, identity, pda_covariance, symmetrise)
 from roadtrack.trackers.state import FilterState, StateRows, derive_frozen, freeze, rows_of
 
 
@@ -125,7 +125,7 @@ def gain_update_many(preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0
     K = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)  # (4.3)-(4.8) KF gain K = P H^T S^-1, (a, n, m)
     nu_c = np.einsum("aj,ajm->am", Wa, nua)  # (4.15) combined innovation
     Xn = X + np.einsum("anm,am->an", K, nu_c)  # §4.2 PDA state update
-    I_KH = np.eye(X.shape[1]) - K @ H
+    I_KH = identity(X.shape[1]) - K @ H
     P_star = I_KH @ P @ np.swapaxes(I_KH, 1, 2) + K @ R_j @ np.swapaxes(K, 1, 2)  # (4.8) Joseph form
     spread = np.einsum("aj,aji,ajk->aik", Wa, nua, nua) - np.einsum("ai,ak->aik", nu_c, nu_c)
     Pn = b0[:, None, None] * P + (1.0 - b0)[:, None, None] * P_star + K @ spread @ np.swapaxes(K, 1, 2)  # (4.16)-(4.17)
@@ -174,7 +174,7 @@ def detection_update(X: np.ndarray, P: np.ndarray, H: np.ndarray, R: np.ndarray,
         raise FilterError("innovation covariance S is not positive definite") from None
     K = np.swapaxes(np.linalg.solve(S, H @ Pp), 1, 2)  # (4.3)-(4.8) K_j = P H^T S_j^-1, (p, n, m)
     d = np.einsum("pnm,pm->pn", K, nu[a, j])  # K_j nu_j
-    I_KH = np.eye(n) - K @ H
+    I_KH = identity(n) - K @ H
     P_star = I_KH @ Pp @ np.swapaxes(I_KH, 1, 2) + K @ R[j] @ np.swapaxes(K, 1, 2)  # (4.8) Joseph form, R_j
     dx = np.zeros((A, n))
     np.add.at(dx, a, w[:, None] * d)  # (4.15) combined correction sum_j beta_j K_j nu_j
