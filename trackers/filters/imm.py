@@ -160,6 +160,7 @@ class IMMRows(list):
     def __init__(self, states, mu: np.ndarray, mode_lists: list):
         super().__init__(states)
         self.mu, self.mode_lists = mu, mode_lists
+        self.measured: tuple | None = None  # (the states, zs, Ss, z_c, S_c) of predicted_measurements
 
 
 # -------------------------------------------------------------------------------------------- filter
@@ -328,6 +329,17 @@ class IMMFilter:
         batched `predicted_measurements`."""
         return self._mode_measurements(self._mode_lists(preds))
 
+    def _measured(self, preds: list[IMMState], lists: list, mu: np.ndarray, active: np.ndarray) -> tuple:
+        """(zs (A, r, m), Ss (A, r, m, m), z_c (A, m), S_c (A, m, m)) of the active tracks: the rows of what
+        `predicted_measurements` computed for these very states (an IMMRows it was given), else computed from
+        their mode states lists and mode probabilities mu (A, r). Every row is computed on its own, so the rows of
+        the whole batch are the subset's."""
+        kept = getattr(preds, "measured", None) if type(preds) is IMMRows else None
+        if kept is not None and len(kept[0]) == len(preds) and all(a is b for a, b in zip(kept[0], preds)):
+            return tuple(a[active] for a in kept[1:])
+        zs, Ss = self._mode_measurements(lists)
+        return (zs, Ss) + self._combine_many(zs, Ss, mu)
+
     def _mode_measurements(self, lists: list) -> tuple[np.ndarray, np.ndarray]:
         """`mode_measurements_many` of the mode states lists[i] (T each) of every mode i."""
         zS = [batch_predicted_measurements(f, ms) for f, ms in zip(self.filters, lists)]
@@ -339,7 +351,10 @@ class IMMFilter:
         if not preds:
             return np.zeros((0, m)), np.zeros((0, m, m))
         zs, Ss = self.mode_measurements_many(preds)
-        return self._combine_many(zs, Ss, self._mus(preds))
+        z_c, S_c = self._combine_many(zs, Ss, self._mus(preds))
+        if type(preds) is IMMRows:  # kept for the update of the same states (`_measured`)
+            preds.measured = (tuple(preds), zs, Ss, z_c, S_c)
+        return z_c, S_c
 
     def update_many(self, preds: list[IMMState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray,
                     R: np.ndarray | None = None) -> list[IMMState]:
@@ -369,9 +384,8 @@ class IMMFilter:
         ps = [preds[t] for t in active]
         lists = [take_rows(ms, active) for ms in self._mode_lists(preds)]  # per mode the active tracks' mode states
         nua, Wa, b0 = nu_u[active], W_u[active], w0[active]
-        zs, Ss = self._mode_measurements(lists)  # (A, r, m), (A, r, m, m)
         mu_c = self._mus(preds)[active]
-        z_c, S_c = self._combine_many(zs, Ss, mu_c)
+        zs, Ss, z_c, S_c = self._measured(preds, lists, mu_c, active)
         meas = self.measurement
         nus = meas.residual(nua[:, None] + meas.residual(z_c[:, None], zs)[:, :, None], np.zeros(m))  # z_j - z_i
         if R is not None:  # per-detection S_ij = S_i - R + R_j (thesis §4.1 S = H P H^T + R)
