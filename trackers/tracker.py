@@ -17,13 +17,14 @@ from scipy.special import gammaln
 
 from roadtrack.trackers.association.roles import AssociationInput, AssociatorKind, AssociatorParams
 from roadtrack.trackers.filters.base import (Filter, batch_layers, batch_predict, batch_predicted_measurements, batch_update,
-                                             check_detection_R, pair_covariances, takes_detection_R, weighted_R)
+                                             check_detection_R, identity, pair_covariances, takes_detection_R,
+                                             weighted_R)
 from roadtrack.trackers.gating import gate, mahalanobis2_and_log_gaussian
 from roadtrack.trackers.initiation import pair_candidates, single_point, two_point
 from roadtrack.trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
                                  position_std, score_decide, score_increment)
 from roadtrack.trackers.road import RoadInput, centripetal_input, cross_lane_std, input_shift, lane_pseudo_measurement
-from roadtrack.trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.state import FilterState, derive
 from roadtrack.trackers.trackloss.regime import (ROW_FIXED, WINDOW_LOW, RegimeState, advance, alpha_of, assess_rolled,
                                       initial_state, roll_windows, window_holds, window_of_records, window_rows)
 
@@ -164,13 +165,30 @@ def _record(**fields: Any) -> ScanRecord:
 
 
 def _candidate_state(p: np.ndarray, m: int) -> FilterState:
-    """A candidate's state: x = [p; 0] (2d,), P = I, e_post = 0 (m,), as FilterState(...) makes it (fresh read-only
-    float64 arrays), without its __init__ (several candidates per scan)."""
-    x, P, e = np.concatenate([p, np.zeros(len(p))]).astype(np.float64, copy=False), np.eye(2 * len(p)), np.zeros(m)
-    freeze(x, P, e)
+    """A candidate's state: x = [p; 0] (2d,), P = I, e_post = 0 (m,), the values FilterState(...) would hold (read-only
+    float64 arrays; P and e_post the shared read-only constants), without its __init__ (many candidates per scan)."""
+    d = len(p)
+    x = np.zeros(2 * d)
+    x[:d] = p
+    x.setflags(write=False)
     new = object.__new__(FilterState)
-    new.__dict__.update(x=x, P=P, e_post=e, F=None, info={})
+    new.__dict__.update(x=x, P=identity(2 * d), e_post=_zeros(m), F=None, info={})
     return new
+
+
+@functools.lru_cache(maxsize=8)
+def _zeros(m: int) -> np.ndarray:
+    """A read-only zero vector (m,) (shared by the candidates' memories)."""
+    z = np.zeros(m)
+    z.setflags(write=False)
+    return z
+
+
+def _previous(live) -> np.ndarray:
+    """The live tracks' bookkeeping before the scan in one pass, (T, 7) float64 columns: score, max_score, confirmed
+    (0 / 1), misses_in_a_row, unseen_s, id, duplicate_scans (integers exact as float64)."""
+    return np.array([(tr.score, tr.max_score, tr.confirmed, tr.misses_in_a_row, tr.unseen_s, tr.id, tr.duplicate_scans)
+                     for tr in live], dtype=np.float64).reshape(len(live), 7)
 
 
 def _new_track(**fields: Any) -> Track:
@@ -436,11 +454,10 @@ class Tracker:
             raise ValueError(f"associator returned W {W.shape} and w0 {w0.shape}, expected ({T}, {M}) and ({T},)")
         return W, w0, (out[2] if len(out) > 2 else {})
 
-    def _score(self, live, inp: AssociationInput, W: np.ndarray) -> np.ndarray:
-        """Scores after this scan. A tentative track's increment uses the nominal P_D [D]: a caller's P_D of ~0
-        (a sensor shadow) keeps a confirmed track's score, never a tentative one alive."""
-        score = np.array([tr.score for tr in live], dtype=np.float64).reshape(len(live))
-        confirmed = np.array([tr.confirmed for tr in live], dtype=bool).reshape(len(live))
+    def _score(self, score: np.ndarray, confirmed: np.ndarray, inp: AssociationInput, W: np.ndarray) -> np.ndarray:
+        """Scores after this scan from the scores score (T,) and confirmed flags (T,) before it. A tentative track's
+        increment uses the nominal P_D [D]: a caller's P_D of ~0 (a sensor shadow) keeps a confirmed track's score,
+        never a tentative one alive."""
         pd = np.where(confirmed, inp.pd, np.maximum(inp.pd, self.association.pd))
         lam = self.association.clutter_density
         if self.management.score_mode == "gate":
@@ -475,11 +492,12 @@ class Tracker:
                 road: RoadInput | None = None, R: np.ndarray | None = None):
         mp, T = self.management, len(live)
         hit = inp.gated.any(axis=1)
-        score = self._score(live, inp, W)
-        max_score = np.maximum(np.array([tr.max_score for tr in live], dtype=np.float64).reshape(T), score)
-        was_confirmed = np.array([tr.confirmed for tr in live], dtype=bool)
-        misses = np.array([0 if hit[t] else tr.misses_in_a_row + 1 for t, tr in enumerate(live)], dtype=np.int64)
-        unseen = np.array([0.0 if hit[t] else tr.unseen_s + dt for t, tr in enumerate(live)], dtype=np.float64)
+        prev = _previous(live)
+        was_confirmed = prev[:, 2] != 0.0
+        score = self._score(prev[:, 0], was_confirmed, inp, W)
+        max_score = np.maximum(prev[:, 1], score)
+        misses = np.where(hit, 0, prev[:, 3].astype(np.int64) + 1)  # misses in a row
+        unseen = np.where(hit, 0.0, prev[:, 4] + dt)
         records, diag, root_det = self._records(states, inp, W, hit, R)
         if self.manager == "m_of_n":
             det, known = self._windows(live, hit)
@@ -497,10 +515,8 @@ class Tracker:
         else:
             delete = delete | self._not_credible(kin[:, :2], cov[:, :2, :2], pred, W.sum(axis=1) >= 0.5, confirmed,
                                                  road)
-        ids = np.array([tr.id for tr in live], dtype=np.int64).reshape(T)
-        dup = duplicate_counts(pred.z_hat, pred.S, inp.gated, confirmed & was_confirmed, ids,
-                               np.array([tr.duplicate_scans for tr in live], dtype=np.int64).reshape(T), mp.merge_d2,
-                               misses, pred.logdet)
+        dup = duplicate_counts(pred.z_hat, pred.S, inp.gated, confirmed & was_confirmed, prev[:, 5].astype(np.int64),
+                               prev[:, 6].astype(np.int64), mp.merge_d2, misses, pred.logdet)
         keep = max(mp.history_length, mp.regime_config.longest)
         histories = [(tr.history + (records[t],))[-keep:] for t, tr in enumerate(live)]
         regimes = self._regimes(live, histories, inp.d2, diag, root_det, inp.pd)
@@ -511,13 +527,13 @@ class Tracker:
             delete = delete | lost
         delete = delete | (dup >= mp.merge_scans)
         survivors, deleted = [], []
-        for t, tr in enumerate(live):
-            new = _evolve(tr, state=states[t], score=float(score[t]), max_score=float(max_score[t]),
-                          confirmed=bool(confirmed[t]), age=tr.age + 1, hits=tr.hits + int(hit[t]),
-                          misses_in_a_row=int(misses[t]), unseen_s=float(unseen[t]), duplicate_scans=int(dup[t]),
-                          history=histories[t],
-                          regime=regimes[t].label, regime_state=regimes[t])
-            (deleted if delete[t] else survivors).append(new)
+        for tr, s, sc, ms, c, h, mi, un, du, hi, rg, de in zip(
+                live, states, score.tolist(), max_score.tolist(), confirmed.tolist(), hit.tolist(), misses.tolist(),
+                unseen.tolist(), dup.tolist(), histories, regimes, delete.tolist()):
+            new = _evolve(tr, state=s, score=sc, max_score=ms, confirmed=c, age=tr.age + 1, hits=tr.hits + int(h),
+                          misses_in_a_row=mi, unseen_s=un, duplicate_scans=du, history=hi, regime=rg.label,
+                          regime_state=rg)
+            (deleted if de else survivors).append(new)
         diag["score"] = score
         diag["w0"] = np.asarray(w0, dtype=np.float64)
         return survivors, deleted, diag
