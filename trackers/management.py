@@ -247,7 +247,7 @@ def duplicate_counts(z_hat: np.ndarray, S: np.ndarray, gated: np.ndarray, confir
     if merge_d2 <= 0 or conf.size < 2:
         return out
     g = gated[conf]
-    share = (g.astype(np.int64) @ g.T.astype(np.int64)) > 0  # (C, C) share a gated measurement
+    share = (gf := g.astype(np.float64)) @ gf.T > 0.0  # (C, C) share a gated measurement (exact counts, by BLAS)
     cand = np.argwhere(np.triu(share, k=1))
     if cand.size == 0:
         return out
