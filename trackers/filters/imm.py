@@ -510,7 +510,7 @@ class IMMFilter:
         (1.17)-(1.18) vectorised; `like` (T IMMStates) gives each new state's type. arrays: per mode its states'
         stacked (x, P, e_post) when the caller has them (else stacked here)."""
         mts = list(zip(*modes))  # T tuples of r mode states
-        if len({m.e_post.shape for mt in mts for m in mt}) > 1:
+        if not _one_memory_shape(modes, arrays):
             return [self._state(mt, mu[t]) for t, mt in enumerate(mts)]
         arrays = arrays or [stacked(ms) for ms in modes]
         xs, Ps, Es = zip(*arrays)
@@ -521,12 +521,12 @@ class IMMFilter:
         mu, mu_info = np.array(mu, dtype=np.float64), np.array(mu, dtype=np.float64)  # the states' and info's copies
         freeze(x, P, e, mu)
         out, names = [], self.mode_names
+        told = [i for i, ms in enumerate(modes) if any(m.info for m in ms)]  # the modes with diagnostics, in order
         for s, mt, xt, Pt, et, mut, mui in zip(like, mts, x, P, e, mu, mu_info):
             info: dict[str, Any] = {"mu": mui}
-            for name, m in zip(names, mt):
-                if m.info:
-                    for key, v in m.info.items():
-                        info[f"{name}.{key}"] = v
+            for i in told:
+                for key, v in mt[i].info.items():
+                    info[f"{names[i]}.{key}"] = v
             out.append(derive_frozen(s, x=xt, P=Pt, e_post=et, F=None, info=info, modes=mt, mu=mut))
         return IMMRows(out, mu, [StateRows(ms, *a) for ms, a in zip(modes, arrays)])
 
@@ -563,6 +563,19 @@ class IMMFilter:
             for key, v in m.info.items():
                 info[f"{name}.{key}"] = v
         return IMMState(x=x, P=P, e_post=e, F=None, info=info, modes=modes, mu=mu)
+
+
+def _one_memory_shape(modes: list, arrays: list | None) -> bool:
+    """True if every mode state of modes (r lists) has the same e_post shape; read from the stacked memories of
+    `arrays` (per mode (x, P, e_post)) or of a StateRows carrying them, else from the states."""
+    shapes = set()
+    for i, ms in enumerate(modes):
+        E = arrays[i][2] if arrays else (ms.e_post if type(ms) is StateRows else None)
+        if E is not None:
+            shapes.add(E.shape[1:])
+        else:
+            shapes.update(m.e_post.shape for m in ms)
+    return len(shapes) <= 1
 
 
 def default_mode_names(filters) -> tuple[str, ...]:
