@@ -4,6 +4,10 @@ A filter never mutates a state; it returns a new one (`s1 = flt.predict(s0, dt)`
 need more than (x, P, e_post) subclass `FilterState` with extra fields that have defaults, e.g.
 an IMM state carrying mode probabilities, or an SVSF state carrying the last step length.
 Update a state with `dataclasses.replace(s, x=..., P=...)`, which keeps any subclass extras.
+
+The batched filters build T states per call from rows of arrays they have just computed: `derive_frozen` makes a
+state without __init__, and a `StateRows` list hands the stacked rows on to the next batched call of the scan, which
+reads them (`rows_of`, `take_rows`) instead of stacking the T states again.
 """
 
 from __future__ import annotations

@@ -188,10 +188,9 @@ class ModelFilter:
             d = dkin[rows]
             P[np.ix_(rows, idx, idx)] += d[:, :, None] * d[:, None, :]  # Q_u = B Sigma_u B^T, Sigma_u = u u^T [D]
         freeze(X, P)
-        out = StateRows([derive_frozen(s, x=x, P=p) if m else derive_frozen(s, x=x)
-                         for s, x, p, m in zip(states, X, P, moved)], X, P)
-        out.e_post = states.e_post if type(states) is StateRows else None
-        return out
+        return StateRows([derive_frozen(s, x=x, P=p) if m else derive_frozen(s, x=x)
+                          for s, x, p, m in zip(states, X, P, moved)], X, P,
+                         states.e_post if type(states) is StateRows else None)
 
     def pseudo_update_many(self, states: list[FilterState], h: np.ndarray, y: np.ndarray,
                            r: np.ndarray) -> list[FilterState]:

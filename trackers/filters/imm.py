@@ -42,7 +42,9 @@ Batched forms (what the tracker calls, through filters.base.batch_*): `predict_m
 and `update_many` run the same cycle over T tracks at once, the mixing, moment matching, mode likelihoods and
 mode probabilities vectorised over tracks and each mode's predict / update by that mode filter's own batched
 form. The per-track `predict` / `predicted_measurement` / `update` are their reference (equal to 1e-12,
-tests/test_trackers_imm.py).
+tests/test_trackers_imm.py). They return an `IMMRows` list (the states with their mode probabilities and per mode
+the StateRows of their mode states), from which the scan's next batched call reads the stacked rows, and the update
+reuses the predicted mode measurements of the same states.
 """
 
 from __future__ import annotations
