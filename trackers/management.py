@@ -253,27 +253,30 @@ def m_of_n_decide(detected: np.ndarray, misses_in_a_row: np.ndarray, confirmed: 
 
 
 def duplicate_counts(z_hat: np.ndarray, S: np.ndarray, gated: np.ndarray, confirmed: np.ndarray,
-                     ids: np.ndarray, counts: np.ndarray, merge_d2: float, misses: np.ndarray) -> np.ndarray:
+                     ids: np.ndarray, counts: np.ndarray, merge_d2: float, misses: np.ndarray,
+                     logdet: np.ndarray | None = None) -> np.ndarray:
     """Scans in a row (T,) each confirmed track has been the worse of a duplicate pair (module docstring): two
     confirmed tracks sharing a gated measurement, predicted measurements z_hat (T, m) within `merge_d2` under the
     smaller (by determinant) of their S (T, m, m). The worse one has more misses (T,) in a row, then the larger
-    |S|, then the larger (younger) id."""
+    |S|, then the larger (younger) id. logdet (T,): ln|S| when the caller has it."""
     out = np.zeros(len(ids), dtype=np.int64)
     conf = np.flatnonzero(confirmed)
     if merge_d2 <= 0 or conf.size < 2:
         return out
     g = gated[conf]
-    share = (g.astype(np.int64) @ g.T.astype(np.int64)) > 0  # (C, C) share a gated measurement
+    share = (gf := g.astype(np.float64)) @ gf.T > 0.0  # (C, C) share a gated measurement (exact counts, by BLAS)
     cand = np.argwhere(np.triu(share, k=1))
     if cand.size == 0:
         return out
     a, b = conf[cand[:, 0]], conf[cand[:, 1]]
-    logdet = np.linalg.slogdet(S)[1]
+    logdet = np.linalg.slogdet(S)[1] if logdet is None else logdet
     tight = np.where(logdet[a] <= logdet[b], a, b)  # the better localised of each pair
     d = z_hat[a] - z_hat[b]
     d2 = np.einsum("ki,ki->k", d, np.linalg.solve(S[tight], d[..., None])[..., 0])
     rank = np.stack([misses, logdet, ids.astype(np.float64)], axis=1)  # larger is worse, lexicographically
-    a_worse = np.array([tuple(rank[i]) > tuple(rank[j]) for i, j in zip(a, b)], dtype=bool)
+    ra, rb = rank[a], rank[b]  # (K, 3): tuple(ra[k]) > tuple(rb[k]), the first unequal entry deciding (NaN: unequal)
+    gt, eq = ra > rb, ra == rb
+    a_worse = gt[:, 0] | (eq[:, 0] & (gt[:, 1] | (eq[:, 1] & gt[:, 2])))
     worse = np.where(a_worse, a, b)
     on = np.unique(worse[d2 <= merge_d2])
     out[on] = counts[on] + 1

@@ -232,7 +232,19 @@ class CoordinatedTurn:
         """`jacobian` of T states X (T, 5): (T, 5, 5)."""
         X = np.asarray(X, dtype=np.float64).reshape(-1, 5)
         turns = self._turns(dt, X[:, 4])
-        F = self._assemble(turns)
+        return self._jacobian_from(self._assemble(turns), X, turns, dt)
+
+    def f_and_jacobian_many(self, X: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(`f_many`, `jacobian_many`) of T states X (T, 5) from one pass of the per-track turn terms (`_turns`)."""
+        X = np.asarray(X, dtype=np.float64).reshape(-1, 5)
+        turns = self._turns(dt, X[:, 4])
+        A = self._assemble(turns)
+        fx = np.einsum("tij,tj->ti", A, X)  # §1.3 f(x) = A_CT(omega) x
+        return fx, self._jacobian_from(A, X, turns, dt)
+
+    @staticmethod
+    def _jacobian_from(F: np.ndarray, X: np.ndarray, turns: np.ndarray, dt: float) -> np.ndarray:
+        """A_CT (T, 5, 5) made the Jacobian in place: its last column df/domega from X (T, 5) and `_turns`."""
         vx, vy, cw, sw, a, b = X[:, 2], X[:, 3], turns[:, 2], turns[:, 3], turns[:, 4], turns[:, 5]
         F[:, 0, 4], F[:, 1, 4] = vx * a - vy * b, vx * b + vy * a  # (1.39)-(1.40) [R]: df/domega
         F[:, 2, 4], F[:, 3, 4] = -dt * (sw * vx + cw * vy), dt * (cw * vx - sw * vy)

@@ -4,6 +4,10 @@ A filter never mutates a state; it returns a new one (`s1 = flt.predict(s0, dt)`
 need more than (x, P, e_post) subclass `FilterState` with extra fields that have defaults, e.g.
 an IMM state carrying mode probabilities, or an SVSF state carrying the last step length.
 Update a state with `dataclasses.replace(s, x=..., P=...)`, which keeps any subclass extras.
+
+The batched filters build T states per call from rows of arrays they have just computed: `derive_frozen` makes a
+state without __init__, and a `StateRows` list hands the stacked rows on to the next batched call of the scan, which
+reads them (`rows_of`, `take_rows`) instead of stacking the T states again.
 """
 
 from __future__ import annotations
@@ -60,6 +64,45 @@ def derive(s: FilterState, **arrays: np.ndarray) -> FilterState:
             a.setflags(write=False)
         d[name] = a
     return new
+
+
+def derive_frozen(s: FilterState, **fields) -> FilterState:
+    """`derive` for fields whose arrays are read-only already (rows of batches made read-only by `freeze`): the same
+    state without a check per array (the batched filters' per-track hot path)."""
+    new = object.__new__(type(s))
+    d = new.__dict__
+    d.update(s.__dict__)
+    d.update(fields)
+    return new
+
+
+class StateRows(list):
+    """A list of T states that carries their fields stacked: x (T, n), P (T, n, n), e_post (T, m) (each None when not
+    carried), row t holding the very values of item t's field (the batched filter that made the list guarantees it).
+    A batched filter given such a list reads the rows (`rows_of`) instead of stacking the states again; a copy or a
+    slice of it is a plain list."""
+
+    def __init__(self, states, x: np.ndarray | None = None, P: np.ndarray | None = None,
+                 e_post: np.ndarray | None = None):
+        super().__init__(states)
+        self.x, self.P, self.e_post = x, P, e_post
+
+
+def rows_of(states: list, name: str, idx: np.ndarray | None = None) -> np.ndarray:
+    """Field `name` ("x", "P" or "e_post") of the states (of states[idx], idx (A,) int, when given) stacked: the rows a
+    StateRows carries, else np.array of the states' fields."""
+    a = getattr(states, name, None) if type(states) is StateRows else None
+    if a is None:
+        return np.array([getattr(states[t], name) for t in idx] if idx is not None else [getattr(s, name) for s in states])
+    return a[idx] if idx is not None else a
+
+
+def take_rows(states: list, idx: np.ndarray) -> list:
+    """states[idx] (idx (A,) int) as a list, a StateRows carrying the rows when `states` carries them."""
+    out = [states[t] for t in idx]
+    if type(states) is not StateRows:
+        return out
+    return StateRows(out, *(None if a is None else a[idx] for a in (states.x, states.P, states.e_post)))
 
 
 def freeze(*arrays: np.ndarray) -> None:

@@ -7,6 +7,7 @@ random numbers and reads no clock.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -15,8 +16,9 @@ import numpy as np
 from scipy.special import gammaln
 
 from roadtrack.trackers.association.roles import AssociationInput, AssociatorKind, AssociatorParams
-from roadtrack.trackers.filters.base import (Filter, batch_predict, batch_predicted_measurements, batch_update, check_detection_R,
-                                   pair_covariances, takes_detection_R, weighted_R)
+from roadtrack.trackers.filters.base import (Filter, batch_layers, batch_predict, batch_predicted_measurements, batch_update,
+                                             check_detection_R, identity, pair_covariances, takes_detection_R,
+                                             weighted_R)
 from roadtrack.trackers.gating import gate, mahalanobis2_and_log_gaussian
 from roadtrack.trackers.initiation import pair_candidates, single_point, two_point
 from roadtrack.trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
@@ -82,6 +84,9 @@ class Track:
         return np.array([getattr(r, name) for r in self.history])
 
 
+_TRACK_DEFAULTS = {f.name: f.default for f in dataclasses.fields(Track) if f.default is not dataclasses.MISSING}
+
+
 @dataclass(frozen=True, eq=False)
 class StepInfo:
     """Per-step internals for viewers, for the T tracks that existed at the start of the step (input order),
@@ -129,6 +134,16 @@ class _Prediction:
     S: np.ndarray  # (T, m, m)
     layers: np.ndarray  # (T, m)
 
+    @functools.cached_property
+    def logdet(self) -> np.ndarray:
+        """ln|S| (T,), computed once for a scan's gate volumes and duplicate test."""
+        return np.linalg.slogdet(self.S)[1] if len(self.S) else np.zeros(0)
+
+    @functools.cached_property
+    def half_logdet(self) -> np.ndarray:
+        """ln|S| / 2 (T,), computed once for both gate volumes of a scan (`gate_volume`)."""
+        return 0.5 * self.logdet
+
 
 def _check_measurements(Z, m: int) -> np.ndarray:
     Z = np.asarray(Z, dtype=np.float64)
@@ -140,6 +155,49 @@ def _check_measurements(Z, m: int) -> np.ndarray:
     if bad.size:
         raise ValueError(f"Z has non-finite rows {bad.tolist()}")
     return Z
+
+
+def _record(**fields: Any) -> ScanRecord:
+    """A ScanRecord of checked fields without running the frozen dataclass's __init__ (T per scan)."""
+    new = object.__new__(ScanRecord)
+    new.__dict__.update(fields)
+    return new
+
+
+def _candidate_state(p: np.ndarray, m: int) -> FilterState:
+    """A candidate's state: x = [p; 0] (2d,), P = I, e_post = 0 (m,), the values FilterState(...) would hold (read-only
+    float64 arrays; P and e_post the shared read-only constants), without its __init__ (many candidates per scan)."""
+    d = len(p)
+    x = np.zeros(2 * d)
+    x[:d] = p
+    x.setflags(write=False)
+    new = object.__new__(FilterState)
+    new.__dict__.update(x=x, P=identity(2 * d), e_post=_zeros(m), F=None, info={})
+    return new
+
+
+@functools.lru_cache(maxsize=8)
+def _zeros(m: int) -> np.ndarray:
+    """A read-only zero vector (m,) (shared by the candidates' memories)."""
+    z = np.zeros(m)
+    z.setflags(write=False)
+    return z
+
+
+def _previous(live) -> np.ndarray:
+    """The live tracks' bookkeeping before the scan in one pass, (T, 7) float64 columns: score, max_score, confirmed
+    (0 / 1), misses_in_a_row, unseen_s, id, duplicate_scans (integers exact as float64)."""
+    return np.array([(tr.score, tr.max_score, tr.confirmed, tr.misses_in_a_row, tr.unseen_s, tr.id, tr.duplicate_scans)
+                     for tr in live], dtype=np.float64).reshape(len(live), 7)
+
+
+def _new_track(**fields: Any) -> Track:
+    """Track(**fields) without running the frozen dataclass's __init__ (the tracker's births and candidates), the
+    fields not given at their defaults."""
+    new = object.__new__(Track)
+    new.__dict__.update(_TRACK_DEFAULTS)
+    new.__dict__.update(fields)
+    return new
 
 
 def _evolve(tr: Track, **fields: Any) -> Track:
@@ -170,11 +228,18 @@ def _window(tr: Track, state: RegimeState, capacity: int) -> np.ndarray | None:
     return window_of_records(tr.history[len(tr.history) - length:], WINDOW_LOW, capacity) if length else None
 
 
-def gate_volume(S: np.ndarray, alpha: float) -> np.ndarray:
-    """V = c_m alpha^(m/2) sqrt|S| (T,), c_m the unit-ball volume (thesis §4.1 [R]; c_2 = pi)."""
+def gate_volume(S: np.ndarray, alpha: float, half_logdet: np.ndarray | None = None) -> np.ndarray:
+    """V = c_m alpha^(m/2) sqrt|S| (T,), c_m the unit-ball volume (thesis §4.1 [R]; c_2 = pi); half_logdet (T,):
+    ln|S| / 2 when the caller has it (`half_log_det`)."""
     m = S.shape[-1]
     log_cm = 0.5 * m * math.log(math.pi) - float(gammaln(0.5 * m + 1.0))
-    return np.exp(log_cm + 0.5 * m * math.log(alpha) + 0.5 * np.linalg.slogdet(S)[1])
+    h = half_logdet if half_logdet is not None else half_log_det(S)
+    return np.exp(log_cm + 0.5 * m * math.log(alpha) + h)  # thesis §4.1: V = c_m alpha^(m/2) |S|^(1/2)
+
+
+def half_log_det(S: np.ndarray) -> np.ndarray:
+    """ln|S| / 2 (T,) of S (T, m, m) (slogdet's log; 0 tracks: empty)."""
+    return 0.5 * np.linalg.slogdet(S)[1] if len(S) else np.zeros(0)
 
 
 def _expand(name: str, v: Any, T: int, out: dict[str, np.ndarray], t: int) -> None:
@@ -342,12 +407,7 @@ class Tracker:
                 states = flt.shift_many(states, shift, self.management.road_curvature_spread)
         z_hat, S = batch_predicted_measurements(flt, states)
         T = len(live)
-        layers = np.full((T, m), np.nan)
-        for t, s in enumerate(states):
-            lay = flt.layer(s)
-            if lay is not None:
-                layers[t] = lay
-        return _Prediction(states, z_hat.reshape(T, m), S.reshape(T, m, m), layers)
+        return _Prediction(states, z_hat.reshape(T, m), S.reshape(T, m, m), batch_layers(flt, states, m))
 
     def _drop_wide(self, live, pred: _Prediction, pdt: np.ndarray, road: RoadInput | None):
         """With a road and `max_gate_m2`: the tracks whose predicted gate exceeds it leave before association (a
@@ -356,7 +416,7 @@ class Tracker:
         if (road is None or not mp.road_life or mp.max_gate_m2 is None or not live
                 or not self.filter.measurement.linear):  # a nonlinear model's gate (a radar's) is not in m^2
             return live, pred, pdt, []
-        wide = gate_volume(pred.S, CREDIBLE_GATE_ALPHA) > mp.max_gate_m2
+        wide = gate_volume(pred.S, CREDIBLE_GATE_ALPHA, pred.half_logdet) > mp.max_gate_m2
         if not wide.any():
             return live, pred, pdt, []
         keep = np.flatnonzero(~wide)
@@ -370,7 +430,7 @@ class Tracker:
             return np.full(T, self.association.pd)
         values = pd(pred.z_hat) if callable(pd) else pd
         out = np.broadcast_to(np.asarray(values, dtype=np.float64), (T,)).copy()
-        if not np.all((out >= 0.0) & (out <= 1.0)):
+        if not ((out >= 0.0) & (out <= 1.0)).all():
             raise ValueError("per-track detection probabilities must lie in [0, 1]")
         return out
 
@@ -383,7 +443,7 @@ class Tracker:
         d2, log_lik = mahalanobis2_and_log_gaussian(nu, pred.S if S_pairs is None else S_pairs)
         alpha = self.association.gate_alpha
         return AssociationInput(log_lik=log_lik, gated=gate(d2, alpha), d2=d2, nu=nu, S=pred.S, pd=pdt, pg=self.pg,
-                                gate_volume=gate_volume(pred.S, alpha) if len(pred.S) else np.zeros(0),
+                                gate_volume=gate_volume(pred.S, alpha, pred.half_logdet) if len(pred.S) else np.zeros(0),
                                 layers=pred.layers, S_pairs=S_pairs)
 
     def _associate(self, inp: AssociationInput) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -394,14 +454,13 @@ class Tracker:
             raise ValueError(f"associator returned W {W.shape} and w0 {w0.shape}, expected ({T}, {M}) and ({T},)")
         return W, w0, (out[2] if len(out) > 2 else {})
 
-    def _score(self, live, inp: AssociationInput, W: np.ndarray) -> np.ndarray:
-        """Scores after this scan, with the caller's per-track P_D. A tentative track's scan with a gated measurement
-        uses at least the nominal P_D [D] (a detection is full evidence whatever the caller's P_D says), and so does
-        a missed one with `tentative_pd` "nominal" (a miss in a sensor shadow then costs as a miss in view); with
-        "misses" (default) a missed scan uses the caller's P_D, which prices it: nothing in a shadow. Per scan this
-        is the P_D in [caller's, nominal] most favourable to the target (a generalised likelihood ratio)."""
-        score = np.array([tr.score for tr in live], dtype=np.float64).reshape(len(live))
-        confirmed = np.array([tr.confirmed for tr in live], dtype=bool).reshape(len(live))
+    def _score(self, score: np.ndarray, confirmed: np.ndarray, inp: AssociationInput, W: np.ndarray) -> np.ndarray:
+        """Scores after this scan from the scores score (T,) and confirmed flags (T,) before it, with the caller's
+        per-track P_D. A tentative track's scan with a gated measurement uses at least the nominal P_D [D] (a
+        detection is full evidence whatever the caller's P_D says), and so does a missed one with `tentative_pd`
+        "nominal" (a miss in a sensor shadow then costs as a miss in view); with "misses" (default) a missed scan uses
+        the caller's P_D, which prices it: nothing in a shadow. Per scan this is the P_D in [caller's, nominal] most
+        favourable to the target (a generalised likelihood ratio)."""
         lift = ~confirmed
         if self.management.tentative_pd == "misses":
             lift &= inp.gated.any(axis=1)
@@ -439,12 +498,13 @@ class Tracker:
                 road: RoadInput | None = None, R: np.ndarray | None = None):
         mp, T = self.management, len(live)
         hit = inp.gated.any(axis=1)
-        score = self._score(live, inp, W)
-        max_score = np.maximum(np.array([tr.max_score for tr in live], dtype=np.float64).reshape(T), score)
-        was_confirmed = np.array([tr.confirmed for tr in live], dtype=bool)
-        misses = np.array([0 if hit[t] else tr.misses_in_a_row + 1 for t, tr in enumerate(live)], dtype=np.int64)
-        unseen = np.array([0.0 if hit[t] else tr.unseen_s + dt for t, tr in enumerate(live)], dtype=np.float64)
-        records, diag = self._records(states, inp, W, hit, R)
+        prev = _previous(live)
+        was_confirmed = prev[:, 2] != 0.0
+        score = self._score(prev[:, 0], was_confirmed, inp, W)
+        max_score = np.maximum(prev[:, 1], score)
+        misses = np.where(hit, 0, prev[:, 3].astype(np.int64) + 1)  # misses in a row
+        unseen = np.where(hit, 0.0, prev[:, 4] + dt)
+        records, diag, root_det = self._records(states, inp, W, hit, R)
         if self.manager == "m_of_n":
             det, known = self._windows(live, hit)
             confirmed, delete = m_of_n_decide(det, misses, was_confirmed, mp, known)
@@ -461,13 +521,11 @@ class Tracker:
         else:
             delete = delete | self._not_credible(kin[:, :2], cov[:, :2, :2], pred, W.sum(axis=1) >= 0.5, confirmed,
                                                  road)
-        ids = np.array([tr.id for tr in live], dtype=np.int64).reshape(T)
-        dup = duplicate_counts(pred.z_hat, pred.S, inp.gated, confirmed & was_confirmed, ids,
-                               np.array([tr.duplicate_scans for tr in live], dtype=np.int64).reshape(T), mp.merge_d2,
-                               misses)
+        dup = duplicate_counts(pred.z_hat, pred.S, inp.gated, confirmed & was_confirmed, prev[:, 5].astype(np.int64),
+                               prev[:, 6].astype(np.int64), mp.merge_d2, misses, pred.logdet)
         keep = max(mp.history_length, mp.regime_config.longest)
         histories = [(tr.history + (records[t],))[-keep:] for t, tr in enumerate(live)]
-        regimes = self._regimes(live, histories, inp.d2, diag)
+        regimes = self._regimes(live, histories, inp.d2, diag, root_det, inp.pd)
         lost = np.array([r.label == "track-lost" for r in regimes], dtype=bool).reshape(T)
         if mp.deletion == "ks":  # paper 002: a confirmed track goes when its KS regime is track-lost
             delete = np.where(confirmed, lost, delete)
@@ -475,13 +533,13 @@ class Tracker:
             delete = delete | lost
         delete = delete | (dup >= mp.merge_scans)
         survivors, deleted = [], []
-        for t, tr in enumerate(live):
-            new = _evolve(tr, state=states[t], score=float(score[t]), max_score=float(max_score[t]),
-                          confirmed=bool(confirmed[t]), age=tr.age + 1, hits=tr.hits + int(hit[t]),
-                          misses_in_a_row=int(misses[t]), unseen_s=float(unseen[t]), duplicate_scans=int(dup[t]),
-                          history=histories[t],
-                          regime=regimes[t].label, regime_state=regimes[t])
-            (deleted if delete[t] else survivors).append(new)
+        for tr, s, sc, ms, c, h, mi, un, du, hi, rg, de in zip(
+                live, states, score.tolist(), max_score.tolist(), confirmed.tolist(), hit.tolist(), misses.tolist(),
+                unseen.tolist(), dup.tolist(), histories, regimes, delete.tolist()):
+            new = _evolve(tr, state=s, score=sc, max_score=ms, confirmed=c, age=tr.age + 1, hits=tr.hits + int(h),
+                          misses_in_a_row=mi, unseen_s=un, duplicate_scans=du, history=hi, regime=rg.label,
+                          regime_state=rg)
+            (deleted if de else survivors).append(new)
         diag["score"] = score
         diag["w0"] = np.asarray(w0, dtype=np.float64)
         return survivors, deleted, diag
@@ -518,22 +576,26 @@ class Tracker:
             out |= ~updated & (d2 <= mp.credible_d2).any(axis=1)
         return out
 
-    def _regimes(self, live, histories, d2: np.ndarray, diag: dict[str, np.ndarray]) -> list[RegimeState]:
+    def _regimes(self, live, histories, d2: np.ndarray, diag: dict[str, np.ndarray], root_det: np.ndarray,
+                 pd: np.ndarray) -> list[RegimeState]:
         """Each track's KS regime after this scan (paper 002 §V) from its rolled window (this scan's row from the
-        new record and d2 (T, M), the distances of every measurement), with the manager's clutter density for the
+        new record: |S|^(1/2) root_det (T,), P_D pd (T,) and d2 (T, M), the distances of every measurement), with the
+        manager's clutter density for the
         regime (default: the associator's) and the per-scan P_D; one batch per window length. The same tests as
         on the histories (trackers.trackloss.regime.assess_rolled). Adds the diagnostics ks_regime (1 tracking,
         0 ambiguous, -1 track-lost), ks_D_T, ks_D_L, ks_d_n, ks_n (NaN while unknown)."""
         mp, T, nz = self.management, len(live), self.filter.measurement.ndim
         cfg = mp.regime_config
         lam = mp.regime_clutter_density or self.association.clutter_density
-        new = [h[-1] for h in histories]
-        rows = window_rows(np.array([r.root_det for r in new], dtype=np.float64).reshape(T),
-                           np.array([r.pd for r in new], dtype=np.float64).reshape(T), d2, WINDOW_LOW)
-        states = [tr.regime_state or initial_state(cfg) for tr in live]
+        rows = window_rows(root_det.reshape(T), pd.reshape(T), d2, WINDOW_LOW)  # the new records' row
         cap = cfg.longest
-        windows = roll_windows([_window(tr, s, cap) for tr, s in zip(live, states)], rows, cap)  # (T, cap, 3 + k)
-        ready = [min(len(h), cap) >= s.n for s, h in zip(states, histories)]
+        states, old, ready = [], [], []
+        for tr, h in zip(live, histories):
+            s = tr.regime_state or initial_state(cfg)
+            states.append(s)
+            old.append(_window(tr, s, cap))
+            ready.append(min(len(h), cap) >= s.n)
+        windows = roll_windows(old, rows, cap)  # (T, cap, 3 + k)
         out = [None if ok else advance(s, None, cfg, w) for s, w, ok in zip(states, windows, ready)]
         for n in sorted({s.n for s, ok in zip(states, ready) if ok}):  # one batch per window length (adaptive: several)
             group = [t for t in range(T) if ready[t] and states[t].n == n]
@@ -565,9 +627,10 @@ class Tracker:
         return det, known
 
     def _records(self, states, inp: AssociationInput, W, hit, R: np.ndarray | None = None
-                 ) -> tuple[list[ScanRecord], dict[str, np.ndarray]]:
-        """Each track's ScanRecord and the per-track diagnostics. With the measurements' own covariances R (M, m, m),
-        a track's record S (and its NIS) uses the association-weighted R of its measurements (`weighted_R`)."""
+                 ) -> tuple[list[ScanRecord], dict[str, np.ndarray], np.ndarray]:
+        """Each track's ScanRecord, the per-track diagnostics and the records' |S|^(1/2) (T,). With the measurements'
+        own covariances R (M, m, m), a track's record S (and its NIS) uses the association-weighted R of its
+        measurements (`weighted_R`)."""
         T = len(states)
         nu_c = np.einsum("tj,tjm->tm", W, inp.nu) if T else np.zeros((0, inp.nu.shape[-1]))
         S = inp.S
@@ -577,13 +640,13 @@ class Tracker:
         nis = np.einsum("tm,tm->t", nu_c, np.linalg.solve(S, nu_c[..., None])[..., 0]) if T else np.zeros(0)
         n_gated = inp.gated.sum(axis=1)
         root_det = np.sqrt(np.linalg.det(S)) if T else np.zeros(0)  # once per record, for the KS windows
-        records = [ScanRecord(nu_c=nu_c[t], S=S[t], n_gated=int(n_gated[t]), gate_volume=float(inp.gate_volume[t]),
-                              nis=float(nis[t]), detected=bool(hit[t]), pd=float(inp.pd[t]), d2=inp.d2[t],
-                              root_det=float(root_det[t])) for t in range(T)]
+        records = [_record(nu_c=a, S=b, n_gated=c, gate_volume=d, nis=e, detected=f, pd=g, d2=h, root_det=i)
+                   for a, b, c, d, e, f, g, h, i in zip(nu_c, S, n_gated.tolist(), inp.gate_volume.tolist(), nis.tolist(),
+                                                        hit.tolist(), inp.pd.tolist(), inp.d2, root_det.tolist())]
         diag = {"nis": nis, "n_gated": n_gated.astype(np.float64), "gate_volume": inp.gate_volume.astype(np.float64),
                 "pd": inp.pd.astype(np.float64)}
         info_diagnostics(states, diag)
-        return records, diag
+        return records, diag, root_det
 
     def _claims(self, live, Z: np.ndarray, inp: AssociationInput, pred: _Prediction) -> np.ndarray:
         """(T, M) the gated measurements each live track claims (they start no new track; trackers.management,
@@ -616,8 +679,8 @@ class Tracker:
         out, used, born_from = [], set(), {}
 
         def new(state, score, label, age, candidate=False):
-            return Track(id=label, state=state, score=score, max_score=score, confirmed=False, age=age,
-                         hits=age, misses_in_a_row=0, candidate=candidate)
+            return _new_track(id=label, state=state, score=score, max_score=score, confirmed=False, age=age,
+                              hits=age, misses_in_a_row=0, candidate=candidate)
 
         if mp.initiation == "single":
             for j in free:
@@ -641,7 +704,5 @@ class Tracker:
                 next_id += 1
         for f, (p, Rp) in enumerate(positions):
             if f not in used:
-                d = len(p)
-                out.append(new(FilterState(x=np.concatenate([p, np.zeros(d)]), P=np.eye(2 * d), e_post=np.zeros(meas.ndim)),
-                               score0, -1, 1, candidate=True))
+                out.append(new(_candidate_state(p, meas.ndim), score0, -1, 1, candidate=True))
         return out, next_id, born_from

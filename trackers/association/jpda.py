@@ -69,6 +69,8 @@ def fallback_clusters(gated: np.ndarray, fell_back: np.ndarray) -> int:
     flag = flag == 1 if flag.dtype != np.bool_ else flag
     if flag.shape != (gated.shape[0],):
         raise ValueError(f"fallback_clusters needs one flag per track ({gated.shape[0]},), got {flag.shape}")
+    if not flag.any():  # no fallback (every scan but a dense one's): no components to label
+        return 0
     lab, _ = components(gated)
     return int(np.unique(lab[flag]).size)
 

@@ -30,11 +30,8 @@ def logsumexp(a, axis: int | None = None, keepdims: bool = False):
             rest[top] = -np.inf  # the maxima are separated out of the main sum
             m = np.sum(top.astype(np.float64), axis=axes, keepdims=True, dtype=np.float64)
             s = np.sum(np.exp(rest - a_max), axis=axes, keepdims=True, dtype=np.float64)
-            s = np.where(s == 0, s, s / m)
-            sgn = np.sign(s + 1) * np.sign(m)
-            s = np.where(s < -1, -s - 2, s)
-            out = np.log1p(s) + np.log(np.abs(m)) + a_max
-            out[sgn < 0] = np.nan
+            s = np.where(s == 0, s, s / m)  # s >= 0 (or NaN) and m >= 0: scipy's sign fix-ups for negative sums
+            out = np.log1p(s) + np.log(m) + a_max  # (complex input or weights b) change nothing here
         out = np.where(np.isfinite(out), out, out_inf)
     out = out if keepdims else np.squeeze(out, axis=axes)
     return out[()] if out.ndim == 0 else out

@@ -69,8 +69,9 @@ def check_inputs(log_lik: np.ndarray, gated: np.ndarray) -> tuple[np.ndarray, np
 
 def track_pd(p: AssociationParams, T: int, pd: np.ndarray | float | None = None) -> np.ndarray:
     """Per-track detection probabilities (T,): `pd` if given (scalar or (T,), e.g. occlusion-aware), else p.pd."""
-    out = np.broadcast_to(np.asarray(p.pd if pd is None else pd, dtype=np.float64), (T,)).copy()
-    if not np.all((out >= 0.0) & (out <= 1.0)):
+    a = np.asarray(p.pd if pd is None else pd, dtype=np.float64)
+    out = a.copy() if a.shape == (T,) else np.broadcast_to(a, (T,)).copy()
+    if not ((out >= 0.0) & (out <= 1.0)).all():
         raise ValueError(f"per-track detection probabilities must lie in [0, 1], got {out[(out < 0) | (out > 1)][:3]}")
     return out
 

@@ -35,7 +35,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from roadtrack.trackers.errors import FilterError
-from roadtrack.trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.state import FilterState, StateRows, derive, derive_frozen, freeze, rows_of
 
 
 @runtime_checkable
@@ -93,6 +93,11 @@ class ModelFilter:
     def layer(self, s_pred: FilterState) -> np.ndarray | None:
         return None
 
+    @property
+    def layered(self) -> bool:
+        """False if `layer` is ModelFilter's (None for every state): the tracker then skips the per-track calls."""
+        return type(self).layer is not ModelFilter.layer
+
     # Batched forms used by the tracker; a filter may override them with vectorised code (the KF does).
     def predict_many(self, states: list[FilterState], dt: float) -> list[FilterState]:
         """`predict` of T tracks at once: vectorised for a linear motion model or one with `f_many` and
@@ -102,8 +107,9 @@ class ModelFilter:
             raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
         if not states or not self.predicts_arrays():
             return [self.predict(s, dt) for s in states]  # a subclass's own predict is its reference
-        X, P, F = self.predict_arrays(np.array([s.x for s in states]), np.array([s.P for s in states]), dt)
-        return [derive(s, x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], info={}) for t, s in enumerate(states)]
+        X, P, F = self.predict_arrays(rows_of(states, "x"), rows_of(states, "P"), dt)
+        return StateRows([derive_frozen(s, x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], info={})
+                          for t, s in enumerate(states)], x=X, P=P)
 
     def predicts_arrays(self) -> bool:
         """True if `predict_arrays` is this filter's predict: its class keeps ModelFilter's predict and its motion
@@ -120,8 +126,11 @@ class ModelFilter:
             P = A @ P @ A.T + Q  # (4.26) P = A P A^T + Q
             F = A
         else:
-            F = self.motion.jacobian_many(X, dt)  # (T, n, n), the EKF (1.11) Jacobians
-            Xn = self.motion.f_many(X, dt)  # (4.24) predict, EKF (1.11) for a nonlinear f
+            if hasattr(self.motion, "f_and_jacobian_many"):  # both from one pass over the tracks (the CT model)
+                Xn, F = self.motion.f_and_jacobian_many(X, dt)  # (4.24) predict and the EKF (1.11) Jacobians
+            else:
+                F = self.motion.jacobian_many(X, dt)  # (T, n, n), the EKF (1.11) Jacobians
+                Xn = self.motion.f_many(X, dt)  # (4.24) predict, EKF (1.11) for a nonlinear f
             P = F @ P @ np.swapaxes(F, 1, 2) + self.motion.process_noise(dt)  # (4.26)
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
@@ -143,8 +152,8 @@ class ModelFilter:
     def linear_predicted_measurements(self, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
         """z_hat = H x (T, m), S = H P H^T + R (T, m, m) of T >= 1 predicted states (H: the linear measurement's)."""
         H = self.measurement.matrix(self.motion)
-        S = H @ np.array([s.P for s in preds]) @ H.T + self.measurement.R  # (4.3)-(4.8) innovation covariance S
-        return np.array([s.x for s in preds]) @ H.T, 0.5 * (S + np.swapaxes(S, 1, 2))
+        S = H @ rows_of(preds, "P") @ H.T + self.measurement.R  # (4.3)-(4.8) innovation covariance S
+        return rows_of(preds, "x") @ H.T, 0.5 * (S + np.swapaxes(S, 1, 2))
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
                     w0: np.ndarray, R: np.ndarray | None = None) -> list[FilterState]:
@@ -170,18 +179,18 @@ class ModelFilter:
         if not states or not mot.linear or len(mot.position) < 2 or len(mot.velocity) < 2:
             return list(states)
         idx = list(mot.position[:2]) + list(mot.velocity[:2])
-        block = np.ix_(idx, idx)
-        out = []
-        for s, d in zip(states, dkin):
-            x = s.x.copy()
-            x[idx] += d
-            if spread and d.any():  # a straight lane (u = 0) adds nothing: no copy on the hot path
-                P = s.P.copy()
-                P[block] += np.outer(d, d)  # Q_u = B Sigma_u B^T with Sigma_u = u u^T [D]
-                out.append(derive(s, x=x, P=P))
-            else:
-                out.append(derive(s, x=x))
-        return out
+        X = np.array(rows_of(states, "x"))  # a copy, rows shifted below
+        X[:, idx] += dkin  # x + B u
+        moved = (dkin.any(axis=1) if spread else np.zeros(len(states), dtype=bool)).tolist()
+        P = rows_of(states, "P")
+        if any(moved):  # a straight lane (u = 0) adds nothing: no copy on the hot path
+            P, rows = np.array(P), np.flatnonzero(moved)
+            d = dkin[rows]
+            P[np.ix_(rows, idx, idx)] += d[:, :, None] * d[:, None, :]  # Q_u = B Sigma_u B^T, Sigma_u = u u^T [D]
+        freeze(X, P)
+        return StateRows([derive_frozen(s, x=x, P=p) if m else derive_frozen(s, x=x)
+                          for s, x, p, m in zip(states, X, P, moved)], X, P,
+                         states.e_post if type(states) is StateRows else None)
 
     def pseudo_update_many(self, states: list[FilterState], h: np.ndarray, y: np.ndarray,
                            r: np.ndarray) -> list[FilterState]:
@@ -194,16 +203,37 @@ class ModelFilter:
             H[pos] = hp
             PH = s.P @ H
             K = PH / (H @ PH + rt)  # Kalman gain of a scalar measurement, §1.1 (1.6)
-            I_KH = np.eye(len(s.x)) - np.outer(K, H)
+            I_KH = identity(len(s.x)) - np.outer(K, H)
             P = symmetrise(I_KH @ s.P @ I_KH.T + rt * np.outer(K, K))  # Joseph form, §1.1 (1.8)
             out.append(derive(s, x=s.x + K * yt, P=check_covariance(P, "lane-kept covariance P")))
         return out
+
+
+@functools.lru_cache(maxsize=16)
+def identity(n: int) -> np.ndarray:
+    """The identity I (n, n), read-only, made once per size (np.eye's wrapper costs more than the Joseph form's
+    subtraction it feeds)."""
+    eye = np.eye(n)
+    eye.setflags(write=False)
+    return eye
 
 
 def batch_predict(filter_, states: list[FilterState], dt: float) -> list[FilterState]:
     """`predict_many` of any filter (the per-track loop for filters without one)."""
     many = getattr(filter_, "predict_many", None)
     return many(states, dt) if many is not None else [filter_.predict(s, dt) for s in states]
+
+
+def batch_layers(filter_, states: list[FilterState], m: int) -> np.ndarray:
+    """Boundary-layer half widths (T, m) of T predicted states (`layer`), NaN rows where a state has none; no
+    per-track call for a filter whose `layered` is False (every layer None)."""
+    layers = np.full((len(states), m), np.nan)
+    if getattr(filter_, "layered", True):
+        for t, s in enumerate(states):
+            lay = filter_.layer(s)
+            if lay is not None:
+                layers[t] = lay
+    return layers
 
 
 def batch_predicted_measurements(filter_, preds: list[FilterState]) -> tuple[np.ndarray, np.ndarray]:
@@ -316,7 +346,7 @@ def batch_weights(nu: np.ndarray, W: np.ndarray, w0: np.ndarray, active: np.ndar
     nua = np.where((Wa > 0.0)[..., None], nu[active], 0.0)  # what the per-track update is given
     if not (np.isfinite(nua).all() and np.isfinite(Wa).all() and np.isfinite(b0).all()):
         raise ValueError("update got non-finite innovations or weights")
-    if np.any(Wa < 0.0) or np.any(b0 < 0.0) or np.any(np.abs(b0 + Wa.sum(axis=1) - 1.0) > 1e-9):
+    if (Wa < 0.0).any() or (b0 < 0.0).any() or (np.abs(b0 + Wa.sum(axis=1) - 1.0) > 1e-9).any():
         raise ValueError("update weights must be >= 0 and sum to 1")
     return nua, Wa, b0
 

@@ -66,7 +66,7 @@ from roadtrack.trackers.filters.svsf import (EY_MEMORY, GAMMA, MEMORY_AFTER_MISS
                                    lower_error, maps_many, promote_state, svsf_gain_factor)
 from roadtrack.trackers.filters.params import ModelParams
 from roadtrack.trackers.params import POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive
+from roadtrack.trackers.state import FilterState, derive_frozen, freeze, rows_of
 
 SWITCH_RULES = ("z_any", "all_any", "per_partition")
 ROBUST_LOWER = ("optimal", "psi_max")
@@ -205,9 +205,9 @@ class GVBLSVSF(ModelFilter):
         R = self.measurement.R if R is None else weighted_R(R, Wa)  # (m, m) or (A, m, m) [D]
         part = Partition.of(H)
         Mm, Phi12_pinv, M_pinv = maps_many(part, [s.F for s in ss])
-        X = np.array([s.x for s in ss])
-        P = np.array([s.P for s in ss])
-        e_post = np.array([s.e_post for s in ss])
+        X = rows_of(preds, "x", active)  # the states' fields stacked (the rows a StateRows carries)
+        P = rows_of(preds, "P", active)
+        e_post = rows_of(preds, "e_post", active)
         S = H @ P @ H.T + R
         S = 0.5 * (S + np.swapaxes(S, 1, 2))  # (5.10) S = H1 P11 H1^T + R
         try:
@@ -245,10 +245,12 @@ class GVBLSVSF(ModelFilter):
         check_covariance(Pn, "GVBL-SVSF updated covariance P")
         post = e - Ke @ H.T  # (3.65)
         layer = np.minimum(psi_z, self.psi_max)  # [D] effective layer
-        for i, t in enumerate(active):
-            info = {"psi_z": psi_z[i], "psi_y": psi_y[i], "regime": float(robust_u[i]),
-                    "regime_y": float(robust_l[i]), "chatter": np.maximum(0.0, np.abs(e[i]) - layer[i])}  # (5.37)
-            out[t] = derive(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info, psi_layer=layer[i])
+        chatter = np.maximum(0.0, np.abs(e) - layer)  # (5.37) chattering beyond the layer, (A, m)
+        freeze(Xn, Pn, post, layer)
+        for i, (t, ru, rl) in enumerate(zip(active, robust_u.tolist(), robust_l.tolist())):
+            info = {"psi_z": psi_z[i], "psi_y": psi_y[i], "regime": float(ru), "regime_y": float(rl),
+                    "chatter": chatter[i]}
+            out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info, psi_layer=layer[i])
         return out
 
 

@@ -42,7 +42,9 @@ Batched forms (what the tracker calls, through filters.base.batch_*): `predict_m
 and `update_many` run the same cycle over T tracks at once, the mixing, moment matching, mode likelihoods and
 mode probabilities vectorised over tracks and each mode's predict / update by that mode filter's own batched
 form. The per-track `predict` / `predicted_measurement` / `update` are their reference (equal to 1e-12,
-tests/test_trackers_imm.py).
+tests/test_trackers_imm.py). They return an `IMMRows` list (the states with their mode probabilities and per mode
+the StateRows of their mode states), from which the scan's next batched call reads the stacked rows, and the update
+reuses the predicted mode measurements of the same states.
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ from roadtrack.trackers.filters.base import (ModelFilter, batch_predict, batch_p
 from roadtrack.trackers.gating import log_gaussian
 from roadtrack.trackers.models import MOTION_MODELS
 from roadtrack.trackers.params import NON_NEGATIVE, POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.state import FilterState, StateRows, derive, derive_frozen, freeze, rows_of, take_rows
 
 
 # --------------------------------------------------------------------------------------------- state
@@ -147,9 +149,20 @@ def moments_many(xs: np.ndarray, Ps: np.ndarray, w: np.ndarray) -> tuple[np.ndar
 
 
 def stacked(states: list[FilterState]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """x (T, n), P (T, n, n), e_post (T, m) of T states of one layout."""
-    return (np.array([s.x for s in states]), np.array([s.P for s in states]),
-            np.array([s.e_post for s in states]))
+    """x (T, n), P (T, n, n), e_post (T, m) of T states of one layout (the rows a StateRows carries)."""
+    return rows_of(states, "x"), rows_of(states, "P"), rows_of(states, "e_post")
+
+
+class IMMRows(list):
+    """T IMMStates made by one batched call (`IMMFilter._states_many`), with their mode probabilities mu (T, r) and,
+    per mode i, the list of their mode states (mode_lists[i][t] is item t's modes[i]; a StateRows carrying the
+    modes' x, P, e_post), so that the next batched call of the scan stacks nothing again. A copy or slice of it is a
+    plain list."""
+
+    def __init__(self, states, mu: np.ndarray, mode_lists: list):
+        super().__init__(states)
+        self.mu, self.mode_lists = mu, mode_lists
+        self.measured: tuple | None = None  # (the states, zs, Ss, z_c, S_c) of predicted_measurements
 
 
 # -------------------------------------------------------------------------------------------- filter
@@ -270,6 +283,11 @@ class IMMFilter:
         """Combined estimate (1.17)-(1.18) in the largest mode's layout: (n,), (n, n)."""
         return s.x, s.P
 
+    @property
+    def layered(self) -> bool:
+        """False if a mode's layer is always None (its `layered` False): `layer` is then None for every state."""
+        return all(getattr(f, "layered", True) for f in self.filters)
+
     def layer(self, s_pred: IMMState) -> np.ndarray | None:
         """c-weighted mean of the modes' boundary layers (m,) if every mode has one, else None ([D])."""
         layers = [f.layer(m) for f, m in zip(self.filters, s_pred.modes)]
@@ -291,7 +309,7 @@ class IMMFilter:
             return []
         if not self._stackable(states):
             return [self.predict(s, dt) for s in states]  # unusual states: the per-track reference
-        mu = np.array([s.mu for s in states])  # (T, r)
+        mu = self._mus(states)  # (T, r)
         with np.errstate(divide="ignore"):
             log_w = np.log(self.transition)[None] + np.log(mu)[:, :, None]  # (T, r_j, r_i): log p_ji mu_j
         log_c = logsumexp(log_w, axis=1)  # (2.101) c_i = sum_j p_ji mu_j, (T, r)
@@ -299,8 +317,8 @@ class IMMFilter:
         for i, (f, (x0, P0, e0, reach)) in enumerate(zip(self.filters, self._mix_many(states, log_w, log_c))):
             if getattr(f, "predicts_arrays", None) is not None and f.predicts_arrays():  # straight from the arrays
                 X, P, F = f.predict_arrays(x0, P0, dt)
-                modes.append([derive(s.modes[i], x=X[t], P=P[t], F=F if F.ndim == 2 else F[t], e_post=e0[t], info={})
-                              for t, s in enumerate(states)])
+                modes.append(StateRows([derive_frozen(s.modes[i], x=X[t], P=P[t], F=F if F.ndim == 2 else F[t],
+                                                      e_post=e0[t], info={}) for t, s in enumerate(states)], X, P, e0))
                 arrays.append((X, P, e0))
             else:  # the mode filter's own batched predict of the mixed states
                 modes.append(batch_predict(f, [derive(s.modes[i], x=x0[t], P=P0[t], e_post=e0[t]) if reach[t]
@@ -311,7 +329,22 @@ class IMMFilter:
     def mode_measurements_many(self, preds: list[IMMState]) -> tuple[np.ndarray, np.ndarray]:
         """`mode_measurements` of T predicted states: z (T, r, m), S (T, r, m, m), each mode by its filter's
         batched `predicted_measurements`."""
-        zS = [batch_predicted_measurements(f, [s.modes[i] for s in preds]) for i, f in enumerate(self.filters)]
+        return self._mode_measurements(self._mode_lists(preds))
+
+    def _measured(self, preds: list[IMMState], lists: list, mu: np.ndarray, active: np.ndarray) -> tuple:
+        """(zs (A, r, m), Ss (A, r, m, m), z_c (A, m), S_c (A, m, m)) of the active tracks: the rows of what
+        `predicted_measurements` computed for these very states (an IMMRows it was given), else computed from
+        their mode states lists and mode probabilities mu (A, r). Every row is computed on its own, so the rows of
+        the whole batch are the subset's."""
+        kept = getattr(preds, "measured", None) if type(preds) is IMMRows else None
+        if kept is not None and len(kept[0]) == len(preds) and all(a is b for a, b in zip(kept[0], preds)):
+            return tuple(a[active] for a in kept[1:])
+        zs, Ss = self._mode_measurements(lists)
+        return (zs, Ss) + self._combine_many(zs, Ss, mu)
+
+    def _mode_measurements(self, lists: list) -> tuple[np.ndarray, np.ndarray]:
+        """`mode_measurements_many` of the mode states lists[i] (T each) of every mode i."""
+        zS = [batch_predicted_measurements(f, ms) for f, ms in zip(self.filters, lists)]
         return np.stack([z for z, _ in zS], axis=1), np.stack([S for _, S in zS], axis=1)
 
     def predicted_measurements(self, preds: list[IMMState]) -> tuple[np.ndarray, np.ndarray]:
@@ -320,7 +353,10 @@ class IMMFilter:
         if not preds:
             return np.zeros((0, m)), np.zeros((0, m, m))
         zs, Ss = self.mode_measurements_many(preds)
-        return self._combine_many(zs, Ss, np.array([s.mu for s in preds]))
+        z_c, S_c = self._combine_many(zs, Ss, self._mus(preds))
+        if type(preds) is IMMRows:  # kept for the update of the same states (`_measured`)
+            preds.measured = (tuple(preds), zs, Ss, z_c, S_c)
+        return z_c, S_c
 
     def update_many(self, preds: list[IMMState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray,
                     R: np.ndarray | None = None) -> list[IMMState]:
@@ -348,10 +384,10 @@ class IMMFilter:
         if active.size == 0:
             return out
         ps = [preds[t] for t in active]
+        lists = [take_rows(ms, active) for ms in self._mode_lists(preds)]  # per mode the active tracks' mode states
         nua, Wa, b0 = nu_u[active], W_u[active], w0[active]
-        zs, Ss = self.mode_measurements_many(ps)  # (A, r, m), (A, r, m, m)
-        mu_c = np.array([s.mu for s in ps])
-        z_c, S_c = self._combine_many(zs, Ss, mu_c)
+        mu_c = self._mus(preds)[active]
+        zs, Ss, z_c, S_c = self._measured(preds, lists, mu_c, active)
         meas = self.measurement
         nus = meas.residual(nua[:, None] + meas.residual(z_c[:, None], zs)[:, :, None], np.zeros(m))  # z_j - z_i
         if R is not None:  # per-detection S_ij = S_i - R + R_j (thesis §4.1 S = H P H^T + R)
@@ -359,7 +395,7 @@ class IMMFilter:
             Ss = pair_covariances(Ss.reshape(A * r, m, m), R, meas.R).reshape(A, r, len(R), m, m)
             S_c = pair_covariances(S_c, R, meas.R)
         mu = self._mode_probabilities_many(nus, Ss, nua, S_c, Wa, b0, mu_c)
-        modes = [batch_update(f, [s.modes[i] for s in ps], nus[:, i], Wa, b0, R) for i, f in enumerate(self.filters)]
+        modes = [batch_update(f, ms, nus[:, i], Wa, b0, R) for i, (f, ms) in enumerate(zip(self.filters, lists))]
         for t, s in zip(active, self._states_many(ps, modes, mu)):
             out[t] = s
         return out
@@ -388,8 +424,8 @@ class IMMFilter:
     def _per_mode(self, states: list[IMMState], fn) -> list[IMMState]:
         if not states:
             return []
-        modes = [fn(f, [s.modes[i] for s in states]) for i, f in enumerate(self.filters)]
-        return self._states_many(states, modes, np.array([s.mu for s in states]))
+        modes = [fn(f, ms) for f, ms in zip(self.filters, self._mode_lists(states))]
+        return self._states_many(states, modes, self._mus(states))
 
     def _missed_many(self, preds: list[IMMState], idle: np.ndarray, nu: np.ndarray, W: np.ndarray,
                      w0: np.ndarray) -> dict[int, IMMState]:
@@ -401,8 +437,8 @@ class IMMFilter:
         if idle.size == 0:
             return {}
         ps = [preds[t] for t in idle]
-        modes = [batch_update(f, [s.modes[i] for s in ps], nu[idle], W[idle], w0[idle])
-                 for i, f in enumerate(self.filters)]  # (4.16) with beta0 = 1 per mode, its memory rule [D]
+        modes = [batch_update(f, take_rows(ms, idle), nu[idle], W[idle], w0[idle])
+                 for f, ms in zip(self.filters, self._mode_lists(preds))]  # (4.16) with beta0 = 1 per mode, its memory rule [D]
         changed = [j for j, s in enumerate(ps) if any(ms[j] is not m for ms, m in zip(modes, s.modes))]
         if not changed:
             return {}
@@ -415,17 +451,20 @@ class IMMFilter:
         """True if T states can be stacked: IMMStates of r modes, mode i of one size in every track, one memory
         size (else the batched forms use the per-track reference)."""
         r = len(self.filters)
+        if type(states) is IMMRows:  # made by _states_many from stacked modes: stackable
+            return True
         if not all(isinstance(s, IMMState) and len(s.modes) == r for s in states):
             return False
-        sizes = {tuple(m.x.size for m in s.modes) for s in states}
-        return len(sizes) <= 1 and len({m.e_post.shape for s in states for m in s.modes}) <= 1
+        if any(len({s.modes[i].x.size for s in states}) > 1 for i in range(r)):
+            return False
+        return len({s.modes[i].e_post.shape for i in range(r) for s in states}) <= 1
 
     def _mix_many(self, states: list[IMMState], log_w: np.ndarray, log_c: np.ndarray) -> list[tuple]:
         """Mixed initial conditions (2.101)-(2.102) of T tracks: per mode i (x0 (T, n_i), P0 (T, n_i, n_i), e0 (T, m),
         reach (T,) bool), read-only; a mode unreachable this scan (reach False) keeps its own state in its rows.
         log_w (T, r, r) = log p_ji mu_j, log_c (T, r) = log c_i."""
         r = len(self.filters)
-        X, P, E = zip(*(stacked([s.modes[j] for s in states]) for j in range(r)))
+        X, P, E = zip(*(stacked(ms) for ms in self._mode_lists(states)))
         Es = np.stack(E, axis=1)  # (T, r, m) mode memories
         out = []
         for i, f in enumerate(self.filters):
@@ -473,23 +512,36 @@ class IMMFilter:
         (1.17)-(1.18) vectorised; `like` (T IMMStates) gives each new state's type. arrays: per mode its states'
         stacked (x, P, e_post) when the caller has them (else stacked here)."""
         mts = list(zip(*modes))  # T tuples of r mode states
-        if len({m.e_post.shape for mt in mts for m in mt}) > 1:
+        if not _one_memory_shape(modes, arrays):
             return [self._state(mt, mu[t]) for t, mt in enumerate(mts)]
-        xs, Ps, Es = zip(*(arrays or [stacked(ms) for ms in modes]))
+        arrays = arrays or [stacked(ms) for ms in modes]
+        xs, Ps, Es = zip(*arrays)
         xs, Ps = zip(*(layout_many(x, P, self.motion) for x, P in zip(xs, Ps)))
         x, P = moments_many(np.stack(xs, axis=1), np.stack(Ps, axis=1), mu)  # (1.17)-(1.18) output combination
         check_covariance(P, "IMM combined covariance P")
         e = np.einsum("tj,tjm->tm", mu, np.stack(Es, axis=1))
-        mu = np.array(mu, dtype=np.float64)  # the states' own copy
+        mu, mu_info = np.array(mu, dtype=np.float64), np.array(mu, dtype=np.float64)  # the states' and info's copies
         freeze(x, P, e, mu)
-        out = []
-        for t, (s, mt) in enumerate(zip(like, mts)):
-            info: dict[str, Any] = {"mu": np.array(mu[t], dtype=np.float64)}
-            for name, m in zip(self.mode_names, mt):
-                for key, v in m.info.items():
-                    info[f"{name}.{key}"] = v
-            out.append(derive(s, x=x[t], P=P[t], e_post=e[t], F=None, info=info, modes=mt, mu=mu[t]))
-        return out
+        out, names = [], self.mode_names
+        told = [i for i, ms in enumerate(modes) if any(m.info for m in ms)]  # the modes with diagnostics, in order
+        for s, mt, xt, Pt, et, mut, mui in zip(like, mts, x, P, e, mu, mu_info):
+            info: dict[str, Any] = {"mu": mui}
+            for i in told:
+                for key, v in mt[i].info.items():
+                    info[f"{names[i]}.{key}"] = v
+            out.append(derive_frozen(s, x=xt, P=Pt, e_post=et, F=None, info=info, modes=mt, mu=mut))
+        return IMMRows(out, mu, [StateRows(ms, *a) for ms, a in zip(modes, arrays)])
+
+    def _mode_lists(self, states: list[IMMState]) -> list:
+        """Per mode i the list of the states' mode-i states (the carried StateRows of an IMMRows)."""
+        if type(states) is IMMRows:
+            return states.mode_lists
+        return [[s.modes[i] for s in states] for i in range(len(self.filters))]
+
+    @staticmethod
+    def _mus(states: list[IMMState]) -> np.ndarray:
+        """Mode probabilities (T, r) of the states (an IMMRows' carried mu)."""
+        return states.mu if type(states) is IMMRows else np.array([s.mu for s in states])
 
     def _combine_measurements(self, zs: np.ndarray, Ss: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         meas = self.measurement
@@ -513,6 +565,19 @@ class IMMFilter:
             for key, v in m.info.items():
                 info[f"{name}.{key}"] = v
         return IMMState(x=x, P=P, e_post=e, F=None, info=info, modes=modes, mu=mu)
+
+
+def _one_memory_shape(modes: list, arrays: list | None) -> bool:
+    """True if every mode state of modes (r lists) has the same e_post shape; read from the stacked memories of
+    `arrays` (per mode (x, P, e_post)) or of a StateRows carrying them, else from the states."""
+    shapes = set()
+    for i, ms in enumerate(modes):
+        E = arrays[i][2] if arrays else (ms.e_post if type(ms) is StateRows else None)
+        if E is not None:
+            shapes.add(E.shape[1:])
+        else:
+            shapes.update(m.e_post.shape for m in ms)
+    return len(shapes) <= 1
 
 
 def default_mode_names(filters) -> tuple[str, ...]:

@@ -14,8 +14,8 @@ import numpy as np
 
 from roadtrack.trackers.errors import FilterError
 from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
-                                   combined_innovation, pda_covariance, symmetrise)
-from roadtrack.trackers.state import FilterState, derive, freeze
+                                   combined_innovation, identity, pda_covariance, symmetrise)
+from roadtrack.trackers.state import FilterState, StateRows, derive_frozen, freeze, rows_of
 
 
 def gain_update(s_pred: FilterState, H: np.ndarray, R: np.ndarray, S: np.ndarray, K: np.ndarray,
@@ -85,9 +85,9 @@ class KalmanFilter(ModelFilter):
         if not preds:
             return np.zeros((0, m)), np.zeros((0, m, m))
         H = self.measurement.matrix(self.motion)
-        P = np.array([s.P for s in preds])
+        P = rows_of(preds, "P")
         S = H @ P @ H.T + self.measurement.R  # (4.3)-(4.8) innovation covariance S
-        return np.array([s.x for s in preds]) @ H.T, 0.5 * (S + np.swapaxes(S, 1, 2))
+        return rows_of(preds, "x") @ H.T, 0.5 * (S + np.swapaxes(S, 1, 2))
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
                     w0: np.ndarray, R: np.ndarray | None = None) -> list[FilterState]:
@@ -107,16 +107,13 @@ def gain_update_many(preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0
     active = np.flatnonzero((w0 < 1.0) & (W > 0.0).any(axis=1)) if T else np.zeros(0, dtype=np.int64)
     out = list(preds)
     if active.size == 0:
-        return out
+        return StateRows(out, preds.x, preds.P, preds.e_post) if type(preds) is StateRows else out
     nua, Wa, b0 = batch_weights(nu, W, w0, active)  # (A, M, m), (A, M), (A,)
-    X = np.array([preds[t].x for t in active])
-    P = np.array([preds[t].P for t in active])
+    X = rows_of(preds, "x", active)
+    P = rows_of(preds, "P", active)
     if R_det is not None:
         Xn, Pn, e_post = detection_update(X, P, H, np.asarray(R_det, dtype=np.float64), nua, Wa, b0)
-        freeze(Xn, Pn, e_post)
-        for i, t in enumerate(active):
-            out[t] = derive(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
-        return out
+        return _updated(preds, out, active, Xn, Pn, e_post)
     HPH = H @ P @ H.T
     S = HPH + R
     S = 0.5 * (S + np.swapaxes(S, 1, 2))
@@ -128,7 +125,7 @@ def gain_update_many(preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0
     K = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)  # (4.3)-(4.8) KF gain K = P H^T S^-1, (a, n, m)
     nu_c = np.einsum("aj,ajm->am", Wa, nua)  # (4.15) combined innovation
     Xn = X + np.einsum("anm,am->an", K, nu_c)  # §4.2 PDA state update
-    I_KH = np.eye(X.shape[1]) - K @ H
+    I_KH = identity(X.shape[1]) - K @ H
     P_star = I_KH @ P @ np.swapaxes(I_KH, 1, 2) + K @ R_j @ np.swapaxes(K, 1, 2)  # (4.8) Joseph form
     spread = np.einsum("aj,aji,ajk->aik", Wa, nua, nua) - np.einsum("ai,ak->aik", nu_c, nu_c)
     Pn = b0[:, None, None] * P + (1.0 - b0)[:, None, None] * P_star + K @ spread @ np.swapaxes(K, 1, 2)  # (4.16)-(4.17)
@@ -136,10 +133,22 @@ def gain_update_many(preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0
     if not (np.isfinite(Xn).all() and np.isfinite(Pn).all()):
         raise FilterError("updated state is not finite")
     e_post = nu_c - np.einsum("im,am->ai", H, np.einsum("anm,am->an", K, nu_c))  # (3.65)
+    return _updated(preds, out, active, Xn, Pn, e_post)
+
+
+def _updated(preds: list, out: list, active: np.ndarray, Xn: np.ndarray, Pn: np.ndarray, e_post: np.ndarray) -> list:
+    """`out` (the predictions) with the active tracks' updated states x, P, e_post (A rows each, made read-only here);
+    a StateRows carrying every row when `preds` carries x, P and e_post."""
     freeze(Xn, Pn, e_post)
     for i, t in enumerate(active):
-        out[t] = derive(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
-    return out
+        out[t] = derive_frozen(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
+    if type(preds) is not StateRows or preds.x is None or preds.P is None or preds.e_post is None:
+        return out
+    rows = [np.array(a) for a in (preds.x, preds.P, preds.e_post)]
+    for a, new in zip(rows, (Xn, Pn, e_post)):
+        a[active] = new
+    freeze(*rows)
+    return StateRows(out, *rows)
 
 
 def detection_update(X: np.ndarray, P: np.ndarray, H: np.ndarray, R: np.ndarray, nu: np.ndarray, W: np.ndarray,
@@ -165,7 +174,7 @@ def detection_update(X: np.ndarray, P: np.ndarray, H: np.ndarray, R: np.ndarray,
         raise FilterError("innovation covariance S is not positive definite") from None
     K = np.swapaxes(np.linalg.solve(S, H @ Pp), 1, 2)  # (4.3)-(4.8) K_j = P H^T S_j^-1, (p, n, m)
     d = np.einsum("pnm,pm->pn", K, nu[a, j])  # K_j nu_j
-    I_KH = np.eye(n) - K @ H
+    I_KH = identity(n) - K @ H
     P_star = I_KH @ Pp @ np.swapaxes(I_KH, 1, 2) + K @ R[j] @ np.swapaxes(K, 1, 2)  # (4.8) Joseph form, R_j
     dx = np.zeros((A, n))
     np.add.at(dx, a, w[:, None] * d)  # (4.15) combined correction sum_j beta_j K_j nu_j

@@ -33,6 +33,7 @@ Units: positions m, velocities m/s, boundary-layer widths in the units of the co
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, fields, replace
 
@@ -43,7 +44,7 @@ from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_c
                                    combined_innovation, pda_covariance, symmetrise, weighted_R)
 from roadtrack.trackers.filters.params import ModelParams
 from roadtrack.trackers.params import POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive, freeze
+from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze, rows_of
 
 EY_MEMORY = ("a_priori", "a_posteriori")
 COVARIANCES = ("mse", "joseph", "short")
@@ -99,6 +100,12 @@ class Partition:
 
     @staticmethod
     def of(H: np.ndarray) -> "Partition":
+        """The partition of H (m, n) (read-only arrays; made once per distinct H, `_partition_of`)."""
+        H = np.asarray(H, dtype=np.float64)
+        return _partition_of(H.shape, H.tobytes())
+
+    @staticmethod
+    def _of(H: np.ndarray) -> "Partition":
         m, n = H.shape
         used = np.flatnonzero(np.any(H != 0.0, axis=0))
         if used.size != m:
@@ -126,6 +133,14 @@ class Partition:
         K[self.u] = K_u
         K[self.l] = K_l
         return K  # (4.35): K = [K_u; K_l]
+
+
+@functools.lru_cache(maxsize=64)
+def _partition_of(shape: tuple[int, int], data: bytes) -> Partition:
+    """Partition._of of the H (shape) whose float64 bytes are `data` (the filters ask for the same H every scan)."""
+    part = Partition._of(np.frombuffer(data, dtype=np.float64).reshape(shape).copy())
+    freeze(part.u, part.l, part.H1)
+    return part
 
 
 def maps_many(part: Partition, Fs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -386,7 +401,7 @@ class SVSF(ModelFilter):
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
         freeze(X, P, A)
-        return [derive(s, x=X[t], P=P[t], F=A, info={}, tau=s.tau + dt) for t, s in enumerate(states)]
+        return [derive_frozen(s, x=X[t], P=P[t], F=A, info={}, tau=s.tau + dt) for t, s in enumerate(states)]
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
                     w0: np.ndarray, R: np.ndarray | None = None) -> list[FilterState]:
@@ -402,9 +417,9 @@ class SVSF(ModelFilter):
         m = self.measurement.ndim
         nua, Wa, b0 = batch_weights(nu, W, w0, active)  # (A, M, m), (A, M), (A,)
         ss = [promote_state(SVSFState, preds[t]) for t in active]
-        X = np.array([s.x for s in ss])
-        P = np.array([s.P for s in ss])
-        e_post = np.array([s.e_post for s in ss])
+        X = rows_of(preds, "x", active)  # the states' fields stacked (the rows a StateRows carries)
+        P = rows_of(preds, "P", active)
+        e_post = rows_of(preds, "e_post", active)
         e_vel = np.array([s.e_vel if s.e_vel is not None else np.zeros(m) for s in ss])
         z_prev = np.array([s.z_prev if s.z_prev is not None else np.full(m, np.nan) for s in ss])
         tau = np.array([s.tau for s in ss])
@@ -433,16 +448,19 @@ class SVSF(ModelFilter):
         check_covariance(Pn, "SVSF updated covariance P")
         post_v = nu_c - np.einsum("in,an->ai", H_bar, np.einsum("anm,am->an", K_v, nu_c))  # (2.34)/(3.65)
         post_p = nu_c[:, :m] - np.einsum("in,an->ai", H0, np.einsum("anm,am->an", K_p, nu_c[:, :m]))
-        for i, t in enumerate(active):
-            if vel[i]:
-                psi_i, ep, ev = psi[i], post_v[i, :m], post_v[i, m:]
-                info = {"psi_z": psi_i[:m], "chatter": np.maximum(0.0, np.abs(nu_c[i, :m]) - psi_i[:m]),
-                        "psi_v": psi_i[m:]}  # (5.37) chattering
+        chatter_v = np.maximum(0.0, np.abs(nu_c[:, :m]) - psi[:, :m])  # (5.37) chattering, with velocity rows
+        chatter_p = np.maximum(0.0, np.abs(nu_c[:, :m]) - psi_p)  # (5.37) chattering, position rows only
+        ep = np.where(vel[:, None], post_v[:, :m], post_p)  # (A, m) memories: e_post, and e_vel (0 without velocity)
+        ev = np.where(vel[:, None], post_v[:, m:], 0.0)
+        freeze(Xn, Pn, ep, ev, z_a)
+        for i, (t, v) in enumerate(zip(active, vel.tolist())):
+            if v:
+                psi_i = psi[i]
+                info = {"psi_z": psi_i[:m], "chatter": chatter_v[i], "psi_v": psi_i[m:]}
             else:
-                ep, ev = post_p[i], np.zeros(m)
-                info = {"psi_z": psi_p.copy(), "chatter": np.maximum(0.0, np.abs(nu_c[i, :m]) - psi_p)}
-            out[t] = derive(ss[i], x=Xn[i], P=Pn[i], e_post=ep.copy(), e_vel=ev.copy(), z_prev=z_a[i], tau=0.0,
-                            F=None, info=info)
+                info = {"psi_z": psi_p.copy(), "chatter": chatter_p[i]}
+            out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=ep[i], e_vel=ev[i], z_prev=z_a[i], tau=0.0,
+                                   F=None, info=info)
         return out
 
 
@@ -578,9 +596,9 @@ class GeneralisedSVSF(ModelFilter):
         R = self.measurement.R if R is None else weighted_R(R, Wa)  # (m, m) or (A, m, m) [D]
         part = Partition.of(H)
         Mm, Phi12_pinv, _ = maps_many(part, [s.F for s in ss])
-        X = np.array([s.x for s in ss])
-        P = np.array([s.P for s in ss])
-        e_post = np.array([s.e_post for s in ss])
+        X = rows_of(preds, "x", active)  # the states' fields stacked (the rows a StateRows carries)
+        P = rows_of(preds, "P", active)
+        e_post = rows_of(preds, "e_post", active)
         A_, m = len(ss), H.shape[0]
         S = H @ P @ H.T + R
         S = 0.5 * (S + np.swapaxes(S, 1, 2))  # (4.37): S = H1 P11 H1^T + R
@@ -622,10 +640,11 @@ class GeneralisedSVSF(ModelFilter):
             raise FilterError("generalised SVSF updated state x is not finite")
         check_covariance(Pn, "generalised SVSF updated covariance P")
         post = e - Ke @ H.T  # (3.65)
+        freeze(Xn, Pn, post)
         for i, t in enumerate(active):
             info = {"psi_z": psi_z.copy(), "psi_y": np.array(psi_y[i]),
                     "chatter": np.maximum(0.0, np.abs(e[i]) - psi_z)}  # (5.37)
-            out[t] = derive(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info)
+            out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info)
         return out
 
 

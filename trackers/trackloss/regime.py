@@ -126,7 +126,7 @@ def gamma_best_fast(lam_sigma, nz: int):
         t = np.log(x)
     out = np.exp(np.interp(t, t_grid, g_grid))
     outside = (t < t_grid[0]) | (t > t_grid[-1])
-    if np.any(outside):
+    if outside.any():
         out = np.where(outside, gamma_best(np.where(outside, x, 1.0), nz), out)
     return float(out) if out.ndim == 0 else out
 
@@ -241,9 +241,12 @@ def assess_windows(root_det: np.ndarray, d2_scans: Sequence[Sequence[np.ndarray]
     return _window_tests(ng, cg, g, sigma_n, volume, pd, lam, nz, alphas)
 
 
-def _window_gates(root_det: np.ndarray, g: np.ndarray, nz: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sigma_n (T,), V_c (T,) and the CG thresholds (T, n) of T windows root_det (T, n) with TRD gates g (T,)."""
-    sigma_n = root_det.mean(axis=1)  # paper 002 (8): Sigma_n = mean |S(j)|^(1/2), per track
+def _window_gates(root_det: np.ndarray, g: np.ndarray, nz: int, sigma_n: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sigma_n (T,), V_c (T,) and the CG thresholds (T, n) of T windows root_det (T, n) with TRD gates g (T,);
+    sigma_n: root_det.mean(axis=1) when the caller has it."""
+    if sigma_n is None:
+        sigma_n = root_det.mean(axis=1)  # paper 002 (8): Sigma_n = mean |S(j)|^(1/2), per track
     volume = unit_ball_volume(nz) * g ** (0.5 * nz) * sigma_n  # paper 002 (8): V_c = c gamma^(nz/2) Sigma_n
     thr_cg = g[:, None] / constant_gate_scale(root_det, sigma_n[:, None], nz)  # paper 002 (9): CG gate
     return sigma_n, volume, thr_cg
@@ -347,8 +350,9 @@ def assess_rolled(windows: np.ndarray, lam: float, nz: int, alphas, d2_of: Calla
     pd = np.ascontiguousarray(windows[:, :, 1])
     if len(root_det) == 0:
         return []
-    g = np.atleast_1d(gamma_best_fast(lam * root_det.mean(axis=1), nz))
-    sigma_n, volume, thr_cg = _window_gates(root_det, g, nz)
+    sigma_n = root_det.mean(axis=1)  # paper 002 (8): Sigma_n, for the gate gamma_best and V_c
+    g = np.atleast_1d(gamma_best_fast(lam * sigma_n, nz))
+    sigma_n, volume, thr_cg = _window_gates(root_det, g, nz, sigma_n)
     ng = _low_counts(windows, np.broadcast_to(g[:, None], root_det.shape), d2_of)  # paper 002 (10): NG gate
     cg = _low_counts(windows, thr_cg, d2_of)  # paper 002 (9): CG gate
     return _window_tests(ng, cg, g, sigma_n, volume, pd, lam, nz, alphas)
@@ -422,9 +426,11 @@ def advance(state: RegimeState, test: RegimeTest | None, cfg: RegimeConfig,
     held = {} if window is None else {"window": window}
     if test is None:
         return state if state.label == "unknown" and not held else _with(state, label="unknown", **held)
+    if not cfg.adaptive:
+        return _with(state, label=test.label, last=test, **held)
     previous = state.last.verdict if state.last is not None else None
     state = _with(state, label=test.label, last=test, **held)
-    return _adapt(state, test.verdict, previous, cfg) if cfg.adaptive else state
+    return _adapt(state, test.verdict, previous, cfg)
 
 
 def _with(state: RegimeState, **fields) -> RegimeState:

@@ -1,0 +1,92 @@
+"""The stacked rows the batched filters hand on within a scan (trackers.state.StateRows, the IMM's IMMRows) are
+exactly the fields of the states they carry, and reading them changes no output bit (issue 30: the tracker's
+outputs must stay bit for bit those of the per-list stacking)."""
+
+import numpy as np
+import pytest
+
+from roadtrack.trackers import make_filter
+from roadtrack.trackers.filters.imm import IMMRows
+from roadtrack.trackers.state import StateRows, rows_of, take_rows
+
+T, M = 12, 7
+
+
+def _states(flt, rng):
+    x0 = np.c_[rng.uniform(0, 100, T), rng.uniform(-8, 8, T), rng.uniform(15, 30, T), rng.normal(0, 1, T)]
+    return [flt.initial_state(x, np.diag([0.5, 0.5, 4.0, 4.0])) for x in x0]
+
+
+def _weights(rng):
+    W = rng.dirichlet(np.ones(M + 1), size=T)
+    W[:3] = 0.0  # three tracks missed: w0 = 1
+    W[:3, 0] = 1.0
+    return W[:, 1:], W[:, 0]
+
+
+def _assert_rows(states, fields=("x", "P", "e_post")):
+    """Every carried array equals the stack of the states' fields, bit for bit."""
+    assert type(states) is StateRows
+    for name in fields:
+        carried = getattr(states, name)
+        if carried is not None:
+            np.testing.assert_array_equal(carried, np.array([getattr(s, name) for s in states]))
+
+
+def test_kf_predict_shift_and_update_carry_their_rows_exactly():
+    rng = np.random.default_rng(3)
+    kf = make_filter("kf", sigma_v=1.0, sigma_w=0.3)
+    pred = kf.predict_many(_states(kf, rng), 0.1)
+    _assert_rows(pred)
+    shifted = kf.shift_many(pred, rng.normal(0, 0.05, (T, 4)) * (rng.random((T, 1)) < 0.5), spread=True)
+    _assert_rows(shifted)
+    z, S = kf.predicted_measurements(shifted)
+    nu = rng.normal(0, 0.5, (T, M, 2))
+    W, w0 = _weights(rng)
+    carried = kf.update_many(shifted, nu, W, w0)
+    plain = kf.update_many(list(shifted), nu, W, w0)  # a plain list: every field stacked from the states
+    for a, b in zip(carried, plain):
+        for name in ("x", "P", "e_post"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    np.testing.assert_array_equal(z, kf.predicted_measurements(list(shifted))[0])
+    np.testing.assert_array_equal(S, kf.predicted_measurements(list(shifted))[1])
+
+
+def test_rows_of_and_take_rows_read_the_rows_and_fall_back_to_stacking():
+    rng = np.random.default_rng(5)
+    kf = make_filter("kf", sigma_v=1.0, sigma_w=0.3)
+    pred = kf.predict_many(_states(kf, rng), 0.1)
+    idx = np.array([7, 1, 4])
+    sub = take_rows(pred, idx)
+    _assert_rows(sub, ("x", "P"))
+    assert [id(s) for s in sub] == [id(pred[t]) for t in idx]
+    np.testing.assert_array_equal(rows_of(pred, "x", idx), rows_of(list(pred), "x", idx))
+    assert type(pred[2:]) is list and type(list(pred)) is list  # a slice or copy carries nothing
+
+
+@pytest.mark.parametrize("base", ["kf", "svsf", "gvbl-svsf"])
+def test_imm_rows_and_reused_mode_measurements_change_no_bit(base):
+    """predict -> predicted measurements -> update of an IMM on its IMMRows (rows and the kept mode measurements
+    read) equals the same on plain lists (everything stacked and computed again), field by field, exactly."""
+    rng = np.random.default_rng(11)
+    modes = ({"kind": base, "motion": "cv"}, {"kind": {"kf": "ekf", "svsf": "gvbl-svsf"}.get(base, base), "motion": "ct"})
+    imm = make_filter("imm", modes=modes, sigma_v=1.0, sigma_w=0.3)
+    pred = imm.predict_many(_states(imm, rng), 0.1)
+    assert type(pred) is IMMRows
+    for ms, i in zip(pred.mode_lists, range(2)):
+        assert [id(m) for m in ms] == [id(s.modes[i]) for s in pred]
+        _assert_rows(ms)
+    np.testing.assert_array_equal(pred.mu, np.array([s.mu for s in pred]))
+    z_c, S_c = imm.predicted_measurements(pred)
+    nu = rng.normal(0, 0.5, (T, M, 2))
+    W, w0 = _weights(rng)
+    a = imm.update_many(pred, nu, W, w0)
+    b = imm.update_many(list(pred), nu, W, w0)
+    np.testing.assert_array_equal(z_c, imm.predicted_measurements(list(pred))[0])
+    np.testing.assert_array_equal(S_c, imm.predicted_measurements(list(pred))[1])
+    for sa, sb in zip(a, b):
+        for name in ("x", "P", "e_post", "mu"):
+            np.testing.assert_array_equal(getattr(sa, name), getattr(sb, name))
+        for ma, mb in zip(sa.modes, sb.modes):
+            for name in ("x", "P", "e_post"):
+                np.testing.assert_array_equal(getattr(ma, name), getattr(mb, name))
