@@ -245,7 +245,9 @@ def test_ctrl_c_keeps_the_tables_and_a_readable_recording(tmp_path):
     from rerun.chunk import RrdReader
 
     out = tmp_path / "r"
-    proc = subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli.main", *_run(out, duration=60.0)], cwd=REPO,
+    # 110 s: the run must still be going when the signal comes (a 60 s run once ended first on a loaded machine);
+    # under recorder.FOOTER_MAX_FRAMES frames, so the recording is planned with its footer
+    proc = subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli.main", *_run(out, duration=110.0)], cwd=REPO,
                             env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     rrd = tmp_path / f".r.partial-{proc.pid}" / "run.rrd"
     from roadtrack.testbed.recording.recorder import static_size

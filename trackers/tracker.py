@@ -18,7 +18,7 @@ from scipy.special import gammaln
 from roadtrack.trackers.association.roles import AssociationInput, AssociatorKind, AssociatorParams
 from roadtrack.trackers.filters.base import (Filter, batch_layers, batch_predict, batch_predicted_measurements, batch_update,
                                              check_detection_R, identity, pair_covariances, takes_detection_R,
-                                             weighted_R)
+                                             weighted_R, zeros)
 from roadtrack.trackers.gating import gate, mahalanobis2_and_log_gaussian
 from roadtrack.trackers.initiation import pair_candidates, single_point, two_point
 from roadtrack.trackers.management import (ManagementParams, duplicate_counts, initial_score, m_of_n_decide, miss_loss,
@@ -172,16 +172,8 @@ def _candidate_state(p: np.ndarray, m: int) -> FilterState:
     x[:d] = p
     x.setflags(write=False)
     new = object.__new__(FilterState)
-    new.__dict__.update(x=x, P=identity(2 * d), e_post=_zeros(m), F=None, info={})
+    new.__dict__.update(x=x, P=identity(2 * d), e_post=zeros(m), F=None, info={})
     return new
-
-
-@functools.lru_cache(maxsize=8)
-def _zeros(m: int) -> np.ndarray:
-    """A read-only zero vector (m,) (shared by the candidates' memories)."""
-    z = np.zeros(m)
-    z.setflags(write=False)
-    return z
 
 
 def _previous(live) -> np.ndarray:
@@ -230,16 +222,11 @@ def _window(tr: Track, state: RegimeState, capacity: int) -> np.ndarray | None:
 
 def gate_volume(S: np.ndarray, alpha: float, half_logdet: np.ndarray | None = None) -> np.ndarray:
     """V = c_m alpha^(m/2) sqrt|S| (T,), c_m the unit-ball volume (thesis §4.1 [R]; c_2 = pi); half_logdet (T,):
-    ln|S| / 2 when the caller has it (`half_log_det`)."""
+    ln|S| / 2 when the caller has it (a scan's `_Prediction.half_logdet`)."""
     m = S.shape[-1]
     log_cm = 0.5 * m * math.log(math.pi) - float(gammaln(0.5 * m + 1.0))
-    h = half_logdet if half_logdet is not None else half_log_det(S)
+    h = half_logdet if half_logdet is not None else 0.5 * np.linalg.slogdet(S)[1]
     return np.exp(log_cm + 0.5 * m * math.log(alpha) + h)  # thesis §4.1: V = c_m alpha^(m/2) |S|^(1/2)
-
-
-def half_log_det(S: np.ndarray) -> np.ndarray:
-    """ln|S| / 2 (T,) of S (T, m, m) (slogdet's log; 0 tracks: empty)."""
-    return 0.5 * np.linalg.slogdet(S)[1] if len(S) else np.zeros(0)
 
 
 def _expand(name: str, v: Any, T: int, out: dict[str, np.ndarray], t: int) -> None:

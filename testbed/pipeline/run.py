@@ -384,6 +384,9 @@ class Stopwatch:
         self.tic = now
 
 
+_STATUS_LABELS = np.array(["tentative", "static", "confirmed"], dtype=object)
+
+
 def track_status(ts: TrackSet, moving: MovingTest, time: float) -> np.ndarray:
     """(T,) object array: "confirmed" (reported), "tentative", or "static" (confirmed by the tracker but
     not yet seen to move, testbed/tracking/moving.py: tracked, not reported, not scored)."""
@@ -391,9 +394,6 @@ def track_status(ts: TrackSet, moving: MovingTest, time: float) -> np.ndarray:
     conf = ts.status == "confirmed"
     # three shared str objects, not one new str per row (a long run keeps every frame's rows in memory)
     return _STATUS_LABELS[np.where(conf, np.where(moved, 2, 1), 0)]
-
-
-_STATUS_LABELS = np.array(["tentative", "static", "confirmed"], dtype=object)
 
 
 def _recorder(scn: Scenario, path: Path, tracker_name: str, lanes: list, static: np.ndarray):

@@ -213,9 +213,18 @@ class ModelFilter:
 def identity(n: int) -> np.ndarray:
     """The identity I (n, n), read-only, made once per size (np.eye's wrapper costs more than the Joseph form's
     subtraction it feeds)."""
-    eye = np.eye(n)
-    eye.setflags(write=False)
-    return eye
+    return _read_only(np.eye(n))
+
+
+@functools.lru_cache(maxsize=16)
+def zeros(n: int) -> np.ndarray:
+    """A zero vector (n,), read-only, made once per size (shared, e.g. by the tracker's candidates' memories)."""
+    return _read_only(np.zeros(n))
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
 
 
 def batch_predict(filter_, states: list[FilterState], dt: float) -> list[FilterState]:
