@@ -244,21 +244,22 @@ def test_write_atomic_and_stale_partial_folders(tmp_path):
 def test_ctrl_c_keeps_the_tables_and_a_readable_recording(tmp_path):
     from rerun.chunk import RrdReader
 
+    from roadtrack.testbed.recording.recorder import static_size
+
     out = tmp_path / "r"
-    # 110 s: the run must still be going when the signal comes (a 60 s run once ended first on a loaded machine);
-    # under recorder.FOOTER_MAX_FRAMES frames, so the recording is planned with its footer
+    (tmp_path / "static").mkdir()
+    static = static_size(tmp_path / "static")  # what the recording holds before its first frame: known before the
+    # run starts, so the run cannot end while it is measured (it did in the suite); 110 s: the run is still going
+    # when the signal comes, under recorder.FOOTER_MAX_FRAMES frames so the recording is planned with its footer
     proc = subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli.main", *_run(out, duration=110.0)], cwd=REPO,
                             env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     rrd = tmp_path / f".r.partial-{proc.pid}" / "run.rrd"
-    from roadtrack.testbed.recording.recorder import static_size
-
-    (tmp_path / "static").mkdir()
-    static = static_size(tmp_path / "static")  # what the recording holds before its first frame
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and proc.poll() is None:
         if rrd.is_file() and rrd.stat().st_size > static + 100_000:  # frames are in
             break
         time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before the signal: nothing was interrupted"
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     lines = err.strip().splitlines()
