@@ -251,8 +251,11 @@ def test_ctrl_c_keeps_the_tables_and_a_readable_recording(tmp_path):
     static = static_size(tmp_path / "static")  # what the recording holds before its first frame: known before the
     # run starts, so the run cannot end while it is measured (it did in the suite); 110 s: the run is still going
     # when the signal comes, under recorder.FOOTER_MAX_FRAMES frames so the recording is planned with its footer
+    # the child starts with Ctrl-C's default action, as from a terminal: an ignored SIGINT is inherited, and a test
+    # worker may have been left with one
     proc = subprocess.Popen([sys.executable, "-m", "roadtrack.testbed.cli.main", *_run(out, duration=110.0)], cwd=REPO,
-                            env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     rrd = tmp_path / f".r.partial-{proc.pid}" / "run.rrd"
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and proc.poll() is None:
