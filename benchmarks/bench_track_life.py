@@ -101,14 +101,22 @@ VARIANTS = {"before": BEFORE, "after": {}, "detection_R": {"tracker.filter.detec
             "pd_points": {"sensor.occlusion_pd_full_points": 11}, "moving_whole": {"moving_test.parts": 1},
             "edge_on_off": {"sensor.occlusion_pd_edge_on": False},
             "stitch2": {"tracker.stitch_s": 2.0}, "stitch5": {"tracker.stitch_s": 5.0},
-            "input_exact": {"tracker.management.road_curvature_spread": False}}
+            "input_exact": {"tracker.management.road_curvature_spread": False},
+            "lambda_1e-3": {"tracker.associator.clutter_density": 1e-3},
+            "lambda_1e-4": {"tracker.associator.clutter_density": 1e-4},
+            "lambda_1e-6": {"tracker.associator.clutter_density": 1e-6},
+            "alpha_1e-2": {"tracker.management.alpha_fc": 1e-2},
+            "alpha_1e-3": {"tracker.management.alpha_fc": 1e-3}}
 """--variants: before issue 29; the defaults; the defaults with the detections' own covariances (filter key
 detection_R, off by default) instead of the filter's fixed R (sigma_w); the defaults with the occlusion-aware P_D
 rising to its nominal value at 11 rays on a car (perception's measured P_D of few-point cars); the defaults with
 the moving-object test over the whole window only (moving_test.parts = 1); the defaults with the road's curvature
 input taken as exact (tracker.management.road_curvature_spread = false); the defaults without the edge-on term of
 the occlusion-aware P_D (sensor.occlusion_pd_edge_on = false); the defaults with track-to-track stitching over 2 s or
-5 s (tracker.stitch_s; the run's stitched_tracks is printed beside its scores)."""
+5 s (tracker.stitch_s; the run's stitched_tracks is printed beside its scores); the defaults with the associator's
+clutter density lambda at 1e-3, 1e-4 or 1e-6 /m^2 (the thesis's 1e-2 against our perception's measured clutter of
+about 0: faster confirmation, sharper JPDA weights); the defaults with the SPRT's false-confirmation probability
+alpha_FC at 1e-2 or 1e-3 (the thesis's 1e-4: a lower confirmation threshold, association unchanged)."""
 CHI2_2_95 = 5.991464547107979
 """The 95 % point of the chi-square distribution with 2 degrees of freedom (NEES and NIS of a 2-D position)."""
 
