@@ -137,12 +137,16 @@ class OcclusionConfig:
         return OcclusionConfig(**fields)
 
 
+CAR_BOX_M = (4.6, 1.8, 1.5)
+"""The default target box (length, width, height) [m]: a car."""
+
+
 def detection_probability(
     scan: Scan,
     xy: np.ndarray,
     cfg: OcclusionConfig = OcclusionConfig(),
     *,
-    size_m: tuple[float, float, float] = (4.6, 1.8, 1.5),
+    size_m: tuple[float, float, float] = CAR_BOX_M,
     heading: np.ndarray | None = None,
 ) -> np.ndarray:
     """(K,) probability in [0, 1] that a vehicle at each predicted position is detected in this scan.
@@ -197,7 +201,7 @@ def visibility(
     xy: np.ndarray,
     cfg: OcclusionConfig = OcclusionConfig(),
     *,
-    size_m: tuple[float, float, float] = (4.6, 1.8, 1.5),
+    size_m: tuple[float, float, float] = CAR_BOX_M,
     heading: np.ndarray | None = None,
 ) -> Visibility:
     """Rays and columns of this scan that would hit a vehicle at each position, and how many are clear.
