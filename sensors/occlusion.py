@@ -146,14 +146,15 @@ def detection_probability(
     xy: np.ndarray,
     cfg: OcclusionConfig = OcclusionConfig(),
     *,
-    size_m: tuple[float, float, float] = CAR_BOX_M,
+    size_m: tuple[float, float, float] | np.ndarray = CAR_BOX_M,
     heading: np.ndarray | None = None,
 ) -> np.ndarray:
     """(K,) probability in [0, 1] that a vehicle at each predicted position is detected in this scan.
 
     scan: a Scan with its range image (`ranges` (A, B), `azimuths`, `elevations`, `pose`, `origin`).
     xy: (K, 2) predicted target centres, world frame [m].
-    size_m: assumed target (length, width, height) [m], bottom on the road.
+    size_m: assumed target (length, width, height) [m], bottom on the road: (3,) for every target or (K, 3)
+        one per target (a position's P_D does not depend on the other positions or sizes asked with it).
     heading: (K,) target headings, world frame [rad]; None = each target seen end-on (its long axis along
         the line of sight, as a car ahead or behind in the sensor's lane), the narrowest silhouette.
     See the module docstring for the rule; the counts behind it are `visibility`.
@@ -201,7 +202,7 @@ def visibility(
     xy: np.ndarray,
     cfg: OcclusionConfig = OcclusionConfig(),
     *,
-    size_m: tuple[float, float, float] = CAR_BOX_M,
+    size_m: tuple[float, float, float] | np.ndarray = CAR_BOX_M,
     heading: np.ndarray | None = None,
 ) -> Visibility:
     """Rays and columns of this scan that would hit a vehicle at each position, and how many are clear.
@@ -213,7 +214,7 @@ def visibility(
     if not isinstance(cfg, OcclusionConfig):
         raise TypeError(f"cfg: expected OcclusionConfig, got {type(cfg).__name__}")
     xy = checks.float_array("xy", xy, (None, 2))
-    length, width, height = _size(size_m)
+    length, width, height = _size(size_m, len(xy))  # floats, or (K, 1) columns: one size per target
     if heading is not None:
         heading = checks.float_array("heading", heading, (len(xy),))
     ranges, azimuths, elevations = _range_image(scan)
@@ -241,7 +242,10 @@ def visibility(
 
     # (K, C, b): t_hit = horizontal distance where the ray enters the box; expected when it enters before
     # leaving the footprint, within the height and range limits; clear unless a nearer return blocks it.
-    t_hit = np.maximum(t_in[..., None], tz_in[beams])
+    per_target = np.ndim(height) > 0  # sizes (K, 1): tz_in (K, B) and hi_t (K, b) get the column axis
+    tz_b = tz_in[:, None, beams] if per_target else tz_in[beams]
+    hi_t = hi_t[:, None, :] if per_target else hi_t
+    t_hit = np.maximum(t_in[..., None], tz_b)
     expected = t_hit <= np.minimum(t_out[..., None], hi_t)
     expected &= t_hit >= lo_t
     expected &= crosses[..., None]
@@ -249,8 +253,8 @@ def visibility(
     r_h = r * cos_e  # horizontal distance of each return
     clear = r_h + cfg.margin_m >= t_hit
     if cfg.attitude_tol_deg > 0:
-        expected, clear = _attitude_tolerant(cfg, expected, clear, r, r_h, np.sin(elevations[beams]), h, height,
-                                             t_in, t_out, crosses)
+        expected, clear = _attitude_tolerant(cfg, expected, clear, r, r_h, np.sin(elevations[beams]), h,
+                                             height[..., None] if per_target else height, t_in, t_out, crosses)
     clear &= expected
     clear_col = clear.any(axis=2)
     z_hit = h + t_hit * np.tan(elevations[beams])  # (K, C, b) height where each ray enters the box
@@ -331,23 +335,27 @@ def shadows(scan: Scan, cfg: OcclusionConfig = OcclusionConfig(), *, is_ground: 
     return polygons
 
 
-def _beam_window(elevations: np.ndarray, h: float, height: float, cfg: OcclusionConfig, t_in, t_out, crosses):
-    """The contiguous beams that can hit some target of ``height`` [m] (sensor at ``h`` [m]), or None.
+def _beam_window(elevations: np.ndarray, h: float, height, cfg: OcclusionConfig, t_in, t_out, crosses):
+    """The contiguous beams that can hit some target of ``height`` [m] (a float, or (K, 1) per target; sensor
+    at ``h`` [m]), or None.
 
-    Returns (beams slice, tz_in (B,) horizontal distance where each beam enters [0, height], cos of those
-    beams' elevations (b,), lo_t and hi_t (b,) bounds on a ray's entry point: above min_hit_height_m, below
-    the box top, within the sensor's range)."""
+    Returns (beams slice, tz_in (B,) or (K, B) horizontal distance where each beam enters [0, height], cos of
+    those beams' elevations (b,), lo_t (b,) and hi_t (b,) or (K, b) bounds on a ray's entry point: above
+    min_hit_height_m, below the box top, within the sensor's range)."""
     # 3-D: the ray is within [0, height] for horizontal distances [tz_in, tz_out] (per beam); keep the
     # beams that can reach some target at all (upward beams above a low target never do).
     tan_e = np.tan(elevations)
+    base = (np.full_like(tan_e, h - height / 2) if np.ndim(height) == 0  # the box's mid-height below the sensor
+            else np.broadcast_to(h - height / 2, (len(height), len(tan_e))))
     with np.errstate(divide="ignore", invalid="ignore"):
-        tz_in, tz_out = _slab(np.full_like(tan_e, h - height / 2), tan_e, height / 2)
+        tz_in, tz_out = _slab(base, tan_e, height / 2)
     t_reach = np.where(crosses, t_out, -np.inf).max(initial=-np.inf)
     t_near = np.where(crosses, t_in, np.inf).min(initial=np.inf)
     slack = t_reach * np.tan(np.deg2rad(cfg.attitude_tol_deg)) if np.isfinite(t_reach) else 0.0
     with np.errstate(divide="ignore", invalid="ignore"):  # the band a tilted beam may hit the box in
-        band_in, band_out = _slab(np.full_like(tan_e, h - height / 2), tan_e, height / 2 + slack)
-    useful = np.flatnonzero((band_in <= band_out) & (band_in <= t_reach) & (band_out >= t_near))
+        band_in, band_out = _slab(base, tan_e, height / 2 + slack)
+    useful = (band_in <= band_out) & (band_in <= t_reach) & (band_out >= t_near)
+    useful = np.flatnonzero(useful if useful.ndim == 1 else useful.any(axis=0))  # some target's
     if len(useful) == 0:
         return None
     beams = slice(useful[0], useful[-1] + 1)  # contiguous: the conditions are monotone in elevation
@@ -359,22 +367,22 @@ def _beam_window(elevations: np.ndarray, h: float, height: float, cfg: Occlusion
     tl_in = np.where(tan_b > 0, t_lo, np.where(tan_b < 0, -np.inf, -level))
     tl_out = np.where(tan_b < 0, t_lo, np.where(tan_b > 0, np.inf, level))
     lo_t = np.maximum(tl_in, cfg.min_range_m * cos_e)  # bounds on the entry point t_hit (b,)
-    hi_t = np.minimum(np.minimum(tz_out[beams], tl_out), cfg.max_range_m * cos_e)
+    hi_t = np.minimum(np.minimum(tz_out[..., beams], tl_out), cfg.max_range_m * cos_e)
 
     return beams, tz_in, cos_e, lo_t, hi_t
 
 
-def _footprint_columns(d, los, cb, sb, hl: float, hw: float, azimuths: np.ndarray, yaw: float, max_columns: int):
+def _footprint_columns(d, los, cb, sb, hl, hw, azimuths: np.ndarray, yaw: float, max_columns: int):
     """The azimuth columns whose rays cross each target's footprint, and where (horizontal distances).
 
     d, los, cb, sb: (K,) range, world bearing, cos and sin of the box axis relative to the line of sight;
-    hl, hw: half length and width [m]. Returns col (K, C) unwrapped column indices (at most max_columns
+    hl, hw: half length and width [m], floats or (K, 1) per target. Returns col (K, C) unwrapped column indices (at most max_columns
     sampled per target), weight (K,) columns each sample stands for, t_in and t_out (K, C) entry and exit
     distances of each column's ray through the footprint, crosses (K, C) whether it crosses it in front of
     the sensor, end (K, C) whether it enters through the box's front or rear face (not a side)."""
     az0, step = azimuths[0], _azimuth_step(azimuths)
     # Angular window: the footprint corners' bearings relative to the line of sight.
-    kx, ky = np.array([hl, hl, -hl, -hl]), np.array([hw, -hw, hw, -hw])
+    kx, ky = hl * np.array([1.0, 1.0, -1.0, -1.0]), hw * np.array([1.0, -1.0, 1.0, -1.0])  # (4,) or (K, 4)
     cx = d[:, None] + cb[:, None] * kx - sb[:, None] * ky
     cy = sb[:, None] * kx + cb[:, None] * ky
     rel = np.arctan2(cy, cx)  # (K, 4); > pi/2 in magnitude only when the sensor is (nearly) inside the box
@@ -442,7 +450,13 @@ def _slab(o, u, half: float) -> tuple[np.ndarray, np.ndarray]:
     return t_in, t_out
 
 
-def _size(size_m) -> tuple[float, float, float]:
+def _size(size_m, k: int) -> tuple:
+    """(length, width, height) [m] as floats from a (3,) size, or as (K, 1) columns from a (K, 3) one."""
+    if np.ndim(size_m) == 2:
+        size = checks.float_array("size_m", size_m, (k, 3))
+        if np.any(size <= 0):
+            raise ValueError(f"size_m: expected (length, width, height) > 0 [m], got min {size.min()!r}")
+        return size[:, 0:1], size[:, 1:2], size[:, 2:3]
     try:
         size = tuple(float(v) for v in size_m)
     except (TypeError, ValueError):

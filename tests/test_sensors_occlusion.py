@@ -148,9 +148,14 @@ def test_batch_equals_one_at_a_time():
     assert np.array_equal(batch, single)
     heading = rng.uniform(-np.pi, np.pi, len(xy))
     rows = rng.random(len(xy)) < 0.3
-    for size in ((4.6, 1.8, 1.5), (15.4, 2.5, 3.5)):
+    truck = (15.4, 2.5, 3.5)
+    for size in (CAR, truck):
         whole = detection_probability(s, xy, OCC, size_m=size, heading=heading)
         assert np.array_equal(whole[rows], detection_probability(s, xy[rows], OCC, size_m=size, heading=heading[rows]))
+    # one size per position: the same as asking each size for its own positions
+    mixed = detection_probability(s, xy, OCC, size_m=np.where(rows[:, None], truck, CAR), heading=heading)
+    assert np.array_equal(mixed[rows], detection_probability(s, xy[rows], OCC, size_m=truck, heading=heading[rows]))
+    assert np.array_equal(mixed[~rows], detection_probability(s, xy[~rows], OCC, size_m=CAR, heading=heading[~rows]))
     assert np.all((batch >= 0) & (batch <= OCC.pd_nominal))
     assert detection_probability(s, np.zeros((0, 2)), OCC).shape == (0,)
 
@@ -277,6 +282,10 @@ def test_bad_input_is_one_line_value_error():
         detection_probability(s, [1.0, 2.0], OCC)
     with pytest.raises(ValueError, match=r"^size_m:"):
         detection_probability(s, [[20.0, 0.0]], OCC, size_m=(4.6, 0.0, 1.5))
+    with pytest.raises(ValueError, match=r"^size_m:"):  # one size per position: as many rows as positions
+        detection_probability(s, [[20.0, 0.0]], OCC, size_m=np.ones((2, 3)))
+    with pytest.raises(ValueError, match=r"^size_m:"):
+        detection_probability(s, [[20.0, 0.0]], OCC, size_m=[[4.6, 1.8, np.nan]])
     with pytest.raises(ValueError, match=r"^heading: expected shape"):
         detection_probability(s, [[20.0, 0.0]], OCC, heading=np.zeros(2))
     old_style = Scan(points=s.points, source=s.source, origin=s.origin)  # no range image

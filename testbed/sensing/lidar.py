@@ -71,15 +71,10 @@ def occlusion_pd(scn: Scenario, road: sensors.RoadMap):
                     full_points=scn.sensor.occlusion_pd_full_points, edge_on_top_m=edge_on_top)
             xy = np.asarray(xy, dtype=np.float64)[:, :2]
             heading = road.heading_at(xy) if len(xy) else None
-            if trucks is not None and np.any(trucks):  # each box only where it applies: a position's P_D does
-                trucks = np.asarray(trucks, dtype=bool)  # not depend on the others asked with it
-                occ = np.empty(len(xy))
-                for rows, size in ((~trucks, sensors.CAR_BOX_M), (trucks, TRUCK_BOX_M)):
-                    if rows.any():
-                        occ[rows] = sensors.detection_probability(
-                            scan, xy[rows], cfg, size_m=size, heading=None if heading is None else heading[rows])
-            else:
-                occ = sensors.detection_probability(scan, xy, cfg, heading=heading)
+            size = sensors.CAR_BOX_M
+            if trucks is not None and np.any(trucks):  # one call, each track's own box
+                size = np.where(np.asarray(trucks, dtype=bool)[:, None], TRUCK_BOX_M, sensors.CAR_BOX_M)
+            occ = sensors.detection_probability(scan, xy, cfg, size_m=size, heading=heading)
             beyond = np.hypot(xy[:, 0] - scan.origin[0], xy[:, 1] - scan.origin[1]) > lidar.max_range_m
             return np.where(beyond, nominal, np.maximum(occ, min(scn.sensor.occlusion_pd_floor, nominal)))
 
