@@ -234,9 +234,13 @@ def batch_predict(filter_, states: list[FilterState], dt: float) -> list[FilterS
 
 
 def batch_layers(filter_, states: list[FilterState], m: int) -> np.ndarray:
-    """Boundary-layer half widths (T, m) of T predicted states (`layer`), NaN rows where a state has none; no
-    per-track call for a filter whose `layered` is False (every layer None)."""
+    """Boundary-layer half widths (T, m) of T predicted states (`layer`), NaN rows where a state has none: the
+    filter's `layers_many` when it has one (the same rows at once), else per track; no per-track call for a filter
+    whose `layered` is False (every layer None)."""
     layers = np.full((len(states), m), np.nan)
+    many = getattr(filter_, "layers_many", None)
+    if many is not None and len(states) and getattr(filter_, "layered", True):
+        return many(states, m)
     if getattr(filter_, "layered", True):
         for t, s in enumerate(states):
             lay = filter_.layer(s)

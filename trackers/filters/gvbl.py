@@ -147,6 +147,18 @@ class GVBLSVSF(ModelFilter):
             return None
         return np.full(self.measurement.ndim, self.psi_max)  # (5.37) psi_max: first scan, or apda_layer "psi_max"
 
+    def layers_many(self, preds: list[FilterState], m: int) -> np.ndarray:
+        """`layer` of T predicted states at once (T, m) [m], NaN rows where it is None."""
+        out = np.full((len(preds), m), np.nan)
+        if not math.isinf(self.psi_max):
+            out[:] = self.psi_max  # (5.37) psi_max: first scan, or apda_layer "psi_max"
+        if self.apda_layer == "previous_capped":  # (5.37) psi_{z,k+1}: the last GVBL layer [D]
+            for t, s in enumerate(preds):
+                prev = getattr(s, "psi_layer", None)
+                if prev is not None:
+                    out[t] = prev
+        return out
+
     def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float,
                R: np.ndarray | None = None) -> FilterState:
         """PDA-form GVBL-SVSF update; nu (M, m), beta (M,), beta0 (see module docstring); R (M, m, m): the

@@ -56,7 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from roadtrack.trackers.filters.base import (ModelFilter, batch_predict, batch_predicted_measurements, batch_update,
+from roadtrack.trackers.filters.base import (ModelFilter, batch_layers, batch_predict, batch_predicted_measurements, batch_update,
                                    check_covariance, check_weights, pair_covariances, symmetrise)
 from roadtrack.trackers.gating import log_gaussian
 from roadtrack.trackers.models import MOTION_MODELS
@@ -294,6 +294,19 @@ class IMMFilter:
         if any(lay is None for lay in layers):
             return None
         return s_pred.mu @ np.array(layers, dtype=np.float64)
+
+    def layers_many(self, preds: list[IMMState], m: int) -> np.ndarray:
+        """`layer` of T predicted states at once: (T, m), NaN rows where a mode has none. Each mode's layers by its
+        filter's batched form (filters.base.batch_layers), combined as mu (1, r) @ layers (r, m) per track (the
+        per-track product, bit for bit)."""
+        if not self._stackable(preds):
+            return np.array([np.full(m, np.nan) if (lay := self.layer(s)) is None else lay for s in preds],
+                            dtype=np.float64).reshape(len(preds), m)
+        L = np.stack([batch_layers(f, ms, m) for f, ms in zip(self.filters, self._mode_lists(preds))], axis=1)
+        none = np.isnan(L).all(axis=2).any(axis=1)  # a mode without a layer: None
+        out = np.matmul(self._mus(preds)[:, None, :], L)[:, 0]  # c-weighted mean ([D])
+        out[none] = np.nan
+        return out
 
     # -------------------------------------------------------------------- batched forms
     # The same cycle over T tracks at once (used by the tracker through filters.base.batch_*): the mixing,

@@ -315,6 +315,12 @@ class SVSF(ModelFilter):
         """The fixed position layer psi (m,) [m]."""
         return np.array(self.psi, dtype=np.float64)
 
+    def layers_many(self, preds: list[FilterState], m: int) -> np.ndarray:
+        """`layer` of T predicted states at once: the fixed psi in every row (T, m) [m]."""
+        out = np.empty((len(preds), m))
+        out[:] = np.array(self.psi, dtype=np.float64)
+        return out
+
     def augmented(self, s: SVSFState, nu: np.ndarray, R: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(H_bar (2m, n), R_bar (2m, 2m), nu_bar (M, 2m), e_prev (2m,), psi (2m,)): the artificial velocity
@@ -546,6 +552,12 @@ class GeneralisedSVSF(ModelFilter):
     def layer(self, s_pred: FilterState) -> np.ndarray:
         """The fixed measured-partition layer psi_z (m,) [m]."""
         return np.array(self.psi_z, dtype=np.float64)
+
+    def layers_many(self, preds: list[FilterState], m: int) -> np.ndarray:
+        """`layer` of T predicted states at once: the fixed psi_z in every row (T, m) [m]."""
+        out = np.empty((len(preds), m))
+        out[:] = np.array(self.psi_z, dtype=np.float64)
+        return out
 
     def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float,
                R: np.ndarray | None = None) -> FilterState:
