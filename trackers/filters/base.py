@@ -296,6 +296,27 @@ def weighted_R(R: np.ndarray, W: np.ndarray) -> np.ndarray:
     return np.einsum("tj,jab->tab", w, R)
 
 
+def weighted_outer(W: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """sum_j W_aj D_aj D_aj^T (A, k, k) of weights W (A, M) >= 0 and rows D (A, M, k) (the PDA spread term of
+    (4.17)): np.einsum("aj,aji,ajk->aik", W, D, D) over each track's entries with W > 0 only, in their order and
+    zero-padded to the longest row. einsum adds a pair's terms one j after the other and an entry with W = 0 adds an
+    exact zero, so the sums are the full einsum's bit for bit (tests/test_trackers_filters.py), without its loop over
+    every (track, measurement) pair (a few measurements of the M in a scan are a track's)."""
+    use = W > 0.0
+    A, M = use.shape
+    counts = use.sum(axis=1)
+    K = int(counts.max()) if A else 0
+    if 2 * K > M:  # little to drop: the einsum as it is
+        return np.einsum("aj,aji,ajk->aik", W, D, D)
+    rows, cols = np.nonzero(use)  # row by row, each row's entries in order
+    pos = np.arange(rows.size) - (np.cumsum(counts) - counts)[rows]  # an entry's place within its row
+    cW = np.zeros((A, K))
+    cW[rows, pos] = W[rows, cols]
+    cD = np.zeros((A, K, D.shape[2]))
+    cD[rows, pos] = D[rows, cols]
+    return np.einsum("aj,aji,ajk->aik", cW, cD, cD)
+
+
 def check_detection_R(R, M: int, m: int) -> np.ndarray:
     """R as float64 (M, m, m), or ValueError (one line) unless every R_j is finite, symmetric and positive
     definite."""
