@@ -257,13 +257,24 @@ def batch_predicted_measurements(filter_, preds: list[FilterState]) -> tuple[np.
 
 
 def batch_update(filter_, preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray,
-                 R: np.ndarray | None = None) -> list:
+                 R: np.ndarray | None = None, log_lik: np.ndarray | None = None) -> list:
     """`update_many` of any filter (the per-track loop for filters without one); R (M, m, m): the detections' own
-    covariances, passed only when given (a filter that takes them: `takes_detection_R`)."""
+    covariances, passed only when given (a filter that takes them: `takes_detection_R`); log_lik (T, M): log N(nu; 0,
+    S) of every (track, measurement) pair as the association computed it (trackers.gating), passed only when given
+    and the filter's `update_many` has the keyword (the IMM reads its N_c there instead of computing it again)."""
     many = getattr(filter_, "update_many", None)
     if many is None:
         many = lambda *a, **k: ModelFilter.update_many(filter_, *a, **k)  # noqa: E731
-    return many(preds, nu, W, w0) if R is None else many(preds, nu, W, w0, R=R)
+    kw = {} if R is None else {"R": R}
+    if log_lik is not None and _update_many_takes(type(filter_), "log_lik"):
+        kw["log_lik"] = log_lik
+    return many(preds, nu, W, w0, **kw)
+
+
+@functools.lru_cache(maxsize=None)
+def _update_many_takes(cls: type, name: str) -> bool:
+    method = getattr(cls, "update_many", None)
+    return method is not None and name in inspect.signature(method).parameters
 
 
 def takes_detection_R(filter_) -> bool:

@@ -372,9 +372,11 @@ class IMMFilter:
         return z_c, S_c
 
     def update_many(self, preds: list[IMMState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray,
-                    R: np.ndarray | None = None) -> list[IMMState]:
+                    R: np.ndarray | None = None, log_lik: np.ndarray | None = None) -> list[IMMState]:
         """`update` of T tracks: nu (T, M, m) innovations relative to each track's z_c, W (T, M) weights (0 = not
-        used), w0 (T,) miss weights, R (M, m, m) the detections' own covariances or None. A track with no weight > 0 or w0 = 1 gets each mode's own miss handling
+        used), w0 (T,) miss weights, R (M, m, m) the detections' own covariances or None, log_lik (T, M) log N_c(z_j)
+        of every pair as association computed it (trackers.gating; the tracker passes it) or None (computed here). A
+        track with no weight > 0 or w0 = 1 gets each mode's own miss handling
         (`_missed_many`), as in `update`. Bad input (non-finite used innovations or weights, rows not summing to 1)
         goes to the per-track loop, which raises the reference's ValueError."""
         T, m = len(preds), self.measurement.ndim
@@ -407,7 +409,9 @@ class IMMFilter:
             A, r = Ss.shape[:2]
             Ss = pair_covariances(Ss.reshape(A * r, m, m), R, meas.R).reshape(A, r, len(R), m, m)
             S_c = pair_covariances(S_c, R, meas.R)
-        mu = self._mode_probabilities_many(nus, Ss, nua, S_c, Wa, b0, mu_c)
+        known = log_lik is not None and np.shape(log_lik) == (T, nu.shape[1])
+        mu = self._mode_probabilities_many(nus, Ss, nua, S_c, Wa, b0, mu_c,
+                                           np.where(Wa > 0.0, np.asarray(log_lik)[active], 0.0) if known else None)
         modes = [batch_update(f, ms, nus[:, i], Wa, b0, R) for i, (f, ms) in enumerate(zip(self.filters, lists))]
         for t, s in zip(active, self._states_many(ps, modes, mu)):
             out[t] = s
@@ -505,13 +509,17 @@ class IMMFilter:
         return z_c, 0.5 * (S_c + np.swapaxes(S_c, 1, 2))
 
     def _mode_probabilities_many(self, nus: np.ndarray, Ss: np.ndarray, nu: np.ndarray, S_c: np.ndarray,
-                                 W: np.ndarray, w0: np.ndarray, mu: np.ndarray) -> np.ndarray:
+                                 W: np.ndarray, w0: np.ndarray, mu: np.ndarray,
+                                 log_nc: np.ndarray | None = None) -> np.ndarray:
         """Updated mode probabilities (A, r) of A updated tracks: nus (A, r, M, m) = z_j - z_i, Ss (A, r, m, m)
         (or per detection (A, r, M, m, m)), nu (A, M, m) = z_j - z_c, S_c (A, m, m) (or (A, M, m, m)), weights
-        W (A, M) (0 = not used) and w0 (A,), predicted mu (A, r)."""
+        W (A, M) (0 = not used) and w0 (A,), predicted mu (A, r); log_nc (A, M): log N_c(z_j) as association computed
+        it (the same function of the same nu and S_c, row by row: equal on every used pair; an unused pair's
+        term is exp(-inf) = 0 whatever its value), else computed here."""
         A, r, M, m = nus.shape
         log_ni = log_gaussian(nus.reshape(A * r, M, m), Ss.reshape((A * r,) + Ss.shape[2:])).reshape(A, r, M)  # log N_i(z_j)
-        log_nc = log_gaussian(nu, S_c)  # (A, M): log N_c(z_j), the density association used
+        if log_nc is None:
+            log_nc = log_gaussian(nu, S_c)  # (A, M): log N_c(z_j), the density association used
         a = np.concatenate([np.zeros((A, r, 1)), log_ni - log_nc[:, None, :]], axis=2)
         b = np.concatenate([w0[:, None], W], axis=1)[:, None, :]
         log_lam = logsumexp(a, axis=2, b=b)  # (2.103) up to the mode-independent factor lambda D
