@@ -255,3 +255,23 @@ def test_second_order_ekf_predicted_measurement_bias_matches_monte_carlo():
     bias_mc, se = dev.mean(axis=0), dev.std(axis=0) / np.sqrt(len(dev))
     assert np.all(np.abs(bias_mc) > 10 * se), (bias_mc, se)  # a real bias the first-order EKF (z1 = h(x)) misses
     assert np.all(np.abs(bias2 - bias_mc) <= 4 * se + 0.05 * np.abs(bias_mc)), (bias2, bias_mc, se)
+
+
+def test_weighted_outer_equals_the_full_einsum_bit_for_bit():
+    """filters.base.weighted_outer sums only each track's entries with W > 0: equal to np.einsum over every
+    (track, measurement) pair to the last bit (sign of zero included), whatever the shapes, the share of used
+    entries and the values of the unused rows of D."""
+    from roadtrack.trackers.filters.base import weighted_outer
+
+    rng = np.random.default_rng(30)
+    for trial in range(400):
+        A, M, k = int(rng.integers(0, 60)), int(rng.integers(0, 70)), int(rng.choice([2, 3, 4, 5]))
+        use = rng.random((A, M)) < rng.uniform(0.0, 0.7)
+        W = np.where(use, rng.random((A, M)), 0.0)
+        D = rng.normal(size=(A, M, k)) * 10.0 ** rng.uniform(-3, 3)
+        if trial % 2:  # as the KF update gives them: unused innovations zeroed
+            D = np.where(use[..., None], D, 0.0)
+        full = np.einsum("aj,aji,ajk->aik", W, D, D)
+        got = weighted_outer(W, D)
+        assert got.shape == full.shape
+        assert np.array_equal(got, full) and np.array_equal(np.signbit(got), np.signbit(full)), trial

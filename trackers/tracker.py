@@ -320,7 +320,7 @@ class Tracker:
         live, pred, pdt, too_wide = self._drop_wide(live, pred, pdt, road)
         inp = self._gate(pred, Z, pdt, Rz)
         W, w0, extra = self._associate(inp)
-        states = batch_update(self.filter, pred.states, inp.nu, W, w0, Rz)
+        states = batch_update(self.filter, pred.states, inp.nu, W, w0, Rz, inp.log_lik)
         if road is not None and self.management.road_lane_keeping:
             states = self._keep_lanes(live, states, W, road)
         survivors, deleted, diag = self._manage(live, states, inp, W, w0, pred, dt, road, Rz)
@@ -361,7 +361,7 @@ class Tracker:
         pred = self._predict(live, dt)
         inp = self._gate(pred, Z, self._pd(pd, pred), Rz)
         W, w0, extra = self._associate(inp)
-        states = batch_update(self.filter, pred.states, inp.nu, W, w0, Rz)
+        states = batch_update(self.filter, pred.states, inp.nu, W, w0, Rz, inp.log_lik)
         out = list(tracks)
         for i, tr, s in zip(idx, live, states):
             out[i] = _evolve(tr, state=keep_memory(s, tr.state))

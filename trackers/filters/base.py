@@ -234,9 +234,13 @@ def batch_predict(filter_, states: list[FilterState], dt: float) -> list[FilterS
 
 
 def batch_layers(filter_, states: list[FilterState], m: int) -> np.ndarray:
-    """Boundary-layer half widths (T, m) of T predicted states (`layer`), NaN rows where a state has none; no
-    per-track call for a filter whose `layered` is False (every layer None)."""
+    """Boundary-layer half widths (T, m) of T predicted states (`layer`), NaN rows where a state has none: the
+    filter's `layers_many` when it has one (the same rows at once), else per track; no per-track call for a filter
+    whose `layered` is False (every layer None)."""
     layers = np.full((len(states), m), np.nan)
+    many = getattr(filter_, "layers_many", None)
+    if many is not None and len(states) and getattr(filter_, "layered", True):
+        return many(states, m)
     if getattr(filter_, "layered", True):
         for t, s in enumerate(states):
             lay = filter_.layer(s)
@@ -253,13 +257,24 @@ def batch_predicted_measurements(filter_, preds: list[FilterState]) -> tuple[np.
 
 
 def batch_update(filter_, preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray,
-                 R: np.ndarray | None = None) -> list:
+                 R: np.ndarray | None = None, log_lik: np.ndarray | None = None) -> list:
     """`update_many` of any filter (the per-track loop for filters without one); R (M, m, m): the detections' own
-    covariances, passed only when given (a filter that takes them: `takes_detection_R`)."""
+    covariances, passed only when given (a filter that takes them: `takes_detection_R`); log_lik (T, M): log N(nu; 0,
+    S) of every (track, measurement) pair as the association computed it (trackers.gating), passed only when given
+    and the filter's `update_many` has the keyword (the IMM reads its N_c there instead of computing it again)."""
     many = getattr(filter_, "update_many", None)
     if many is None:
         many = lambda *a, **k: ModelFilter.update_many(filter_, *a, **k)  # noqa: E731
-    return many(preds, nu, W, w0) if R is None else many(preds, nu, W, w0, R=R)
+    kw = {} if R is None else {"R": R}
+    if log_lik is not None and _update_many_takes(type(filter_), "log_lik"):
+        kw["log_lik"] = log_lik
+    return many(preds, nu, W, w0, **kw)
+
+
+@functools.lru_cache(maxsize=None)
+def _update_many_takes(cls: type, name: str) -> bool:
+    method = getattr(cls, "update_many", None)
+    return method is not None and name in inspect.signature(method).parameters
 
 
 def takes_detection_R(filter_) -> bool:
@@ -290,6 +305,27 @@ def weighted_R(R: np.ndarray, W: np.ndarray) -> np.ndarray:
     tot = w.sum(axis=1, keepdims=True)
     w = np.where(tot > 0.0, w / np.where(tot > 0.0, tot, 1.0), 1.0 / max(w.shape[1], 1))
     return np.einsum("tj,jab->tab", w, R)
+
+
+def weighted_outer(W: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """sum_j W_aj D_aj D_aj^T (A, k, k) of weights W (A, M) >= 0 and rows D (A, M, k) (the PDA spread term of
+    (4.17)): np.einsum("aj,aji,ajk->aik", W, D, D) over each track's entries with W > 0 only, in their order and
+    zero-padded to the longest row. einsum adds a pair's terms one j after the other and an entry with W = 0 adds an
+    exact zero, so the sums are the full einsum's bit for bit (tests/test_trackers_filters.py), without its loop over
+    every (track, measurement) pair (a few measurements of the M in a scan are a track's)."""
+    use = W > 0.0
+    A, M = use.shape
+    counts = use.sum(axis=1)
+    K = int(counts.max()) if A else 0
+    if 2 * K > M:  # little to drop: the einsum as it is
+        return np.einsum("aj,aji,ajk->aik", W, D, D)
+    rows, cols = np.nonzero(use)  # row by row, each row's entries in order
+    pos = np.arange(rows.size) - (np.cumsum(counts) - counts)[rows]  # an entry's place within its row
+    cW = np.zeros((A, K))
+    cW[rows, pos] = W[rows, cols]
+    cD = np.zeros((A, K, D.shape[2]))
+    cD[rows, pos] = D[rows, cols]
+    return np.einsum("aj,aji,ajk->aik", cW, cD, cD)
 
 
 def check_detection_R(R, M: int, m: int) -> np.ndarray:

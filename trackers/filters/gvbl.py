@@ -60,7 +60,7 @@ import numpy as np
 
 from roadtrack.trackers.errors import FilterError
 from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
-                                   combined_innovation, pda_covariance, symmetrise, weighted_R)
+                                   combined_innovation, pda_covariance, symmetrise, weighted_R, weighted_outer)
 from roadtrack.trackers.filters.svsf import (EY_MEMORY, GAMMA, MEMORY_AFTER_MISS, MEMORY_AFTER_MISS_DOC, Partition,
                                    after_miss, apply_rows, check_memory_after_miss, generalised_covariance,
                                    lower_error, maps_many, promote_state, svsf_gain_factor)
@@ -146,6 +146,18 @@ class GVBLSVSF(ModelFilter):
         if math.isinf(self.psi_max):
             return None
         return np.full(self.measurement.ndim, self.psi_max)  # (5.37) psi_max: first scan, or apda_layer "psi_max"
+
+    def layers_many(self, preds: list[FilterState], m: int) -> np.ndarray:
+        """`layer` of T predicted states at once (T, m) [m], NaN rows where it is None."""
+        out = np.full((len(preds), m), np.nan)
+        if not math.isinf(self.psi_max):
+            out[:] = self.psi_max  # (5.37) psi_max: first scan, or apda_layer "psi_max"
+        if self.apda_layer == "previous_capped":  # (5.37) psi_{z,k+1}: the last GVBL layer [D]
+            for t, s in enumerate(preds):
+                prev = getattr(s, "psi_layer", None)
+                if prev is not None:
+                    out[t] = prev
+        return out
 
     def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float,
                R: np.ndarray | None = None) -> FilterState:
@@ -235,7 +247,7 @@ class GVBLSVSF(ModelFilter):
         KHP = K @ H @ P
         P_star = P - KHP - np.swapaxes(KHP, 1, 2) + K @ S @ np.swapaxes(K, 1, 2)  # (4.37)
         P_star = 0.5 * (P_star + np.swapaxes(P_star, 1, 2))
-        spread = np.einsum("aj,aji,ajk->aik", Wa, nua, nua) - np.einsum("ai,ak->aik", e, e)
+        spread = weighted_outer(Wa, nua) - np.einsum("ai,ak->aik", e, e)
         Pn = b0[:, None, None] * P + (1.0 - b0)[:, None, None] * P_star + K @ spread @ np.swapaxes(K, 1, 2)  # (4.16)
         Pn = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
         Ke = np.einsum("anm,am->an", K, e)

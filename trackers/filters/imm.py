@@ -56,7 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from roadtrack.trackers.filters.base import (ModelFilter, batch_predict, batch_predicted_measurements, batch_update,
+from roadtrack.trackers.filters.base import (ModelFilter, batch_layers, batch_predict, batch_predicted_measurements, batch_update,
                                    check_covariance, check_weights, pair_covariances, symmetrise)
 from roadtrack.trackers.gating import log_gaussian
 from roadtrack.trackers.models import MOTION_MODELS
@@ -295,6 +295,19 @@ class IMMFilter:
             return None
         return s_pred.mu @ np.array(layers, dtype=np.float64)
 
+    def layers_many(self, preds: list[IMMState], m: int) -> np.ndarray:
+        """`layer` of T predicted states at once: (T, m), NaN rows where a mode has none. Each mode's layers by its
+        filter's batched form (filters.base.batch_layers), combined as mu (1, r) @ layers (r, m) per track (the
+        per-track product, bit for bit)."""
+        if not self._stackable(preds):
+            return np.array([np.full(m, np.nan) if (lay := self.layer(s)) is None else lay for s in preds],
+                            dtype=np.float64).reshape(len(preds), m)
+        L = np.stack([batch_layers(f, ms, m) for f, ms in zip(self.filters, self._mode_lists(preds))], axis=1)
+        none = np.isnan(L).all(axis=2).any(axis=1)  # a mode without a layer: None
+        out = np.matmul(self._mus(preds)[:, None, :], L)[:, 0]  # c-weighted mean ([D])
+        out[none] = np.nan
+        return out
+
     # -------------------------------------------------------------------- batched forms
     # The same cycle over T tracks at once (used by the tracker through filters.base.batch_*): the mixing,
     # moment matching, mode likelihoods and mode probabilities vectorised over tracks, each mode's predict
@@ -307,6 +320,7 @@ class IMMFilter:
             raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
         if not states:
             return []
+        states = self._gathered(states)
         if not self._stackable(states):
             return [self.predict(s, dt) for s in states]  # unusual states: the per-track reference
         mu = self._mus(states)  # (T, r)
@@ -359,9 +373,11 @@ class IMMFilter:
         return z_c, S_c
 
     def update_many(self, preds: list[IMMState], nu: np.ndarray, W: np.ndarray, w0: np.ndarray,
-                    R: np.ndarray | None = None) -> list[IMMState]:
+                    R: np.ndarray | None = None, log_lik: np.ndarray | None = None) -> list[IMMState]:
         """`update` of T tracks: nu (T, M, m) innovations relative to each track's z_c, W (T, M) weights (0 = not
-        used), w0 (T,) miss weights, R (M, m, m) the detections' own covariances or None. A track with no weight > 0 or w0 = 1 gets each mode's own miss handling
+        used), w0 (T,) miss weights, R (M, m, m) the detections' own covariances or None, log_lik (T, M) log N_c(z_j)
+        of every pair as association computed it (trackers.gating; the tracker passes it) or None (computed here). A
+        track with no weight > 0 or w0 = 1 gets each mode's own miss handling
         (`_missed_many`), as in `update`. Bad input (non-finite used innovations or weights, rows not summing to 1)
         goes to the per-track loop, which raises the reference's ValueError."""
         T, m = len(preds), self.measurement.ndim
@@ -394,7 +410,9 @@ class IMMFilter:
             A, r = Ss.shape[:2]
             Ss = pair_covariances(Ss.reshape(A * r, m, m), R, meas.R).reshape(A, r, len(R), m, m)
             S_c = pair_covariances(S_c, R, meas.R)
-        mu = self._mode_probabilities_many(nus, Ss, nua, S_c, Wa, b0, mu_c)
+        known = log_lik is not None and np.shape(log_lik) == (T, nu.shape[1])
+        mu = self._mode_probabilities_many(nus, Ss, nua, S_c, Wa, b0, mu_c,
+                                           np.where(Wa > 0.0, np.asarray(log_lik)[active], 0.0) if known else None)
         modes = [batch_update(f, ms, nus[:, i], Wa, b0, R) for i, (f, ms) in enumerate(zip(self.filters, lists))]
         for t, s in zip(active, self._states_many(ps, modes, mu)):
             out[t] = s
@@ -492,13 +510,17 @@ class IMMFilter:
         return z_c, 0.5 * (S_c + np.swapaxes(S_c, 1, 2))
 
     def _mode_probabilities_many(self, nus: np.ndarray, Ss: np.ndarray, nu: np.ndarray, S_c: np.ndarray,
-                                 W: np.ndarray, w0: np.ndarray, mu: np.ndarray) -> np.ndarray:
+                                 W: np.ndarray, w0: np.ndarray, mu: np.ndarray,
+                                 log_nc: np.ndarray | None = None) -> np.ndarray:
         """Updated mode probabilities (A, r) of A updated tracks: nus (A, r, M, m) = z_j - z_i, Ss (A, r, m, m)
         (or per detection (A, r, M, m, m)), nu (A, M, m) = z_j - z_c, S_c (A, m, m) (or (A, M, m, m)), weights
-        W (A, M) (0 = not used) and w0 (A,), predicted mu (A, r)."""
+        W (A, M) (0 = not used) and w0 (A,), predicted mu (A, r); log_nc (A, M): log N_c(z_j) as association computed
+        it (the same function of the same nu and S_c, row by row: equal on every used pair; an unused pair's
+        term is exp(-inf) = 0 whatever its value), else computed here."""
         A, r, M, m = nus.shape
         log_ni = log_gaussian(nus.reshape(A * r, M, m), Ss.reshape((A * r,) + Ss.shape[2:])).reshape(A, r, M)  # log N_i(z_j)
-        log_nc = log_gaussian(nu, S_c)  # (A, M): log N_c(z_j), the density association used
+        if log_nc is None:
+            log_nc = log_gaussian(nu, S_c)  # (A, M): log N_c(z_j), the density association used
         a = np.concatenate([np.zeros((A, r, 1)), log_ni - log_nc[:, None, :]], axis=2)
         b = np.concatenate([w0[:, None], W], axis=1)[:, None, :]
         log_lam = logsumexp(a, axis=2, b=b)  # (2.103) up to the mode-independent factor lambda D
@@ -524,13 +546,64 @@ class IMMFilter:
         freeze(x, P, e, mu)
         out, names = [], self.mode_names
         told = [i for i, ms in enumerate(modes) if any(m.info for m in ms)]  # the modes with diagnostics, in order
-        for s, mt, xt, Pt, et, mut, mui in zip(like, mts, x, P, e, mu, mu_info):
+        bank = (mu, arrays)  # the rows `_gathered` copies when these states come back as a plain list
+        for t, (s, mt, xt, Pt, et, mut, mui) in enumerate(zip(like, mts, x, P, e, mu, mu_info)):
             info: dict[str, Any] = {"mu": mui}
             for i in told:
                 for key, v in mt[i].info.items():
                     info[f"{names[i]}.{key}"] = v
-            out.append(derive_frozen(s, x=xt, P=Pt, e_post=et, F=None, info=info, modes=mt, mu=mut))
+            out.append(derive_frozen(s, x=xt, P=Pt, e_post=et, F=None, info=info, modes=mt, mu=mut,
+                                     _rows=(bank, t, mut, mt)))
         return IMMRows(out, mu, [StateRows(ms, *a) for ms, a in zip(modes, arrays)])
+
+    def _gathered(self, states: list[IMMState]) -> list[IMMState]:
+        """A plain list of states (the tracks' states at the start of a scan) as an IMMRows whose mode rows and mode
+        probabilities are copied from the batches that made the states (`_states_many` leaves each state its batch's
+        arrays and row, "_rows") instead of stacked state by state; a state made otherwise (initial_state, or a
+        state whose modes or mu were replaced since) gives its own fields. The states themselves if none came from a
+        batch or the rows do not stack (then `_stackable` decides, as before)."""
+        if type(states) is IMMRows or not states:
+            return states
+        r, T = len(self.filters), len(states)
+        groups: dict[int, tuple] = {}  # id(batch arrays) -> (the arrays, positions, rows)
+        loose = []
+        for t, s in enumerate(states):
+            d = s.__dict__
+            src = d.get("_rows")
+            if src is None or src[2] is not d.get("mu") or src[3] is not d.get("modes"):
+                loose.append(t)
+                continue
+            g = groups.get(id(src[0]))
+            if g is None:
+                groups[id(src[0])] = g = (src[0], [], [])
+            g[1].append(t)
+            g[2].append(src[1])
+        if not groups:
+            return states
+        shapes = [tuple(a.shape[1:] for a in rows) for rows in next(iter(groups.values()))[0][1]]  # per mode x, P, e
+        if any([tuple(a.shape[1:] for a in rows) for rows in g[0][1]] != shapes for g in groups.values()) \
+                or len({sh[2] for sh in shapes}) > 1:
+            return states
+        for t in loose:
+            s = states[t]
+            if not isinstance(s, IMMState) or len(s.modes) != r or any(
+                    (m.x.shape, m.P.shape, m.e_post.shape) != sh for m, sh in zip(s.modes, shapes)):
+                return states
+        mu = np.empty((T, r))
+        arrays = [tuple(np.empty((T,) + sh) for sh in shapes[i]) for i in range(r)]
+        for (mu_b, rows_b), ts, rows in groups.values():
+            ts, rows = np.array(ts), np.array(rows)
+            mu[ts] = mu_b[rows]
+            for out, src in zip(arrays, rows_b):
+                for a, b in zip(out, src):
+                    a[ts] = b[rows]
+        for t in loose:
+            s = states[t]
+            mu[t] = s.mu
+            for out, m in zip(arrays, s.modes):
+                out[0][t], out[1][t], out[2][t] = m.x, m.P, m.e_post
+        freeze(mu, *(a for out in arrays for a in out))
+        return IMMRows(states, mu, [StateRows([s.modes[i] for s in states], *arrays[i]) for i in range(r)])
 
     def _mode_lists(self, states: list[IMMState]) -> list:
         """Per mode i the list of the states' mode-i states (the carried StateRows of an IMMRows)."""

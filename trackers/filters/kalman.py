@@ -14,7 +14,7 @@ import numpy as np
 
 from roadtrack.trackers.errors import FilterError
 from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
-                                   combined_innovation, identity, pda_covariance, symmetrise)
+                                   combined_innovation, identity, pda_covariance, symmetrise, weighted_outer)
 from roadtrack.trackers.state import FilterState, StateRows, derive_frozen, freeze, rows_of
 
 
@@ -127,7 +127,7 @@ def gain_update_many(preds: list[FilterState], nu: np.ndarray, W: np.ndarray, w0
     Xn = X + np.einsum("anm,am->an", K, nu_c)  # §4.2 PDA state update
     I_KH = identity(X.shape[1]) - K @ H
     P_star = I_KH @ P @ np.swapaxes(I_KH, 1, 2) + K @ R_j @ np.swapaxes(K, 1, 2)  # (4.8) Joseph form
-    spread = np.einsum("aj,aji,ajk->aik", Wa, nua, nua) - np.einsum("ai,ak->aik", nu_c, nu_c)
+    spread = weighted_outer(Wa, nua) - np.einsum("ai,ak->aik", nu_c, nu_c)
     Pn = b0[:, None, None] * P + (1.0 - b0)[:, None, None] * P_star + K @ spread @ np.swapaxes(K, 1, 2)  # (4.16)-(4.17)
     Pn = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
     if not (np.isfinite(Xn).all() and np.isfinite(Pn).all()):

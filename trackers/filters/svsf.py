@@ -41,7 +41,7 @@ import numpy as np
 
 from roadtrack.trackers.errors import FilterError
 from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
-                                   combined_innovation, pda_covariance, symmetrise, weighted_R)
+                                   combined_innovation, pda_covariance, symmetrise, weighted_R, weighted_outer)
 from roadtrack.trackers.filters.params import ModelParams
 from roadtrack.trackers.params import POSITIVE, ParamError, param
 from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze, rows_of
@@ -315,6 +315,12 @@ class SVSF(ModelFilter):
         """The fixed position layer psi (m,) [m]."""
         return np.array(self.psi, dtype=np.float64)
 
+    def layers_many(self, preds: list[FilterState], m: int) -> np.ndarray:
+        """`layer` of T predicted states at once: the fixed psi in every row (T, m) [m]."""
+        out = np.empty((len(preds), m))
+        out[:] = np.array(self.psi, dtype=np.float64)
+        return out
+
     def augmented(self, s: SVSFState, nu: np.ndarray, R: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(H_bar (2m, n), R_bar (2m, 2m), nu_bar (M, 2m), e_prev (2m,), psi (2m,)): the artificial velocity
@@ -490,7 +496,7 @@ def estimate_mse_many(P, H, R, x_pred, x, nu, W, w0) -> np.ndarray:
     d0 = x - x_pred
     D = d0[:, None, :] - np.einsum("ajm,anm->ajn", nu, K_kf)  # (A, M, n)
     out = (w0[:, None, None] * (P + np.einsum("ai,ak->aik", d0, d0)) + (1.0 - w0)[:, None, None] * P_kf
-           + np.einsum("aj,aji,ajk->aik", W, D, D))
+           + weighted_outer(W, D))
     return 0.5 * (out + np.swapaxes(out, 1, 2))
 
 # ------------------------------------------------------------------------------- generalised (CM-) SVSF
@@ -546,6 +552,12 @@ class GeneralisedSVSF(ModelFilter):
     def layer(self, s_pred: FilterState) -> np.ndarray:
         """The fixed measured-partition layer psi_z (m,) [m]."""
         return np.array(self.psi_z, dtype=np.float64)
+
+    def layers_many(self, preds: list[FilterState], m: int) -> np.ndarray:
+        """`layer` of T predicted states at once: the fixed psi_z in every row (T, m) [m]."""
+        out = np.empty((len(preds), m))
+        out[:] = np.array(self.psi_z, dtype=np.float64)
+        return out
 
     def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float,
                R: np.ndarray | None = None) -> FilterState:
@@ -632,7 +644,7 @@ class GeneralisedSVSF(ModelFilter):
             KHP = K @ H @ P
             P_star = P - KHP - np.swapaxes(KHP, 1, 2) + K @ S @ np.swapaxes(K, 1, 2)  # (4.37)
             P_star = 0.5 * (P_star + np.swapaxes(P_star, 1, 2))
-            spread = np.einsum("aj,aji,ajk->aik", Wa, nua, nua) - np.einsum("ai,ak->aik", e, e)
+            spread = weighted_outer(Wa, nua) - np.einsum("ai,ak->aik", e, e)
             Pn = (b0[:, None, None] * P + (1.0 - b0)[:, None, None] * P_star
                   + K @ spread @ np.swapaxes(K, 1, 2))  # (4.16)
             Pn = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
