@@ -250,12 +250,21 @@ def _check_tracker_keys(keys: list[tuple[str, str]], trackers: tuple[str, ...]) 
                               f"allowed: {', '.join(allowed)}")
 
 
-def _scenario(data: dict, overrides: dict[str, Any], tracker: str):
-    from ..scenario.spec import apply_overrides
-    from ..world import parse_scenario
+def _scenario(data: dict, overrides: dict[str, Any], tracker: str, worlds: set[str]):
+    """The scenario of ``data`` with ``overrides`` for ``tracker``, checked (testbed.world.parse_scenario). The world
+    check (an ``[env]`` scenario builds its environment and takes a step: most of a campaign check's time) reads no
+    tracker setting, so it runs once per scenario that differs in anything but its tracker table: ``worlds`` holds
+    the ones checked so far, for one campaign."""
+    from ..scenario.spec import apply_overrides, parse_scenario
+    from ..world import check_world
 
-    return parse_scenario(apply_overrides(data, {**for_tracker(overrides, tracker),
-                                                 "tracker.name": settings_tracker(tracker)}))
+    scn = parse_scenario(apply_overrides(data, {**for_tracker(overrides, tracker),
+                                                "tracker.name": settings_tracker(tracker)}))
+    world = json.dumps({k: v for k, v in to_dict(scn).items() if k != "tracker"}, sort_keys=True, default=repr)
+    if world not in worlds:
+        check_world(scn)
+        worlds.add(world)
+    return scn
 
 
 def column_values(values: tuple) -> tuple:
@@ -351,7 +360,8 @@ def _context(src: ScenarioSource, tracker: str) -> str:
     return f" (scenario {src.name}, tracker {tracker})"
 
 
-def _check_overrides(sources: list[ScenarioSource], overrides: dict[str, Any], trackers: tuple[str, ...]) -> None:
+def _check_overrides(sources: list[ScenarioSource], overrides: dict[str, Any], trackers: tuple[str, ...],
+                     worlds: set[str]) -> None:
     """Each override alone (precise blame), then all together, for every scenario and tracker."""
     from ..scenario.spec import parse_scenario
 
@@ -363,18 +373,18 @@ def _check_overrides(sources: list[ScenarioSource], overrides: dict[str, Any], t
                 raise ConfigError(f'overrides."{key}"', f"{why} (scenario {src.name})")
             for tracker in trackers:
                 try:
-                    _scenario(src.data, {key: value}, tracker)
+                    _scenario(src.data, {key: value}, tracker, worlds)
                 except ConfigError as err:
                     raise ConfigError(f'overrides."{key}"', f"{err}{_context(src, tracker)}") from None
         for tracker in trackers:
             try:
-                _scenario(src.data, overrides, tracker)
+                _scenario(src.data, overrides, tracker, worlds)
             except ConfigError as err:
                 raise ConfigError("overrides", f"{err}{_context(src, tracker)}") from None
 
 
 def _check_grid(sources: list[ScenarioSource], overrides: dict[str, Any], grid: dict[str, Any],
-                trackers: tuple[str, ...]) -> None:
+                trackers: tuple[str, ...], worlds: set[str]) -> None:
     """Each grid value alone on top of the overrides, then (if not too many) every combination."""
     from ..scenario.spec import apply_overrides, parse_scenario
 
@@ -387,7 +397,7 @@ def _check_grid(sources: list[ScenarioSource], overrides: dict[str, Any], grid: 
             for j, value in enumerate(values):
                 for tracker in trackers:
                     try:
-                        _scenario(src.data, {**overrides, key: value}, tracker)
+                        _scenario(src.data, {**overrides, key: value}, tracker, worlds)
                     except ConfigError as err:
                         raise ConfigError(f'grid."{key}"[{j}]', f"{err}{_context(src, tracker)}") from None
     n_points = 1
@@ -400,7 +410,7 @@ def _check_grid(sources: list[ScenarioSource], overrides: dict[str, Any], grid: 
             point = dict(zip(grid, combo))
             for tracker in trackers:
                 try:
-                    _scenario(src.data, {**overrides, **point}, tracker)
+                    _scenario(src.data, {**overrides, **point}, tracker, worlds)
                 except ConfigError as err:
                     text = ", ".join(f"{k}={v!r}" for k, v in point.items())
                     raise ConfigError("grid", f"combination {text}: {err}{_context(src, tracker)}") from None
@@ -421,8 +431,9 @@ def parse_campaign(data: dict, source: str = "<dict>", base_dir: Path | None = N
     sources = _load_sources(spec, base_dir, scenario_data)
     _check_trackers(spec.trackers)
     _check_keys(overrides, grid, spec.trackers)
-    _check_overrides(sources, overrides, spec.trackers)
-    _check_grid(sources, overrides, grid, spec.trackers)
+    worlds: set[str] = set()  # the worlds checked (see _scenario)
+    _check_overrides(sources, overrides, spec.trackers, worlds)
+    _check_grid(sources, overrides, grid, spec.trackers, worlds)
     for i, s in enumerate(spec.record.full_seeds):
         if s >= spec.seeds:
             raise ConfigError(f"record.full_seeds[{i}]", f"{s} is not a seed index; allowed: 0..{spec.seeds - 1}")

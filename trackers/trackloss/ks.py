@@ -17,11 +17,13 @@ import functools
 
 import numpy as np
 from scipy.special import kolmogi
-from scipy.stats import kstwo
 
 
 @functools.lru_cache(maxsize=4096)
 def _exact(n: int, alpha: float) -> float:
+    from scipy.stats import kstwo  # here, not at the top: scipy.stats takes longer to import than the rest of a
+    # `testbed check` (it is needed only once a track-loss test asks for a critical value; cached per (n, alpha))
+
     return float(kstwo.isf(alpha, n))  # paper 002 §IV-C (5): P{D_n >= d_n(alpha)} = alpha, exact
 
 
