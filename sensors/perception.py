@@ -78,8 +78,8 @@ from roadtrack.sensors.boxfit import (
     shape_class,
     side_continuation,
 )
-from roadtrack.sensors.clustering import ClusterConfig, cluster, numbered, scan_line_links
-from roadtrack.sensors.ground import GroundConfig, segment_ground
+from roadtrack.sensors.clustering import ClusterConfig, cluster_unchecked, numbered, scan_line_links
+from roadtrack.sensors.ground import GroundConfig, segment_ground_unchecked
 from roadtrack.sensors.lidar import Scan
 from roadtrack.sensors.perception_reference import hull_points_reference, union_fits_reference
 from roadtrack.sensors.roi import RoadMap
@@ -363,11 +363,11 @@ def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None,
         raise TypeError(f"road: expected RoadMap or None, got {type(road).__name__}")
     pts = scan.points
     road_z = cfg.ground.ground_z_m
-    is_ground = segment_ground(pts, cfg.ground, scan.origin)
+    is_ground = segment_ground_unchecked(pts, cfg.ground, scan.origin)  # a Scan's points and origin are finite
     lap("ground")
-    candidates = np.flatnonzero(~is_ground & (pts[:, 2] - road_z <= cfg.max_height_m))
-    cand_pts = pts[candidates]
-    sub = cluster(cand_pts, cfg.cluster)
+    # the clustering's input: neither ground nor above max_height_m (their indices, and their points)
+    candidates, cand_pts = perception_jit.candidate_points(pts, is_ground, float(road_z), float(cfg.max_height_m))
+    sub = cluster_unchecked(cand_pts, cfg.cluster)
     cluster_labels = np.full(len(pts), -1, np.int64)
     cluster_labels[candidates] = sub
     if cfg.cluster.scan_line_links and cfg.roi and road is not None and scan.ranges.size and len(sub):
@@ -438,24 +438,25 @@ def _linked(pts: np.ndarray, labels: np.ndarray, links: np.ndarray, cfg: Percept
 
 def _raw_objects(pts: np.ndarray, candidates: np.ndarray, sub: np.ndarray) -> list[np.ndarray]:
     """The clusters as arrays of point indices, each in lexicographic (x, y, z) order so fits see a
-    canonical order whatever the scan's point order."""
-    members = candidates[sub >= 0]
-    member_label = sub[sub >= 0]
+    canonical order whatever the scan's point order. candidates (C,) the clustered points' indices into pts
+    (N, 3), sub (C,) their cluster labels (-1 noise, at least one >= 0)."""
     # by (label, x) in one float key (monotonic, so equal only for equal x or x closer than its rounding);
     # any tie falls back to the full lexicographic sort
-    x = pts[members, 0]
-    key = member_label * (np.ptp(x) + 1.0) + (x - x.min())
+    members, key, counts = perception_jit.member_keys(candidates, sub, pts)
     order = np.argsort(key)
+    by_key, distinct = perception_jit.take_if_distinct(key, order, members)
+    if distinct:
+        return np.split(by_key, np.cumsum(counts)[:-1])
+    member_label = sub[sub >= 0]
+    x = pts[members, 0]
     tie = np.diff(key[order]) == 0.0
-    if np.any(tie):  # runs of equal keys (repeated x): the full lexicographic order within each run
-        in_run = np.r_[tie, False] | np.r_[False, tie]
-        pos = np.flatnonzero(in_run)
-        run = np.cumsum(np.r_[True, ~tie])[pos]  # run number of each position in a run
-        sel = order[pos]  # then by position, as lexsort breaks its ties
-        order[pos] = sel[np.lexsort((sel, pts[members[sel], 2], pts[members[sel], 1], x[sel], member_label[sel], run))]
-    members = members[order]
-    ends = np.cumsum(np.bincount(member_label, minlength=int(member_label.max()) + 1))
-    return np.split(members, ends[:-1])
+    # runs of equal keys (repeated x): the full lexicographic order within each run
+    in_run = np.r_[tie, False] | np.r_[False, tie]
+    pos = np.flatnonzero(in_run)
+    run = np.cumsum(np.r_[True, ~tie])[pos]  # run number of each position in a run
+    sel = order[pos]  # then by position, as lexsort breaks its ties
+    order[pos] = sel[np.lexsort((sel, pts[members[sel], 2], pts[members[sel], 1], x[sel], member_label[sel], run))]
+    return np.split(members[order], np.cumsum(counts)[:-1])
 
 
 def _canonical(pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -971,9 +972,8 @@ def _fit_all(scan: Scan, st: _Stats, keys: np.ndarray, hinted: bool, cfg: Percep
         return {}
     ends = _open_ends(scan, st, keys)
     open_ends = np.array([e if e is not None else (False, False) for e in ends], bool).reshape(-1, 2)
-    n = st.n[keys]
-    rows = np.repeat(st.starts[keys] - (np.cumsum(n) - n), n) + np.arange(int(n.sum()))  # the keys' members' rows
-    fits = fit_vehicle_boxes_unchecked(st.xy[rows], st.z[rows] - cfg.ground.ground_z_m, np.cumsum(n) - n, n,
+    # the keys' members are their rows of st.xy and st.z (the kernel reads object k's rows from starts[k] on)
+    fits = fit_vehicle_boxes_unchecked(st.xy, st.z - cfg.ground.ground_z_m, st.starts[keys], st.n[keys],
                                        scan.origin[:2], st.top[keys], st.axis[keys] if hinted else None, open_ends,
                                        boxfit)
     out = dict(zip(keys.tolist(), fits))
