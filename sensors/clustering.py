@@ -84,7 +84,13 @@ def scan_line_links(points: np.ndarray, ray: np.ndarray, shape: tuple[int, int],
     shape (A, B) the range image's, origin (3,) the sensor [m], returned (A, B) bool rays with any return
     (a ray without one may lie between two linked points). labels (N,) int64: cluster labels (-1 noise); when
     given, only pairs not already in one cluster are returned (the others join nothing)."""
-    pts = checks.float_array("points", points, (None, 3))
+    return scan_line_links_unchecked(checks.float_array("points", points, (None, 3)), ray, shape, origin, returned,
+                                     cfg, labels)
+
+
+def scan_line_links_unchecked(pts: np.ndarray, ray: np.ndarray, shape: tuple[int, int], origin: np.ndarray,
+                              returned: np.ndarray, cfg: ClusterConfig, labels: np.ndarray | None = None) -> np.ndarray:
+    """scan_line_links of points (N, 3) already float64 and finite (a sensors.Scan's), without checking them again."""
     n_az, n_beams = shape
     ray = np.asarray(ray, np.int64)
     has_labels = labels is not None

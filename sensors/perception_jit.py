@@ -747,7 +747,7 @@ def line_links(pts, ray, n_az, n_beams, returned, labels, has_labels, origin, ma
         n_known += ray[k] >= 0
     if n_known < 2 or n_az < 2:
         return np.zeros((0, 2), np.int64)
-    at = np.full(n_az * n_beams, -1, np.int64)
+    at = np.full(n_az * n_beams, -1, np.int32)  # int32: half the table to fill (N < 2^31 points)
     for k in range(n):
         if ray[k] >= 0:
             at[ray[k]] = k
@@ -833,12 +833,13 @@ def _plurality_sorted(source):
 # --- split candidates (sensors/perception_reference.widest_gaps_reference) -----------------------------------
 
 @njit(cache=True)
-def widest_gaps(u, starts, n, u_min, span):
-    """(K,) the widest gap between consecutive sorted values of each object's u (sum n,), and whether the
-    reference's one sort by the key k * span + (u - u_min) orders every object's distinct u the same way (no
-    two distinct u of an object share a key); when not, the caller uses the reference."""
+def widest_gaps(u, starts, n, u_min, span, keys):
+    """(K,) the widest gap between consecutive sorted values of each object's u (sum n,) for the objects keys (Q,)
+    (0 for the others), and whether the reference's one sort by the key k * span + (u - u_min) orders every one
+    of those objects' distinct u the same way (no two distinct u of one share a key); when not, the caller uses
+    the reference."""
     out = np.zeros(len(starts))
-    for k in range(len(starts)):
+    for k in keys:
         seg = np.sort(u[starts[k] : starts[k] + n[k]])
         base = k * span
         best = 0.0
@@ -945,6 +946,26 @@ def take_if_distinct(key, order, members):
     return out, True
 
 
+@njit(cache=True)
+def side_pool(pts, is_ground, road_z, z_lo, z_hi):
+    """sensors.perception._SidePool in one pass: the indices (P,) of the points pts (N, 3) [m] that are not
+    ground (is_ground (N,)) and whose height above the road z - road_z lies in [z_lo, z_hi] [m], their xy (P, 2)
+    [m] and that height (P,) [m] (the same subtraction as numpy's)."""
+    n = len(is_ground)
+    idx = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        h = pts[i, 2] - road_z
+        if not is_ground[i] and h >= z_lo and h <= z_hi:
+            idx[m] = i
+            m += 1
+    xy, z = np.empty((m, 2)), np.empty(m)
+    for j in range(m):
+        i = idx[j]
+        xy[j, 0], xy[j, 1], z[j] = pts[i, 0], pts[i, 1], pts[i, 2] - road_z
+    return idx[:m], xy, z
+
+
 # --- grid clustering (sensors/clustering._grid) ---------------------------------------------------------------
 
 @njit(cache=True)
@@ -1008,7 +1029,7 @@ def _grid_components(ix, iy, nx, ny):
     """(N,) int64 component of each point's cell (ix, iy (N,) in [0, nx) x [0, ny)) among the occupied cells,
     8-connected: the partition scipy.ndimage.label gives with a 3x3 structure (perception_reference.
     grid_labels_reference), numbered 0.. in the order the points first reach each component (not ndimage's)."""
-    node = np.full(nx * ny, -1, np.int64)  # cell -> its node, by first point
+    node = np.full(nx * ny, -1, np.int32)  # cell -> its node, by first point (int32: half the table to fill)
     cells = np.empty(len(ix), np.int64)
     n_nodes = 0
     for i in range(len(ix)):
