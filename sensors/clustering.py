@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 
 from roadtrack.sensors import checks, perception_jit
-from roadtrack.sensors.grid import bev_cells
+from roadtrack.sensors.grid import MAX_CELLS, bev_cells
 from roadtrack.sensors.open3d_loader import open3d
 
 
@@ -58,9 +58,15 @@ class ClusterConfig:
 
 def cluster(points: np.ndarray, cfg: ClusterConfig) -> np.ndarray:
     """points (N, 3) [m] -> labels (N,) int64: cluster 0..C-1, or -1 for noise / too-small clusters."""
-    pts = checks.float_array("points", points, (None, 3))
+    return cluster_unchecked(checks.float_array("points", points, (None, 3)), cfg)
+
+
+def cluster_unchecked(pts: np.ndarray, cfg: ClusterConfig) -> np.ndarray:
+    """cluster of points (N, 3) already float64 and finite (a sensors.Scan's), without checking them again."""
     if len(pts) == 0:
         return np.zeros(0, np.int64)
+    if cfg.method == "grid":
+        return _grid_numbered(pts, cfg)
     if cfg.method in ORDER_FREE:
         return numbered(pts, ORDER_FREE[cfg.method](pts, cfg), cfg.min_points)
     order = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0]))
@@ -78,7 +84,13 @@ def scan_line_links(points: np.ndarray, ray: np.ndarray, shape: tuple[int, int],
     shape (A, B) the range image's, origin (3,) the sensor [m], returned (A, B) bool rays with any return
     (a ray without one may lie between two linked points). labels (N,) int64: cluster labels (-1 noise); when
     given, only pairs not already in one cluster are returned (the others join nothing)."""
-    pts = checks.float_array("points", points, (None, 3))
+    return scan_line_links_unchecked(checks.float_array("points", points, (None, 3)), ray, shape, origin, returned,
+                                     cfg, labels)
+
+
+def scan_line_links_unchecked(pts: np.ndarray, ray: np.ndarray, shape: tuple[int, int], origin: np.ndarray,
+                              returned: np.ndarray, cfg: ClusterConfig, labels: np.ndarray | None = None) -> np.ndarray:
+    """scan_line_links of points (N, 3) already float64 and finite (a sensors.Scan's), without checking them again."""
     n_az, n_beams = shape
     ray = np.asarray(ray, np.int64)
     has_labels = labels is not None
@@ -101,13 +113,30 @@ def numbered(pts: np.ndarray, raw: np.ndarray, min_points: int) -> np.ndarray:
         return out
     lab = raw[valid]
     counts, first = perception_jit.first_points(lab, valid, pts, int(lab.max()) + 1)
-    kept = np.flatnonzero((counts >= min_points) & (first >= 0))
-    f = valid[first[kept]]
+    out[valid] = _renumbering(pts, counts, valid[np.maximum(first, 0)], first >= 0, min_points)[lab]
+    return out
+
+
+def _renumbering(pts: np.ndarray, counts: np.ndarray, first: np.ndarray, has_points: np.ndarray,
+                 min_points: int) -> np.ndarray:
+    """(k,) int64 the label of each of k raw clusters (-1: dropped) as `numbered` gives it: those with count (k,)
+    >= min_points (and has_points (k,) bool) numbered 0.. in the lexicographic (x, y, z) order of their first
+    points, indices first (k,) into pts (N, 3), equal points by index."""
+    kept = np.flatnonzero((counts >= min_points) & has_points)
+    f = first[kept]
     ids = kept[np.lexsort((f, pts[f, 2], pts[f, 1], pts[f, 0]))]  # by first point, equal ones by position
     new = np.full(len(counts), -1, np.int64)
     new[ids] = np.arange(len(ids))
-    out[valid] = new[lab]
-    return out
+    return new
+
+
+def _grid_numbered(pts: np.ndarray, cfg: ClusterConfig) -> np.ndarray:
+    """numbered(pts, _grid(pts, cfg), cfg.min_points) for points (N, 3), N >= 1: the components, their counts and
+    first points in one compiled call (perception_jit.grid_clusters), then the numbering."""
+    comp, counts, first, ok = perception_jit.grid_clusters(pts, 1.0 / cfg.cell_m, MAX_CELLS)
+    if not ok:
+        bev_cells(pts, cfg.cell_m, "cluster")  # raises its ValueError
+    return _renumbering(pts, counts, first, first >= 0, cfg.min_points)[comp]
 
 
 def _canonical(raw: np.ndarray, min_points: int) -> np.ndarray:
@@ -126,11 +155,13 @@ def _canonical(raw: np.ndarray, min_points: int) -> np.ndarray:
 
 
 def _grid(pts: np.ndarray, cfg: ClusterConfig) -> np.ndarray:
-    """Component (N,) of each point's occupied cell, 8-connected: compiled (perception_jit.grid_components), the
-    partition of scipy.ndimage.label (perception_reference.grid_labels_reference) numbered otherwise, which
-    `numbered` makes irrelevant."""
-    ix, iy, shape = bev_cells(pts, cfg.cell_m, "cluster")
-    return perception_jit.grid_components(ix, iy, shape[0], shape[1])
+    """Component (N,) of each point's occupied cell, 8-connected: compiled (perception_jit.grid_clusters, which
+    also counts them for `_grid_numbered`), the partition of scipy.ndimage.label (perception_reference.
+    grid_labels_reference) numbered otherwise, which `numbered` makes irrelevant."""
+    comp, _, _, ok = perception_jit.grid_clusters(pts, 1.0 / cfg.cell_m, MAX_CELLS)
+    if not ok:
+        bev_cells(pts, cfg.cell_m, "cluster")  # raises its ValueError
+    return comp
 
 
 def _dbscan(pts: np.ndarray, cfg: ClusterConfig) -> np.ndarray:

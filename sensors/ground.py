@@ -87,9 +87,15 @@ def segment_ground(points: np.ndarray, cfg: GroundConfig, origin: np.ndarray | N
     pts = checks.float_array("points", points, (None, 3))
     if origin is not None:
         origin = checks.float_array("origin", origin, (3,))
-    if len(pts) == 0:
+    return segment_ground_unchecked(pts, cfg, origin)
+
+
+def segment_ground_unchecked(points: np.ndarray, cfg: GroundConfig, origin: np.ndarray | None = None) -> np.ndarray:
+    """segment_ground of points (N, 3) and origin (3,) already float64 and finite (a sensors.Scan's), without
+    checking them again."""
+    if len(points) == 0:
         return np.zeros(0, bool)
-    return GROUND_METHODS[cfg.method](pts, cfg, origin)
+    return GROUND_METHODS[cfg.method](points, cfg, origin)
 
 
 def ground_scores(is_ground: np.ndarray, source: np.ndarray) -> tuple[float, float]:

@@ -78,8 +78,8 @@ from roadtrack.sensors.boxfit import (
     shape_class,
     side_continuation,
 )
-from roadtrack.sensors.clustering import ClusterConfig, cluster, numbered, scan_line_links
-from roadtrack.sensors.ground import GroundConfig, segment_ground
+from roadtrack.sensors.clustering import ClusterConfig, cluster_unchecked, numbered, scan_line_links_unchecked
+from roadtrack.sensors.ground import GroundConfig, segment_ground_unchecked
 from roadtrack.sensors.lidar import Scan
 from roadtrack.sensors.perception_reference import hull_points_reference, union_fits_reference
 from roadtrack.sensors.roi import RoadMap
@@ -363,16 +363,16 @@ def perceive(scan: Scan, cfg: PerceptionConfig, road: RoadMap | None = None,
         raise TypeError(f"road: expected RoadMap or None, got {type(road).__name__}")
     pts = scan.points
     road_z = cfg.ground.ground_z_m
-    is_ground = segment_ground(pts, cfg.ground, scan.origin)
+    is_ground = segment_ground_unchecked(pts, cfg.ground, scan.origin)  # a Scan's points and origin are finite
     lap("ground")
-    candidates = np.flatnonzero(~is_ground & (pts[:, 2] - road_z <= cfg.max_height_m))
-    cand_pts = pts[candidates]
-    sub = cluster(cand_pts, cfg.cluster)
+    # the clustering's input: neither ground nor above max_height_m (their indices, and their points)
+    candidates, cand_pts = perception_jit.candidate_points(pts, is_ground, float(road_z), float(cfg.max_height_m))
+    sub = cluster_unchecked(cand_pts, cfg.cluster)
     cluster_labels = np.full(len(pts), -1, np.int64)
     cluster_labels[candidates] = sub
     if cfg.cluster.scan_line_links and cfg.roi and road is not None and scan.ranges.size and len(sub):
-        links = scan_line_links(cand_pts, scan.ray[candidates], scan.ranges.shape, scan.origin,
-                                np.isfinite(scan.ranges), cfg.cluster, labels=sub)
+        links = scan_line_links_unchecked(cand_pts, scan.ray[candidates], scan.ranges.shape, scan.origin,
+                                          np.isfinite(scan.ranges), cfg.cluster, labels=sub)
         if len(links):  # on the lanes only: a roadside rail or wall is the grazing surface links would grow
             lane = road.on_road(cand_pts[links.reshape(-1), :2], cfg.roi_margin_m).reshape(-1, 2)
             sub = _linked(cand_pts, sub, links[lane.all(axis=1)], cfg)
@@ -438,24 +438,25 @@ def _linked(pts: np.ndarray, labels: np.ndarray, links: np.ndarray, cfg: Percept
 
 def _raw_objects(pts: np.ndarray, candidates: np.ndarray, sub: np.ndarray) -> list[np.ndarray]:
     """The clusters as arrays of point indices, each in lexicographic (x, y, z) order so fits see a
-    canonical order whatever the scan's point order."""
-    members = candidates[sub >= 0]
-    member_label = sub[sub >= 0]
+    canonical order whatever the scan's point order. candidates (C,) the clustered points' indices into pts
+    (N, 3), sub (C,) their cluster labels (-1 noise, at least one >= 0)."""
     # by (label, x) in one float key (monotonic, so equal only for equal x or x closer than its rounding);
     # any tie falls back to the full lexicographic sort
-    x = pts[members, 0]
-    key = member_label * (np.ptp(x) + 1.0) + (x - x.min())
+    members, key, counts = perception_jit.member_keys(candidates, sub, pts)
     order = np.argsort(key)
+    by_key, distinct = perception_jit.take_if_distinct(key, order, members)
+    if distinct:
+        return np.split(by_key, np.cumsum(counts)[:-1])
+    member_label = sub[sub >= 0]
+    x = pts[members, 0]
     tie = np.diff(key[order]) == 0.0
-    if np.any(tie):  # runs of equal keys (repeated x): the full lexicographic order within each run
-        in_run = np.r_[tie, False] | np.r_[False, tie]
-        pos = np.flatnonzero(in_run)
-        run = np.cumsum(np.r_[True, ~tie])[pos]  # run number of each position in a run
-        sel = order[pos]  # then by position, as lexsort breaks its ties
-        order[pos] = sel[np.lexsort((sel, pts[members[sel], 2], pts[members[sel], 1], x[sel], member_label[sel], run))]
-    members = members[order]
-    ends = np.cumsum(np.bincount(member_label, minlength=int(member_label.max()) + 1))
-    return np.split(members, ends[:-1])
+    # runs of equal keys (repeated x): the full lexicographic order within each run
+    in_run = np.r_[tie, False] | np.r_[False, tie]
+    pos = np.flatnonzero(in_run)
+    run = np.cumsum(np.r_[True, ~tie])[pos]  # run number of each position in a run
+    sel = order[pos]  # then by position, as lexsort breaks its ties
+    order[pos] = sel[np.lexsort((sel, pts[members[sel], 2], pts[members[sel], 1], x[sel], member_label[sel], run))]
+    return np.split(members[order], np.cumsum(counts)[:-1])
 
 
 def _canonical(pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -562,9 +563,10 @@ def _split(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: Pe
            st: _Stats) -> tuple[list[np.ndarray], list[int], bool]:
     """Cut objects holding several vehicles (see the module docstring, stage 2); whether any was cut."""
     too_big = _too_big(np.maximum(st.along, st.across), np.minimum(st.along, st.across), st.top, cfg)
-    gappy = _widest_gaps(st) > cfg.split_gap_m
     # a single thin surface (a guard rail, a wall, a rail with its posts) is not cut into vehicle-sized pieces
-    candidate = (too_big | gappy) & (st.across >= cfg.split_min_width_m)
+    wide = st.across >= cfg.split_min_width_m
+    gappy = _widest_gaps(st, np.flatnonzero(wide & ~too_big)) > cfg.split_gap_m  # the others are decided already
+    candidate = (too_big | gappy) & wide
     out: list[np.ndarray] = []
     out_flags: list[int] = []
     for k, obj in enumerate(objects):
@@ -575,12 +577,20 @@ def _split(pts: np.ndarray, objects: list[np.ndarray], flags: list[int], cfg: Pe
     return out, out_flags, len(out) > len(objects)
 
 
-def _widest_gaps(st: _Stats) -> np.ndarray:
-    """(K,) the widest gap [m] between consecutive members of each object along its axis (st.u), compiled
-    (perception_jit.widest_gaps: each object's u sorted on its own); perception_reference.widest_gaps_reference,
-    the former sort of all members by one float key of (object, u), where that key cannot tell two u apart."""
-    gaps, clear = perception_jit.widest_gaps(st.u, st.starts, st.n, float(st.u.min()), float(np.ptp(st.u) + 1.0))
-    return gaps if clear else perception_reference.widest_gaps_reference(st.u, st.starts, st.n)
+def _widest_gaps(st: _Stats, keys: np.ndarray | None = None) -> np.ndarray:
+    """(K,) the widest gap [m] between consecutive members of each object of keys (Q,) (default all; 0 for the
+    others) along its axis (st.u), compiled (perception_jit.widest_gaps: each object's u sorted on its own);
+    perception_reference.widest_gaps_reference, the former sort of all members by one float key of (object, u),
+    where that key cannot tell two u of one of those objects apart (it gives the same gaps where it can)."""
+    keys = np.arange(len(st.n)) if keys is None else np.asarray(keys, np.int64)
+    gaps, clear = perception_jit.widest_gaps(st.u, st.starts, st.n, float(st.u.min()), float(np.ptp(st.u) + 1.0),
+                                             keys)
+    if clear:
+        return gaps
+    ref = perception_reference.widest_gaps_reference(st.u, st.starts, st.n)
+    out = np.zeros(len(st.n))
+    out[keys] = ref[keys]
+    return out
 
 
 def _too_big(length, width, top, cfg: PerceptionConfig):
@@ -789,6 +799,12 @@ def _apply_fits(fits: dict[int, BoxFit], z, heading, extent, R, centre, flags, r
         open_ &= ~failed
 
 
+def _above_road(z: np.ndarray, road_z: float) -> np.ndarray:
+    """Heights z (M,) [m] above the road at road_z [m]: z - road_z, bit for bit; z itself when road_z is 0 (x - 0.0
+    is x for every float, -0.0 included), without a pass over the members."""
+    return z if road_z == 0.0 else z - road_z
+
+
 def _members(st: _Stats, k: int) -> np.ndarray:
     return st.members[st.starts[k] : st.starts[k] + st.n[k]]
 
@@ -810,11 +826,10 @@ def _screen(scan: Scan, st: _Stats, cfg: PerceptionConfig) -> tuple[np.ndarray, 
     shape_centre: dict[int, np.ndarray] = {}
     if not cfg.vehicle_like:
         return reason, shape_centre
-    road_z = cfg.ground.ground_z_m
     diag = np.hypot(*(st.hi - st.lo).T)
     required = _required_top(scan, st.d_min, cfg)
     low = st.top < required
-    z = st.z - road_z
+    z = _above_road(st.z, cfg.ground.ground_z_m)
     if cfg.robust_height:
         low |= ~_body_reaches(z, st, required, cfg.body_bin_m)
     if cfg.shape_filter:  # too big for a vehicle by the points' principal extents: a guard-rail run, a wall
@@ -971,9 +986,8 @@ def _fit_all(scan: Scan, st: _Stats, keys: np.ndarray, hinted: bool, cfg: Percep
         return {}
     ends = _open_ends(scan, st, keys)
     open_ends = np.array([e if e is not None else (False, False) for e in ends], bool).reshape(-1, 2)
-    n = st.n[keys]
-    rows = np.repeat(st.starts[keys] - (np.cumsum(n) - n), n) + np.arange(int(n.sum()))  # the keys' members' rows
-    fits = fit_vehicle_boxes_unchecked(st.xy[rows], st.z[rows] - cfg.ground.ground_z_m, np.cumsum(n) - n, n,
+    # the keys' members are their rows of st.xy and st.z (the kernel reads object k's rows from starts[k] on)
+    fits = fit_vehicle_boxes_unchecked(st.xy, _above_road(st.z, cfg.ground.ground_z_m), st.starts[keys], st.n[keys],
                                        scan.origin[:2], st.top[keys], st.axis[keys] if hinted else None, open_ends,
                                        boxfit)
     out = dict(zip(keys.tolist(), fits))
@@ -996,17 +1010,22 @@ class _SidePool:
         self._bounds = (boxfit.side_min_z_m, cfg.max_height_m)
 
     @functools.cached_property
+    def _pool(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """idx, xy, z in one compiled pass over the points (perception_jit.side_pool)."""
+        return perception_jit.side_pool(self._pts, self._is_ground, float(self._road_z), float(self._bounds[0]),
+                                        float(self._bounds[1]))
+
+    @property
     def idx(self) -> np.ndarray:
-        z = self._pts[:, 2] - self._road_z
-        return np.flatnonzero(~self._is_ground & (z >= self._bounds[0]) & (z <= self._bounds[1]))
+        return self._pool[0]
 
-    @functools.cached_property
+    @property
     def xy(self) -> np.ndarray:
-        return self._pts[self.idx, :2]
+        return self._pool[1]
 
-    @functools.cached_property
+    @property
     def z(self) -> np.ndarray:
-        return self._pts[self.idx, 2] - self._road_z
+        return self._pool[2]
 
 
 def _representative(xy: np.ndarray, sensor_xy: np.ndarray, cfg: PerceptionConfig) -> BoxFit:

@@ -747,7 +747,7 @@ def line_links(pts, ray, n_az, n_beams, returned, labels, has_labels, origin, ma
         n_known += ray[k] >= 0
     if n_known < 2 or n_az < 2:
         return np.zeros((0, 2), np.int64)
-    at = np.full(n_az * n_beams, -1, np.int64)
+    at = np.full(n_az * n_beams, -1, np.int32)  # int32: half the table to fill (N < 2^31 points)
     for k in range(n):
         if ray[k] >= 0:
             at[ray[k]] = k
@@ -783,31 +783,63 @@ def line_links(pts, ray, n_az, n_beams, returned, labels, has_labels, origin, ma
 
 # --- provenance (sensors/perception_reference.plurality_reference) -------------------------------------------
 
+_FEW_LABELS = 8  # plurality: distinct labels counted in its table before it sorts the object's labels
+
+
 @njit(cache=True)
 def plurality(source, starts, n):
     """(K,) per object (source[starts[k] : starts[k] + n[k]], n >= 1) its most frequent label if >= 0, else -1;
-    ties go to the smallest label."""
+    ties go to the smallest label. The counts of up to _FEW_LABELS distinct labels are kept in a small table (an
+    object's points come from one or a few boxes); an object with more is sorted (the former kernel)."""
     out = np.empty(len(starts), np.int64)
+    values, counts = np.empty(_FEW_LABELS, np.int64), np.empty(_FEW_LABELS, np.int64)
     for k in range(len(starts)):
-        labels = np.sort(source[starts[k] : starts[k] + n[k]])
-        best, best_count, run = labels[0], 0, 0
-        for i in range(len(labels)):
-            run = run + 1 if i > 0 and labels[i] == labels[i - 1] else 1
-            if run > best_count:  # a later label needs strictly more points: ties keep the smaller
-                best, best_count = labels[i], run
+        s0, m = starts[k], n[k]
+        n_values, few = 0, True
+        for i in range(s0, s0 + m):
+            j = 0
+            while j < n_values and values[j] != source[i]:
+                j += 1
+            if j == n_values:
+                if n_values == _FEW_LABELS:
+                    few = False
+                    break
+                values[j], counts[j] = source[i], 0
+                n_values += 1
+            counts[j] += 1
+        if not few:
+            out[k] = _plurality_sorted(source[s0 : s0 + m])
+            continue
+        best, best_count = values[0], counts[0]
+        for j in range(1, n_values):  # most points, then the smallest label (the sorted runs' rule)
+            if counts[j] > best_count or (counts[j] == best_count and values[j] < best):
+                best, best_count = values[j], counts[j]
         out[k] = best if best >= 0 else -1
     return out
+
+
+@njit(cache=True)
+def _plurality_sorted(source):
+    """plurality of one object's labels source (n,) by sorting them: the most frequent if >= 0 (ties: smallest)."""
+    labels = np.sort(source)
+    best, best_count, run = labels[0], 0, 0
+    for i in range(len(labels)):
+        run = run + 1 if i > 0 and labels[i] == labels[i - 1] else 1
+        if run > best_count:  # a later label needs strictly more points: ties keep the smaller
+            best, best_count = labels[i], run
+    return best if best >= 0 else -1
 
 
 # --- split candidates (sensors/perception_reference.widest_gaps_reference) -----------------------------------
 
 @njit(cache=True)
-def widest_gaps(u, starts, n, u_min, span):
-    """(K,) the widest gap between consecutive sorted values of each object's u (sum n,), and whether the
-    reference's one sort by the key k * span + (u - u_min) orders every object's distinct u the same way (no
-    two distinct u of an object share a key); when not, the caller uses the reference."""
+def widest_gaps(u, starts, n, u_min, span, keys):
+    """(K,) the widest gap between consecutive sorted values of each object's u (sum n,) for the objects keys (Q,)
+    (0 for the others), and whether the reference's one sort by the key k * span + (u - u_min) orders every one
+    of those objects' distinct u the same way (no two distinct u of one share a key); when not, the caller uses
+    the reference."""
     out = np.zeros(len(starts))
-    for k in range(len(starts)):
+    for k in keys:
         seg = np.sort(u[starts[k] : starts[k] + n[k]])
         base = k * span
         best = 0.0
@@ -874,15 +906,130 @@ def first_points(label, rows, pts, k):
     return counts, first
 
 
-# --- grid clustering (sensors/clustering._grid) ---------------------------------------------------------------
+# --- objects (sensors/perception._raw_objects) ----------------------------------------------------------------
+
+@njit(cache=True)
+def member_keys(candidates, sub, pts):
+    """_raw_objects's sort key in two passes: the members (M,) (candidates (C,) whose label sub (C,) is >= 0, in
+    order), their key (M,) label * (ptp(x) + 1.0) + (x - min(x)) (x the members' pts (N, 3) x [m]; the same float
+    operations as numpy's), and the members per label (L,) (np.bincount of their labels). M >= 1."""
+    c_all = len(sub)
+    members, label, x = np.empty(c_all, np.int64), np.empty(c_all, np.int64), np.empty(c_all)
+    m, n_labels = 0, 0
+    x_lo, x_hi = np.inf, -np.inf
+    for j in range(c_all):
+        if sub[j] >= 0:
+            p = candidates[j]
+            members[m], label[m], x[m] = p, sub[j], pts[p, 0]
+            x_lo, x_hi = min(x_lo, x[m]), max(x_hi, x[m])
+            n_labels = max(n_labels, sub[j] + 1)
+            m += 1
+    span = (x_hi - x_lo) + 1.0
+    key = np.empty(m)
+    counts = np.zeros(n_labels, np.int64)
+    for i in range(m):
+        key[i] = label[i] * span + (x[i] - x_lo)
+        counts[label[i]] += 1
+    return members[:m], key, counts
 
 
 @njit(cache=True)
-def grid_components(ix, iy, nx, ny):
+def take_if_distinct(key, order, members):
+    """members[order] (M,) when the keys (M,) in that order are all distinct (no two consecutive equal), and
+    whether they were (else nothing is taken: the caller orders the runs of equal keys)."""
+    for i in range(1, len(order)):
+        if key[order[i]] == key[order[i - 1]]:
+            return members[:0], False
+    out = np.empty(len(order), np.int64)
+    for i in range(len(order)):
+        out[i] = members[order[i]]
+    return out, True
+
+
+@njit(cache=True)
+def side_pool(pts, is_ground, road_z, z_lo, z_hi):
+    """sensors.perception._SidePool in one pass: the indices (P,) of the points pts (N, 3) [m] that are not
+    ground (is_ground (N,)) and whose height above the road z - road_z lies in [z_lo, z_hi] [m], their xy (P, 2)
+    [m] and that height (P,) [m] (the same subtraction as numpy's)."""
+    n = len(is_ground)
+    idx = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        h = pts[i, 2] - road_z
+        if not is_ground[i] and h >= z_lo and h <= z_hi:
+            idx[m] = i
+            m += 1
+    xy, z = np.empty((m, 2)), np.empty(m)
+    for j in range(m):
+        i = idx[j]
+        xy[j, 0], xy[j, 1], z[j] = pts[i, 0], pts[i, 1], pts[i, 2] - road_z
+    return idx[:m], xy, z
+
+
+# --- grid clustering (sensors/clustering._grid) ---------------------------------------------------------------
+
+@njit(cache=True)
+def candidate_points(pts, is_ground, road_z, max_height):
+    """sensors.perception.perceive's clustering input in one pass: the indices (M,) of the points pts (N, 3) [m]
+    that are not ground (is_ground (N,) bool) and whose z - road_z <= max_height [m] (np.flatnonzero of that
+    mask), and their points (M, 3) (pts[indices])."""
+    n = len(is_ground)
+    idx = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        if not is_ground[i] and pts[i, 2] - road_z <= max_height:
+            idx[m] = i
+            m += 1
+    cand = np.empty((m, 3))
+    for j in range(m):
+        i = idx[j]
+        cand[j, 0], cand[j, 1], cand[j, 2] = pts[i, 0], pts[i, 1], pts[i, 2]
+    return idx[:m], cand
+
+
+@njit(cache=True)
+def grid_clusters(pts, inv, max_cells):
+    """sensors/clustering's grid clusters before numbering, in two passes over pts (N, 3) (N >= 1): each point's
+    8-connected component (N,) of occupied cells (sensors/grid.bev_cells numbering with 1 / cell = inv, then
+    _grid_components), and per component its point count and first point in lexicographic (x, y, z) order
+    (first_points with rows = all points). ok False (nothing else computed) when the grid would exceed
+    max_cells cells (bev_cells raises then)."""
+    n = len(pts)
+    ix, iy = np.empty(n, np.int64), np.empty(n, np.int64)
+    x_lo = y_lo = np.int64(2**62)
+    x_hi = y_hi = -np.int64(2**62)
+    for i in range(n):
+        a, b = np.int64(np.floor(pts[i, 0] * inv)), np.int64(np.floor(pts[i, 1] * inv))
+        ix[i], iy[i] = a, b
+        x_lo, x_hi, y_lo, y_hi = min(x_lo, a), max(x_hi, a), min(y_lo, b), max(y_hi, b)
+    nx, ny = x_hi - x_lo + 1, y_hi - y_lo + 1
+    empty = np.zeros(0, np.int64)
+    if nx * ny > max_cells:
+        return empty, empty, empty, False
+    for i in range(n):
+        ix[i] -= x_lo
+        iy[i] -= y_lo
+    comp = _grid_components(ix, iy, nx, ny)
+    k = 0
+    for i in range(n):
+        k = max(k, comp[i] + 1)
+    counts = np.zeros(k, np.int64)
+    first = np.full(k, -1, np.int64)
+    for i in range(n):
+        c = comp[i]
+        counts[c] += 1
+        if first[c] < 0 or _lex_less(pts, i, first[c]):
+            first[c] = i
+    return comp, counts, first, True
+
+
+
+@njit(cache=True)
+def _grid_components(ix, iy, nx, ny):
     """(N,) int64 component of each point's cell (ix, iy (N,) in [0, nx) x [0, ny)) among the occupied cells,
     8-connected: the partition scipy.ndimage.label gives with a 3x3 structure (perception_reference.
     grid_labels_reference), numbered 0.. in the order the points first reach each component (not ndimage's)."""
-    node = np.full(nx * ny, -1, np.int64)  # cell -> its node, by first point
+    node = np.full(nx * ny, -1, np.int32)  # cell -> its node, by first point (int32: half the table to fill)
     cells = np.empty(len(ix), np.int64)
     n_nodes = 0
     for i in range(len(ix)):

@@ -116,7 +116,8 @@ def test_split_object_equals_the_reference_on_highway_scans(highway):
 def test_widest_gaps_equal_the_reference(highway, monkeypatch):
     frames = [st for _, _, st, _ in highway] + [synthetic(EDGE_OBJECTS)[2]]
     for st in frames:
-        gaps, clear = perception_jit.widest_gaps(st.u, st.starts, st.n, float(st.u.min()), float(np.ptp(st.u) + 1.0))
+        gaps, clear = perception_jit.widest_gaps(st.u, st.starts, st.n, float(st.u.min()), float(np.ptp(st.u) + 1.0),
+                                                 np.arange(len(st.n)))
         assert clear
         ref = perception_reference.widest_gaps_reference(st.u, st.starts, st.n)
         assert np.array_equal(gaps.view(np.int64), ref.view(np.int64))
@@ -125,7 +126,7 @@ def test_widest_gaps_equal_the_reference(highway, monkeypatch):
     # distinct u that one key cannot tell apart (an object far along the key): the reference decides
     u = np.array([0.0, 1e6, 5.0, 5.0 + 1e-11, 7.0])
     starts, n = np.array([0, 1]), np.array([1, 4])
-    assert not perception_jit.widest_gaps(u, starts, n, 0.0, float(np.ptp(u) + 1.0))[1]
+    assert not perception_jit.widest_gaps(u, starts, n, 0.0, float(np.ptp(u) + 1.0), np.arange(2))[1]
     st = type(frames[0])(**{**frames[0].__dict__, "u": u, "starts": starts, "n": n})
     assert np.array_equal(perception._widest_gaps(st), perception_reference.widest_gaps_reference(u, starts, n))
 
