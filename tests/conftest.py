@@ -90,31 +90,3 @@ def cut_in_out_sensing(tmp_path_factory) -> Path:
     folder, facts = made_once(tmp_path_factory, "cut_in_out_sensing", _sense_cut_in_out)
     assert facts["frames"] == 161
     return folder / "cache"
-
-
-# The heaviest test files (seconds of one worker, summed over their tests' setup, call and teardown; `bin/test
-# --durations=0` on 2026-12-07, a loaded machine: read them as proportions). bin/test hands out a file at a time
-# (--dist loadfile); xdist's own order is by number of tests, which puts a long file of few tests (a reproduction's
-# quick form) wherever its count falls, possibly last, when the other worker has nothing left to do. These go first,
-# heaviest first, the rest after them in xdist's order; a file missing here or a stale number only costs balance.
-HEAVY_FILES = {"test_campaign.py": 366, "test_perception_identical.py": 123, "test_data_not_code.py": 115,
-               "test_end_to_end.py": 112, "test_reproduce_thesis_461.py": 110, "test_install_wheel.py": 109,
-               "test_reproduce_thesis_51.py": 107, "test_signals.py": 98, "test_forced_loss_highway.py": 95,
-               "test_reproduce_thesis_highway.py": 81, "test_benchmarks_start.py": 81, "test_road_aid.py": 76,
-               "test_cli_hardening.py": 76, "test_trackers_switches.py": 74, "test_reproduce_thesis_21.py": 70,
-               "test_perception_stack.py": 70, "test_cli.py": 69, "test_fuzz.py": 68}
-
-
-def pytest_xdist_make_scheduler(config, log):
-    """With ``--dist loadfile``: xdist's file-at-a-time scheduling, the files of HEAVY_FILES handed out first."""
-    if config.getoption("dist", None) != "loadfile":
-        return None
-    from xdist.scheduler import LoadFileScheduling
-
-    class HeaviestFirst(LoadFileScheduling):
-        def _assign_work_unit(self, node):
-            scope = max(self.workqueue, key=lambda s: HEAVY_FILES.get(Path(s).name, 0))  # the first of equals
-            self.workqueue.move_to_end(scope, last=False)
-            super()._assign_work_unit(node)
-
-    return HeaviestFirst(config, log)
