@@ -3,12 +3,9 @@ from __future__ import annotations
 
 
 def state_fields(s, prefix: str = "") -> dict:
-    """Every field of a state by dotted name: arrays, scalars, each info entry, each IMM mode state's fields (keys
-    starting with "_" are no fields and left out)."""
+    """Every field of a state by dotted name: arrays, scalars, each info entry, each IMM mode state's fields."""
     out = {}
     for k, v in vars(s).items():
-        if k.startswith("_"):  # not a field: a batch's private carrier (e.g. an IMM state's "_rows")
-            continue
         if k == "info":
             out.update({f"{prefix}info.{key}": val for key, val in v.items()})
         elif k == "modes":

@@ -90,31 +90,3 @@ def test_imm_rows_and_reused_mode_measurements_change_no_bit(base):
         for ma, mb in zip(sa.modes, sb.modes):
             for name in ("x", "P", "e_post"):
                 np.testing.assert_array_equal(getattr(ma, name), getattr(mb, name))
-
-
-@pytest.mark.parametrize("base", ["kf", "svsf", "gvbl-svsf"])
-def test_imm_states_of_a_new_scan_gather_their_batches_rows_exactly(base):
-    """The tracks' states come back to the next scan's predict as a plain list (updated and missed tracks, a birth):
-    IMMFilter._gathered copies each state's mode rows and mu from the batch that made it (its "_rows"), equal to the
-    states' own fields bit for bit, and predicting from it equals predicting from the states' stacked fields."""
-    rng = np.random.default_rng(12)
-    modes = ({"kind": base, "motion": "cv"}, {"kind": {"kf": "ekf", "svsf": "gvbl-svsf"}.get(base, base), "motion": "ct"})
-    imm = make_filter("imm", modes=modes, sigma_v=1.0, sigma_w=0.3)
-    pred = imm.predict_many(_states(imm, rng), 0.1)
-    imm.predicted_measurements(pred)
-    W, w0 = _weights(rng)
-    upd = imm.update_many(pred, rng.normal(0, 0.5, (T, M, 2)), W, w0)
-    tracks = [upd[t] for t in (7, 1, 5, 0, 11)] + _states(imm, rng)[:1] + [upd[t] for t in (2, 9)]  # reordered, a birth
-    g = imm._gathered(tracks)
-    assert type(g) is IMMRows and list(g) == tracks
-    np.testing.assert_array_equal(g.mu, np.array([s.mu for s in tracks]))
-    for i, ms in enumerate(g.mode_lists):
-        assert [id(m) for m in ms] == [id(s.modes[i]) for s in tracks]
-        _assert_rows(ms)
-    a, b = imm.predict_many(tracks, 0.1), [imm.predict(s, 0.1) for s in tracks]
-    c = imm.predict_many(IMMRows(tracks, np.array([s.mu for s in tracks]), [[s.modes[i] for s in tracks]
-                                                                            for i in range(2)]), 0.1)
-    for sa, sb, sc in zip(a, b, c):
-        for name in ("x", "P", "e_post", "mu"):
-            np.testing.assert_array_equal(getattr(sa, name), getattr(sc, name))  # gathered == stacked, exactly
-            np.testing.assert_allclose(getattr(sa, name), getattr(sb, name), rtol=1e-12, atol=1e-12)

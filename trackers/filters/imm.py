@@ -320,7 +320,6 @@ class IMMFilter:
             raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
         if not states:
             return []
-        states = self._gathered(states)
         if not self._stackable(states):
             return [self.predict(s, dt) for s in states]  # unusual states: the per-track reference
         mu = self._mus(states)  # (T, r)
@@ -546,64 +545,13 @@ class IMMFilter:
         freeze(x, P, e, mu)
         out, names = [], self.mode_names
         told = [i for i, ms in enumerate(modes) if any(m.info for m in ms)]  # the modes with diagnostics, in order
-        bank = (mu, arrays)  # the rows `_gathered` copies when these states come back as a plain list
-        for t, (s, mt, xt, Pt, et, mut, mui) in enumerate(zip(like, mts, x, P, e, mu, mu_info)):
+        for s, mt, xt, Pt, et, mut, mui in zip(like, mts, x, P, e, mu, mu_info):
             info: dict[str, Any] = {"mu": mui}
             for i in told:
                 for key, v in mt[i].info.items():
                     info[f"{names[i]}.{key}"] = v
-            out.append(derive_frozen(s, x=xt, P=Pt, e_post=et, F=None, info=info, modes=mt, mu=mut,
-                                     _rows=(bank, t, mut, mt)))
+            out.append(derive_frozen(s, x=xt, P=Pt, e_post=et, F=None, info=info, modes=mt, mu=mut))
         return IMMRows(out, mu, [StateRows(ms, *a) for ms, a in zip(modes, arrays)])
-
-    def _gathered(self, states: list[IMMState]) -> list[IMMState]:
-        """A plain list of states (the tracks' states at the start of a scan) as an IMMRows whose mode rows and mode
-        probabilities are copied from the batches that made the states (`_states_many` leaves each state its batch's
-        arrays and row, "_rows") instead of stacked state by state; a state made otherwise (initial_state, or a
-        state whose modes or mu were replaced since) gives its own fields. The states themselves if none came from a
-        batch or the rows do not stack (then `_stackable` decides, as before)."""
-        if type(states) is IMMRows or not states:
-            return states
-        r, T = len(self.filters), len(states)
-        groups: dict[int, tuple] = {}  # id(batch arrays) -> (the arrays, positions, rows)
-        loose = []
-        for t, s in enumerate(states):
-            d = s.__dict__
-            src = d.get("_rows")
-            if src is None or src[2] is not d.get("mu") or src[3] is not d.get("modes"):
-                loose.append(t)
-                continue
-            g = groups.get(id(src[0]))
-            if g is None:
-                groups[id(src[0])] = g = (src[0], [], [])
-            g[1].append(t)
-            g[2].append(src[1])
-        if not groups:
-            return states
-        shapes = [tuple(a.shape[1:] for a in rows) for rows in next(iter(groups.values()))[0][1]]  # per mode x, P, e
-        if any([tuple(a.shape[1:] for a in rows) for rows in g[0][1]] != shapes for g in groups.values()) \
-                or len({sh[2] for sh in shapes}) > 1:
-            return states
-        for t in loose:
-            s = states[t]
-            if not isinstance(s, IMMState) or len(s.modes) != r or any(
-                    (m.x.shape, m.P.shape, m.e_post.shape) != sh for m, sh in zip(s.modes, shapes)):
-                return states
-        mu = np.empty((T, r))
-        arrays = [tuple(np.empty((T,) + sh) for sh in shapes[i]) for i in range(r)]
-        for (mu_b, rows_b), ts, rows in groups.values():
-            ts, rows = np.array(ts), np.array(rows)
-            mu[ts] = mu_b[rows]
-            for out, src in zip(arrays, rows_b):
-                for a, b in zip(out, src):
-                    a[ts] = b[rows]
-        for t in loose:
-            s = states[t]
-            mu[t] = s.mu
-            for out, m in zip(arrays, s.modes):
-                out[0][t], out[1][t], out[2][t] = m.x, m.P, m.e_post
-        freeze(mu, *(a for out in arrays for a in out))
-        return IMMRows(states, mu, [StateRows([s.modes[i] for s in states], *arrays[i]) for i in range(r)])
 
     def _mode_lists(self, states: list[IMMState]) -> list:
         """Per mode i the list of the states' mode-i states (the carried StateRows of an IMMRows)."""
