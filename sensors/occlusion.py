@@ -376,9 +376,9 @@ def _footprint_columns(d, los, cb, sb, hl, hw, azimuths: np.ndarray, yaw: float,
     """The azimuth columns whose rays cross each target's footprint, and where (horizontal distances).
 
     d, los, cb, sb: (K,) range, world bearing, cos and sin of the box axis relative to the line of sight;
-    hl, hw: half length and width [m], floats or (K, 1) per target. Returns col (K, C) unwrapped column indices (at most max_columns
-    sampled per target), weight (K,) columns each sample stands for, t_in and t_out (K, C) entry and exit
-    distances of each column's ray through the footprint, crosses (K, C) whether it crosses it in front of
+    hl, hw: half length and width [m], floats or (K, 1) per target. Returns col (K, C) unwrapped column indices
+    (at most max_columns sampled per target), weight (K,) columns each sample stands for, t_in and t_out (K, C)
+    entry and exit distances of each column's ray through the footprint, crosses (K, C) whether it crosses it in front of
     the sensor, end (K, C) whether it enters through the box's front or rear face (not a side)."""
     az0, step = azimuths[0], _azimuth_step(azimuths)
     # Angular window: the footprint corners' bearings relative to the line of sight.

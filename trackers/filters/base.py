@@ -238,14 +238,15 @@ def batch_layers(filter_, states: list[FilterState], m: int) -> np.ndarray:
     filter's `layers_many` when it has one (the same rows at once), else per track; no per-track call for a filter
     whose `layered` is False (every layer None)."""
     layers = np.full((len(states), m), np.nan)
+    if not getattr(filter_, "layered", True) or not states:
+        return layers
     many = getattr(filter_, "layers_many", None)
-    if many is not None and len(states) and getattr(filter_, "layered", True):
+    if many is not None:
         return many(states, m)
-    if getattr(filter_, "layered", True):
-        for t, s in enumerate(states):
-            lay = filter_.layer(s)
-            if lay is not None:
-                layers[t] = lay
+    for t, s in enumerate(states):
+        lay = filter_.layer(s)
+        if lay is not None:
+            layers[t] = lay
     return layers
 
 

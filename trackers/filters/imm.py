@@ -56,8 +56,8 @@ from typing import Any
 
 import numpy as np
 
-from roadtrack.trackers.filters.base import (ModelFilter, batch_layers, batch_predict, batch_predicted_measurements, batch_update,
-                                   check_covariance, check_weights, pair_covariances, symmetrise)
+from roadtrack.trackers.filters.base import (ModelFilter, batch_layers, batch_predict, batch_predicted_measurements,
+                                   batch_update, check_covariance, check_weights, pair_covariances, symmetrise)
 from roadtrack.trackers.gating import log_gaussian
 from roadtrack.trackers.models import MOTION_MODELS
 from roadtrack.trackers.params import NON_NEGATIVE, POSITIVE, ParamError, param

@@ -316,10 +316,8 @@ class SVSF(ModelFilter):
         return np.array(self.psi, dtype=np.float64)
 
     def layers_many(self, preds: list[FilterState], m: int) -> np.ndarray:
-        """`layer` of T predicted states at once: the fixed psi in every row (T, m) [m]."""
-        out = np.empty((len(preds), m))
-        out[:] = np.array(self.psi, dtype=np.float64)
-        return out
+        """`layer` of T predicted states at once: the fixed layer in every row (T, m) [m]."""
+        return np.tile(self.layer(None), (len(preds), 1))
 
     def augmented(self, s: SVSFState, nu: np.ndarray, R: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -553,11 +551,7 @@ class GeneralisedSVSF(ModelFilter):
         """The fixed measured-partition layer psi_z (m,) [m]."""
         return np.array(self.psi_z, dtype=np.float64)
 
-    def layers_many(self, preds: list[FilterState], m: int) -> np.ndarray:
-        """`layer` of T predicted states at once: the fixed psi_z in every row (T, m) [m]."""
-        out = np.empty((len(preds), m))
-        out[:] = np.array(self.psi_z, dtype=np.float64)
-        return out
+    layers_many = SVSF.layers_many  # the fixed psi_z in every row
 
     def update(self, s_pred: FilterState, nu: np.ndarray, beta: np.ndarray, beta0: float,
                R: np.ndarray | None = None) -> FilterState:
