@@ -24,6 +24,8 @@ from highway_env.road.lane import AbstractLane, CircularLane, LineType, Straight
 from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle
+from highway_env.vehicle.kinematics import Vehicle
+from highway_env.vehicle.objects import RoadObject
 
 from .roadside import clear_of_lanes, roadside_boxes
 from ..scenario.spec import RoadsideSpec, RoadSpec, Scenario, TrafficSpec, VehicleSpec
@@ -257,6 +259,16 @@ def _make_vehicle(road: Road, spec: VehicleSpec, first: tuple[str, str]):
     return v
 
 
+def velocities(vs: list) -> np.ndarray:
+    """Each vehicle's ``velocity`` (n, 2) [m/s]: highway-env's speed * (cos, sin)(heading), for all at once when
+    none overrides it (NumPy's cos and sin give the same bits for an array as for a scalar), else one by one."""
+    if all(type(v).velocity is Vehicle.velocity and type(v).direction is RoadObject.direction for v in vs):
+        speed = np.array([v.speed for v in vs], dtype=np.float64)
+        heading = np.array([v.heading for v in vs], dtype=np.float64)
+        return speed[:, None] * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    return np.array([v.velocity for v in vs], dtype=np.float64).reshape(-1, 2)
+
+
 class Simulation:
     """Scripted highway-env traffic for one scenario, plus the optional background traffic of ``[traffic]``;
     iterate :meth:`frames` for truth at the sensor rate."""
@@ -298,7 +310,7 @@ class Simulation:
             names=tuple(v.truth_name for v in vs),
             xy=np.array([v.position for v in vs], dtype=np.float64).reshape(-1, 2),
             heading=np.array([v.heading for v in vs], dtype=np.float64),
-            velocity=np.array([v.velocity for v in vs], dtype=np.float64).reshape(-1, 2),
+            velocity=velocities(vs),
             size=np.array([[v.LENGTH, v.WIDTH, v.HEIGHT] for v in vs], dtype=np.float64).reshape(-1, 3),
             lane=np.array([v.lane_index[2] for v in vs], dtype=np.int64),
             crashed=np.array([v.crashed for v in vs], dtype=bool),

@@ -467,23 +467,21 @@ class BackgroundTraffic:
     def _remove(self, wins: list[tuple[float, float]]) -> dict[tuple[int, int], int]:
         """Drop background vehicles more than REMOVE_MARGIN_M outside their window or the road; return the
         number of background vehicles inside the window per (carriageway, lane)."""
-        net, keep, counts = self.road.network, [], {}
-        vs = self.road.vehicles
-        S = np.full(len(vs), np.nan)
-        for k, cw in enumerate(self.cws):  # every background vehicle's chain coordinate on its carriageway
-            mine = [i for i, v in enumerate(vs) if isinstance(v, TrafficVehicle) and v.carriageway == k]
+        net, vs = self.road.network, self.road.vehicles
+        cw_of = np.array([v.carriageway if isinstance(v, TrafficVehicle) else -1 for v in vs], dtype=np.int64)
+        S = np.full(len(vs), np.nan)  # every background vehicle's chain coordinate on its carriageway [m]
+        for k, cw in enumerate(self.cws):
+            mine = np.flatnonzero(cw_of == k).tolist()
             if mine:
                 S[mine] = chain_coordinates(net, cw, [vs[i].lane_index for i in mine], [vs[i].position for i in mine])
-        for v, s in zip(vs, S.tolist()):
-            if isinstance(v, TrafficVehicle):
-                cw, (lo, hi) = self.cws[v.carriageway], wins[v.carriageway]
-                if np.isnan(s) or not max(lo, 0.0) - REMOVE_MARGIN_M <= s <= min(hi, cw.total) + REMOVE_MARGIN_M:
-                    continue
-                if max(lo, 0.0) <= s <= min(hi, cw.total):
-                    key = (v.carriageway, v.lane_index[2])
-                    counts[key] = counts.get(key, 0) + 1
-            keep.append(v)
-        self.road.vehicles[:] = keep
+        lo = np.array([max(lo, 0.0) for lo, _ in wins], dtype=np.float64)[np.maximum(cw_of, 0)]  # window on the road
+        hi = np.array([min(hi, cw.total) for cw, (_, hi) in zip(self.cws, wins)], dtype=np.float64)[np.maximum(cw_of, 0)]
+        near = (lo - REMOVE_MARGIN_M <= S) & (S <= hi + REMOVE_MARGIN_M)  # False for nan: off the carriageway
+        counts: dict[tuple[int, int], int] = {}
+        for i in np.flatnonzero(near & (lo <= S) & (S <= hi)).tolist():
+            key = (int(cw_of[i]), vs[i].lane_index[2])
+            counts[key] = counts.get(key, 0) + 1
+        self.road.vehicles[:] = [v for v, keep in zip(vs, ((cw_of < 0) | near).tolist()) if keep]
         return counts
 
     def _spawn(self, k: int, j: int, s: float, d: Draw) -> TrafficVehicle:
