@@ -249,7 +249,7 @@ def visibility(
     expected = t_hit <= np.minimum(t_out[..., None], hi_t)
     expected &= t_hit >= lo_t
     expected &= crosses[..., None]
-    r = ranges[:, beams][np.mod(col, n_az)]  # (K, C, b) measured slant ranges
+    r = ranges[np.mod(col, n_az), beams]  # (K, C, b) measured slant ranges (only the window's rows gathered)
     r_h = r * cos_e  # horizontal distance of each return
     clear = r_h + cfg.margin_m >= t_hit
     if cfg.attitude_tol_deg > 0:
