@@ -60,7 +60,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from roadtrack.sensors import checks
+from roadtrack.sensors import checks, occlusion_jit
 from roadtrack.sensors.lidar import LidarConfig, Scan
 
 
@@ -243,6 +243,12 @@ def visibility(
     # (K, C, b): t_hit = horizontal distance where the ray enters the box; expected when it enters before
     # leaving the footprint, within the height and range limits; clear unless a nearer return blocks it.
     per_target = np.ndim(height) > 0  # sizes (K, 1): tz_in (K, B) and hi_t (K, b) get the column axis
+    if cfg.attitude_tol_deg == 0:  # compiled, ray by ray (sensors/occlusion_jit.py)
+        counts = occlusion_jit.ray_counts(
+            col, t_in, t_out, crosses, end, np.ascontiguousarray(np.atleast_2d(tz_in[..., beams])),
+            np.ascontiguousarray(np.atleast_2d(hi_t)), lo_t, cos_e, np.tan(elevations[beams]),
+            np.ascontiguousarray(ranges), int(beams.start), float(cfg.margin_m), h)
+        return Visibility(*(c * weight for c in counts[:5]), seen_top=counts[5])
     tz_b = tz_in[:, None, beams] if per_target else tz_in[beams]
     hi_t = hi_t[:, None, :] if per_target else hi_t
     t_hit = np.maximum(t_in[..., None], tz_b)
@@ -386,34 +392,18 @@ def _footprint_columns(d, los, cb, sb, hl, hw, azimuths: np.ndarray, yaw: float,
     cx = d[:, None] + cb[:, None] * kx - sb[:, None] * ky
     cy = sb[:, None] * kx + cb[:, None] * ky
     rel = np.arctan2(cy, cx)  # (K, 4); > pi/2 in magnitude only when the sensor is (nearly) inside the box
-    lo, hi = np.maximum(rel.min(axis=1), -np.pi / 2), np.minimum(rel.max(axis=1), np.pi / 2)
-    centre_col = (los - yaw - az0) / step
-    first = np.ceil(centre_col + lo / step)
-    last = np.floor(centre_col + hi / step)
-    narrow = last < first  # window narrower than one column: take the nearest column
-    first[narrow] = last[narrow] = np.round(centre_col[narrow])
-    n_window = (last - first + 1).astype(np.int64)  # (K,) columns in the window
-    n_cols = min(int(n_window.max()), max_columns)
-    m = np.minimum(n_window, n_cols)  # columns sampled per target
-    j = np.arange(n_cols)
-    valid_col = j[None, :] < m[:, None]  # (K, C)
-    offset = np.floor((j[None, :] + 0.5) * (n_window / m)[:, None]).astype(np.int64)
-    col = first.astype(np.int64)[:, None] + np.where(valid_col, offset, 0)  # unwrapped column index
-    weight = n_window / m  # columns each sample stands for
+    # the window [centre + lo, centre + hi] in columns (the nearest column when narrower than one), at most
+    # max_columns of its columns sampled evenly: col (K, C), weight (K,) columns per sample, valid (K, C)
+    col, weight, valid_col = occlusion_jit.footprint_columns(rel, los, float(yaw), float(az0), step, max_columns)
 
     # 2-D slab intersection of each column's ray with the footprint (box frame: centre at the origin).
     phi = az0 + col * step + yaw - los[:, None]  # ray bearing relative to the line of sight (K, C)
     ux, uy = np.cos(phi), np.sin(phi)
     ox, oy = -d * cb, d * sb  # sensor position in the box frame: R(-beta) @ (-d, 0)
-    rx = cb[:, None] * ux + sb[:, None] * uy  # ray direction in the box frame
-    ry = -sb[:, None] * ux + cb[:, None] * uy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_in, t_out = _slab(ox[:, None], rx, hl)
-        ty_in, ty_out = _slab(oy[:, None], ry, hw)
-    end = t_in >= ty_in  # the x slab (along the box's axis) is entered last: through a front or rear face
-    t_in, t_out = np.maximum(t_in, ty_in), np.minimum(t_out, ty_out)
-    crosses = valid_col & (t_out >= t_in) & (t_in > 0.0)  # t_in <= 0: the sensor is inside the footprint
-
+    hl, hw = (np.ascontiguousarray(np.broadcast_to(a, (len(d), 1))[:, 0]) for a in (hl, hw))  # (K,) per target
+    # per column: the ray in the box frame, the slabs |x| <= hl and |y| <= hw; crosses: t_in > 0 (else the sensor is
+    # inside the footprint); end: the x slab (along the box's axis) entered last, through a front or rear face
+    t_in, t_out, crosses, end = occlusion_jit.footprint_slabs(ox, oy, cb, sb, ux, uy, hl, hw, valid_col)
     return col, weight, t_in, t_out, crosses, end
 
 

@@ -362,7 +362,7 @@ def _low_counts(windows: np.ndarray, thr: np.ndarray, d2_of: Callable[[int, int]
     """(T, n) int64 measurements with d2 <= thr (T, n) per scan of rolled windows (T, n, 3 + k)."""
     low, size = windows[:, :, ROW_FIXED:], windows[:, :, 2].astype(np.int64)
     k = low.shape[2]
-    counts = np.minimum(np.count_nonzero(low <= thr[:, :, None], axis=2), size).astype(np.int64)
+    counts = np.minimum((low <= thr[:, :, None]).sum(axis=2), size)  # int64: sums of bools, minimum of int64s
     for t, j in zip(*np.nonzero((counts == k) & (size > k))):  # the k kept are all in: count the scan's full d2
         counts[t, j] = np.count_nonzero(np.asarray(d2_of(int(t), int(j))) <= thr[t, j])
     return counts
