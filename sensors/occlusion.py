@@ -166,7 +166,7 @@ def detection_probability(
         ramp = ramp * np.clip((vis.clear_rays - lo + 1) / (cfg.full_points - lo + 1), 0.0, 1.0)
     if cfg.edge_on_top_m > 0:  # seen low: only the front or rear face's width across the line of sight counts
         low = vis.seen_top < cfg.edge_on_top_m
-        end = _seen_width(scan, np.asarray(xy, dtype=np.float64).reshape(-1, 2), vis.clear_end_columns)
+        end = _seen_width(scan, np.asarray(xy, dtype=np.float64).reshape(-1, 2), vis.clear_end_columns)  # (K,) [m]
         ramp = np.where(low, ramp * np.clip((end - cfg.edge_on_lo_m) / (cfg.edge_on_hi_m - cfg.edge_on_lo_m),
                                             0.0, 1.0), ramp)
     return np.where(vis.clear_rays >= lo, cfg.pd_nominal * ramp, 0.0)
@@ -349,33 +349,21 @@ def _beam_window(elevations: np.ndarray, h: float, height, cfg: OcclusionConfig,
     those beams' elevations (b,), lo_t (b,) and hi_t (b,) or (K, b) bounds on a ray's entry point: above
     min_hit_height_m, below the box top, within the sensor's range)."""
     # 3-D: the ray is within [0, height] for horizontal distances [tz_in, tz_out] (per beam); keep the
-    # beams that can reach some target at all (upward beams above a low target never do).
+    # beams that can reach some target at all (upward beams above a low target never do), contiguous: the
+    # conditions are monotone in elevation (sensors/occlusion_jit.py)
     tan_e = np.tan(elevations)
-    base = (np.full_like(tan_e, h - height / 2) if np.ndim(height) == 0  # the box's mid-height below the sensor
-            else np.broadcast_to(h - height / 2, (len(height), len(tan_e))))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tz_in, tz_out = _slab(base, tan_e, height / 2)
-    t_reach = np.where(crosses, t_out, -np.inf).max(initial=-np.inf)
-    t_near = np.where(crosses, t_in, np.inf).min(initial=np.inf)
-    slack = t_reach * np.tan(np.deg2rad(cfg.attitude_tol_deg)) if np.isfinite(t_reach) else 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):  # the band a tilted beam may hit the box in
-        band_in, band_out = _slab(base, tan_e, height / 2 + slack)
-    useful = (band_in <= band_out) & (band_in <= t_reach) & (band_out >= t_near)
-    useful = np.flatnonzero(useful if useful.ndim == 1 else useful.any(axis=0))  # some target's
-    if len(useful) == 0:
+    per_target = np.ndim(height) > 0
+    half = np.ascontiguousarray((height / 2)[:, 0]) if per_target else np.array([height / 2])
+    tz_in, tz_out, b0, b1 = occlusion_jit.beam_window(tan_e, h, half, t_in, t_out, crosses,
+                                                      float(np.tan(np.deg2rad(cfg.attitude_tol_deg))))
+    if b1 == 0:
         return None
-    beams = slice(useful[0], useful[-1] + 1)  # contiguous: the conditions are monotone in elevation
-    tan_b, cos_e = tan_e[beams], np.cos(elevations[beams])
-    # the ray is at least min_hit_height_m above the road for horizontal distances [tl_in, tl_out]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_lo = (cfg.min_hit_height_m - h) / tan_b
-    level = np.inf if h >= cfg.min_hit_height_m else -np.inf  # a level beam is always or never high enough
-    tl_in = np.where(tan_b > 0, t_lo, np.where(tan_b < 0, -np.inf, -level))
-    tl_out = np.where(tan_b < 0, t_lo, np.where(tan_b > 0, np.inf, level))
-    lo_t = np.maximum(tl_in, cfg.min_range_m * cos_e)  # bounds on the entry point t_hit (b,)
-    hi_t = np.minimum(np.minimum(tz_out[..., beams], tl_out), cfg.max_range_m * cos_e)
-
-    return beams, tz_in, cos_e, lo_t, hi_t
+    beams = slice(b0, b1)
+    cos_e = np.cos(elevations[beams])
+    # bounds on the entry point t_hit: lo_t (b,), hi_t (1 or K, b)
+    lo_t, hi_t = occlusion_jit.beam_bounds(tan_e[beams], cos_e, tz_out, b0, h, float(cfg.min_hit_height_m),
+                                           float(cfg.min_range_m), float(cfg.max_range_m))
+    return beams, (tz_in if per_target else tz_in[0]), cos_e, lo_t, (hi_t if per_target else hi_t[0])
 
 
 def _footprint_columns(d, los, cb, sb, hl, hw, azimuths: np.ndarray, yaw: float, max_columns: int):

@@ -1,13 +1,14 @@
 """Compiled (numba) loops of sensors/occlusion.py's `visibility`: each target's sampled azimuth columns, the
-footprint's slab test per column and the ray-by-ray test per (target, column, beam).
+footprint's slab test per column, the beams that can reach a target and their bounds, and the ray-by-ray test per
+(target, column, beam).
 
 Each kernel computes what the numpy code of `visibility` computed, bit for bit: the same float64 divisions, products
 and sums in the same order, `np.maximum` / `np.minimum` as numpy defines them (NaN propagates, the first argument
 wins a tie), comparisons with NaN false, `np.rint` for numpy's round; trigonometry stays in numpy (the caller passes
 the arctan2, cos, sin and tan arrays: numpy's transcendental functions round differently from the C library's in the
-last bit). About 50 numpy calls on small (K, C) and (K, C, b) arrays per call of `visibility` become three calls
+last bit). About 80 numpy calls on small (K, C) and (K, C, b) arrays per call of `visibility` become five calls
 (tests/test_occlusion_jit.py compares each kernel with the numpy code it replaced, and `visibility` with the numpy
-path, on random boxes and on a real scan). The numpy code stays for a sensor with an attitude tolerance
+path, on random boxes and on a real scan). The numpy counting code stays for a sensor with an attitude tolerance
 (`_attitude_tolerant`).
 """
 
@@ -41,6 +42,61 @@ def _slab(o, u, half):
     ta = (-half - o) / u
     tb = (half - o) / u
     return _np_min(ta, tb), _np_max(ta, tb)
+
+
+@njit(cache=True)
+def beam_window(tan_e, h, half, t_in, t_out, crosses, tan_tol):
+    """The beams that can hit a target: tan_e (B,) the beams' elevation tangents, h the sensor's height [m], half
+    (1 or K,) half the targets' heights [m] (one for all, or per target), t_in, t_out, crosses (K, C) the columns'
+    footprint crossings (footprint_slabs), tan_tol the tangent of the attitude tolerance. Returns tz_in, tz_out
+    (1 or K, B) the horizontal distances [m] between which each beam is within [0, height] of the box, and the
+    contiguous beams b0 .. b1 - 1 that can reach some target within the tolerance's band (b1 = 0: none)."""
+    rows, B = half.shape[0], tan_e.shape[0]
+    t_reach, t_near = -np.inf, np.inf
+    for k in range(t_in.shape[0]):
+        for c in range(t_in.shape[1]):
+            if crosses[k, c]:
+                t_reach = _np_max(t_reach, t_out[k, c])
+                t_near = _np_min(t_near, t_in[k, c])
+    slack = t_reach * tan_tol if math.isfinite(t_reach) else 0.0
+    tz_in = np.empty((rows, B))
+    tz_out = np.empty((rows, B))
+    b0, b1 = 0, 0
+    for j in range(B):
+        useful = False
+        for r in range(rows):
+            base = h - half[r]  # the box's mid-height below the sensor
+            tz_in[r, j], tz_out[r, j] = _slab(base, tan_e[j], half[r])
+            band_in, band_out = _slab(base, tan_e[j], half[r] + slack)  # where a tilted beam may hit the box
+            useful = useful or (band_in <= band_out and band_in <= t_reach and band_out >= t_near)
+        if useful:
+            if b1 == 0:
+                b0 = j
+            b1 = j + 1
+    return tz_in, tz_out, b0, b1
+
+
+@njit(cache=True)
+def beam_bounds(tan_b, cos_e, tz_out, b0, h, min_hit, min_range, max_range):
+    """Bounds on the horizontal distance t_hit [m] where each ray of the beams b0 .. b0 + b - 1 (elevation tangents
+    tan_b and cosines cos_e (b,)) may enter a box: lo_t (b,) above min_hit [m] over the road and beyond min_range
+    (slant), hi_t (1 or K, b) below the box top (tz_out (1 or K, B), beam_window), above min_hit and within
+    max_range (slant); the sensor at height h [m]."""
+    b = tan_b.shape[0]
+    level = np.inf if h >= min_hit else -np.inf  # a level beam is always or never high enough
+    lo_t = np.empty(b)
+    hi_t = np.empty((tz_out.shape[0], b))
+    for j in range(b):
+        if tan_b[j] > 0:  # the ray is at least min_hit above the road for horizontal distances [tl_in, tl_out]
+            tl_in, tl_out = (min_hit - h) / tan_b[j], np.inf
+        elif tan_b[j] < 0:
+            tl_in, tl_out = -np.inf, (min_hit - h) / tan_b[j]
+        else:
+            tl_in, tl_out = -level, level
+        lo_t[j] = _np_max(tl_in, min_range * cos_e[j])
+        for r in range(tz_out.shape[0]):
+            hi_t[r, j] = _np_min(_np_min(tz_out[r, b0 + j], tl_out), max_range * cos_e[j])
+    return lo_t, hi_t
 
 
 @njit(cache=True)

@@ -74,6 +74,60 @@ def test_footprint_columns_match_the_numpy_windows(seed):
             assert g.dtype == w.dtype
 
 
+def _beam_window_numpy(elevations, h, height, cfg, t_in, t_out, crosses):
+    """The numpy code beam_window and beam_bounds replaced (occlusion._beam_window before issue 33)."""
+    tan_e = np.tan(elevations)
+    base = (np.full_like(tan_e, h - height / 2) if np.ndim(height) == 0
+            else np.broadcast_to(h - height / 2, (len(height), len(tan_e))))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tz_in, tz_out = occlusion._slab(base, tan_e, height / 2)
+    t_reach = np.where(crosses, t_out, -np.inf).max(initial=-np.inf)
+    t_near = np.where(crosses, t_in, np.inf).min(initial=np.inf)
+    slack = t_reach * np.tan(np.deg2rad(cfg.attitude_tol_deg)) if np.isfinite(t_reach) else 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        band_in, band_out = occlusion._slab(base, tan_e, height / 2 + slack)
+    useful = (band_in <= band_out) & (band_in <= t_reach) & (band_out >= t_near)
+    useful = np.flatnonzero(useful if useful.ndim == 1 else useful.any(axis=0))
+    if len(useful) == 0:
+        return None
+    beams = slice(useful[0], useful[-1] + 1)
+    tan_b, cos_e = tan_e[beams], np.cos(elevations[beams])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_lo = (cfg.min_hit_height_m - h) / tan_b
+    level = np.inf if h >= cfg.min_hit_height_m else -np.inf
+    tl_in = np.where(tan_b > 0, t_lo, np.where(tan_b < 0, -np.inf, -level))
+    tl_out = np.where(tan_b < 0, t_lo, np.where(tan_b > 0, np.inf, level))
+    lo_t = np.maximum(tl_in, cfg.min_range_m * cos_e)
+    hi_t = np.minimum(np.minimum(tz_out[..., beams], tl_out), cfg.max_range_m * cos_e)
+    return beams, tz_in, cos_e, lo_t, hi_t
+
+
+@pytest.mark.parametrize("per_target", [False, True])
+@pytest.mark.parametrize("seed", range(6))
+def test_beam_window_matches_the_numpy_beam_window(seed, per_target):
+    rng = np.random.default_rng(seed)
+    K, C = 6, 9
+    elevations = np.deg2rad(np.linspace(-30.67, 10.67, 32))
+    if not per_target:  # a level beam (the numpy code broadcast it wrongly against per-target heights)
+        elevations[20] = 0.0
+    h = [1.9, 0.2, 1.5, 1.9, 3.0, 1.9][seed]  # 0.2: the sensor below min_hit_height_m
+    tol = [0.0, 0.0, 1.5, 0.0, 0.4, 0.0][seed]
+    cfg = OcclusionConfig(attitude_tol_deg=tol)
+    height = rng.uniform(1.2, 4.0, (K, 1)) if per_target else float(rng.uniform(1.2, 4.0))
+    t_in = rng.uniform(1.0, 60.0, (K, C))
+    t_out = t_in + rng.uniform(0.0, 5.0, (K, C))
+    crosses = rng.random((K, C)) < (0.0 if seed == 5 else 0.7)  # seed 5: no column crosses (no beam)
+    got = occlusion._beam_window(elevations, h, height, cfg, t_in, t_out, crosses)
+    want = _beam_window_numpy(elevations, h, height, cfg, t_in, t_out, crosses)
+    if want is None:
+        assert got is None
+        return
+    assert got[0] == want[0]
+    for g, w in zip(got[1:], want[1:]):
+        assert g.shape == w.shape
+        np.testing.assert_array_equal(g, w)
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_footprint_slabs_match_the_numpy_slab_test(seed):
     rng = np.random.default_rng(seed)
@@ -134,6 +188,7 @@ def test_visibility_is_the_numpy_paths_on_a_real_scan(monkeypatch):
     fast = [occlusion.visibility(sc, xy, cfg, heading=heading), occlusion.visibility(sc, xy, cfg, size_m=size)]
     monkeypatch.setattr(occlusion_jit, "footprint_slabs", _slabs_numpy)
     monkeypatch.setattr(occlusion_jit, "footprint_columns", _columns_numpy)
+    monkeypatch.setattr(occlusion, "_beam_window", _beam_window_numpy)
     monkeypatch.setattr(occlusion_jit, "ray_counts",
                         lambda col, *a: _counts_numpy(col, *a[:10], slice(a[10], a[10] + len(a[6])), *a[11:]))
     slow = [occlusion.visibility(sc, xy, cfg, heading=heading), occlusion.visibility(sc, xy, cfg, size_m=size)]

@@ -282,11 +282,19 @@ class Tracker:
         covariance (T, 2d, 2d), d the number of position entries of the filter's motion model."""
         return self.state_kinematics([tr.state for tr in tracks])
 
+    @functools.cached_property
+    def _kinematic_index(self) -> tuple[np.ndarray, bool]:
+        """The state entries [p; v] (2d,) of the filter's motion model (read-only), and whether they are the whole
+        state in order (a 2-D constant-velocity state [px, py, vx, vy]: kinematics are the states themselves)."""
+        mot = self.filter.motion
+        idx = np.array(list(mot.position) + list(mot.velocity))
+        idx.setflags(write=False)
+        return idx, bool(np.array_equal(idx, np.arange(idx.size)))
+
     def state_kinematics(self, states: list, cov: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """`kinematics` of filter states (T of them): kin (T, 2d) [p; v], cov (T, 2d, 2d) (None with ``cov`` False:
         the callers that read positions and velocities only skip stacking the covariances)."""
-        mot = self.filter.motion
-        idx = np.array(list(mot.position) + list(mot.velocity))
+        idx, in_order = self._kinematic_index
         if not states:
             return np.zeros((0, idx.size)), np.zeros((0, idx.size, idx.size)) if cov else None
         out = [self.filter.output(s) for s in states]
@@ -295,10 +303,11 @@ class Tracker:
             return (np.array([x[idx] for x, _ in out]),
                     np.array([P[np.ix_(idx, idx)] for _, P in out]) if cov else None)
         X = np.array([x for x, _ in out])
+        whole = in_order and X.shape[1] == idx.size  # [p; v] is the state: no gather
         if not cov:
-            return X[:, idx], None
+            return (X if whole else X[:, idx]), None
         P = np.array([P for _, P in out])
-        return X[:, idx], P[:, idx][:, :, idx]
+        return (X, P) if whole else (X[:, idx], P[:, idx][:, :, idx])
 
     @property
     def pg(self) -> float:

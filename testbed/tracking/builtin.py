@@ -45,6 +45,8 @@ def truck_tracks(ids: np.ndarray, W: np.ndarray, lengths: np.ndarray, known: dic
 def position_velocity(kin: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """[x, y, vx, vy] (T, 4) and its covariance (T, 4, 4) of a tracker's kinematics (T, 2d) [p; v] and (T, 2d, 2d)."""
     d = kin.shape[1] // 2
+    if d == 2:  # [x, y, vx, vy] already
+        return kin, cov
     idx = np.array([0, 1, d, d + 1])
     return kin[:, idx], cov[:, idx][:, :, idx]
 
