@@ -60,7 +60,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from roadtrack.sensors import checks
+from roadtrack.sensors import checks, occlusion_jit
 from roadtrack.sensors.lidar import LidarConfig, Scan
 
 
@@ -166,7 +166,7 @@ def detection_probability(
         ramp = ramp * np.clip((vis.clear_rays - lo + 1) / (cfg.full_points - lo + 1), 0.0, 1.0)
     if cfg.edge_on_top_m > 0:  # seen low: only the front or rear face's width across the line of sight counts
         low = vis.seen_top < cfg.edge_on_top_m
-        end = _seen_width(scan, np.asarray(xy, dtype=np.float64).reshape(-1, 2), vis.clear_end_columns)
+        end = _seen_width(scan, np.asarray(xy, dtype=np.float64).reshape(-1, 2), vis.clear_end_columns)  # (K,) [m]
         ramp = np.where(low, ramp * np.clip((end - cfg.edge_on_lo_m) / (cfg.edge_on_hi_m - cfg.edge_on_lo_m),
                                             0.0, 1.0), ramp)
     return np.where(vis.clear_rays >= lo, cfg.pd_nominal * ramp, 0.0)
@@ -243,13 +243,19 @@ def visibility(
     # (K, C, b): t_hit = horizontal distance where the ray enters the box; expected when it enters before
     # leaving the footprint, within the height and range limits; clear unless a nearer return blocks it.
     per_target = np.ndim(height) > 0  # sizes (K, 1): tz_in (K, B) and hi_t (K, b) get the column axis
+    if cfg.attitude_tol_deg == 0:  # compiled, ray by ray (sensors/occlusion_jit.py)
+        counts = occlusion_jit.ray_counts(
+            col, t_in, t_out, crosses, end, np.ascontiguousarray(np.atleast_2d(tz_in[..., beams])),
+            np.ascontiguousarray(np.atleast_2d(hi_t)), lo_t, cos_e, np.tan(elevations[beams]),
+            np.ascontiguousarray(ranges), int(beams.start), float(cfg.margin_m), h)
+        return Visibility(*(c * weight for c in counts[:5]), seen_top=counts[5])
     tz_b = tz_in[:, None, beams] if per_target else tz_in[beams]
     hi_t = hi_t[:, None, :] if per_target else hi_t
     t_hit = np.maximum(t_in[..., None], tz_b)
     expected = t_hit <= np.minimum(t_out[..., None], hi_t)
     expected &= t_hit >= lo_t
     expected &= crosses[..., None]
-    r = ranges[:, beams][np.mod(col, n_az)]  # (K, C, b) measured slant ranges
+    r = ranges[np.mod(col, n_az), beams]  # (K, C, b) measured slant ranges (only the window's rows gathered)
     r_h = r * cos_e  # horizontal distance of each return
     clear = r_h + cfg.margin_m >= t_hit
     if cfg.attitude_tol_deg > 0:
@@ -343,33 +349,21 @@ def _beam_window(elevations: np.ndarray, h: float, height, cfg: OcclusionConfig,
     those beams' elevations (b,), lo_t (b,) and hi_t (b,) or (K, b) bounds on a ray's entry point: above
     min_hit_height_m, below the box top, within the sensor's range)."""
     # 3-D: the ray is within [0, height] for horizontal distances [tz_in, tz_out] (per beam); keep the
-    # beams that can reach some target at all (upward beams above a low target never do).
+    # beams that can reach some target at all (upward beams above a low target never do), contiguous: the
+    # conditions are monotone in elevation (sensors/occlusion_jit.py)
     tan_e = np.tan(elevations)
-    base = (np.full_like(tan_e, h - height / 2) if np.ndim(height) == 0  # the box's mid-height below the sensor
-            else np.broadcast_to(h - height / 2, (len(height), len(tan_e))))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tz_in, tz_out = _slab(base, tan_e, height / 2)
-    t_reach = np.where(crosses, t_out, -np.inf).max(initial=-np.inf)
-    t_near = np.where(crosses, t_in, np.inf).min(initial=np.inf)
-    slack = t_reach * np.tan(np.deg2rad(cfg.attitude_tol_deg)) if np.isfinite(t_reach) else 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):  # the band a tilted beam may hit the box in
-        band_in, band_out = _slab(base, tan_e, height / 2 + slack)
-    useful = (band_in <= band_out) & (band_in <= t_reach) & (band_out >= t_near)
-    useful = np.flatnonzero(useful if useful.ndim == 1 else useful.any(axis=0))  # some target's
-    if len(useful) == 0:
+    per_target = np.ndim(height) > 0
+    half = np.ascontiguousarray((height / 2)[:, 0]) if per_target else np.array([height / 2])
+    tz_in, tz_out, b0, b1 = occlusion_jit.beam_window(tan_e, h, half, t_in, t_out, crosses,
+                                                      float(np.tan(np.deg2rad(cfg.attitude_tol_deg))))
+    if b1 == 0:
         return None
-    beams = slice(useful[0], useful[-1] + 1)  # contiguous: the conditions are monotone in elevation
-    tan_b, cos_e = tan_e[beams], np.cos(elevations[beams])
-    # the ray is at least min_hit_height_m above the road for horizontal distances [tl_in, tl_out]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_lo = (cfg.min_hit_height_m - h) / tan_b
-    level = np.inf if h >= cfg.min_hit_height_m else -np.inf  # a level beam is always or never high enough
-    tl_in = np.where(tan_b > 0, t_lo, np.where(tan_b < 0, -np.inf, -level))
-    tl_out = np.where(tan_b < 0, t_lo, np.where(tan_b > 0, np.inf, level))
-    lo_t = np.maximum(tl_in, cfg.min_range_m * cos_e)  # bounds on the entry point t_hit (b,)
-    hi_t = np.minimum(np.minimum(tz_out[..., beams], tl_out), cfg.max_range_m * cos_e)
-
-    return beams, tz_in, cos_e, lo_t, hi_t
+    beams = slice(b0, b1)
+    cos_e = np.cos(elevations[beams])
+    # bounds on the entry point t_hit: lo_t (b,), hi_t (1 or K, b)
+    lo_t, hi_t = occlusion_jit.beam_bounds(tan_e[beams], cos_e, tz_out, b0, h, float(cfg.min_hit_height_m),
+                                           float(cfg.min_range_m), float(cfg.max_range_m))
+    return beams, (tz_in if per_target else tz_in[0]), cos_e, lo_t, (hi_t if per_target else hi_t[0])
 
 
 def _footprint_columns(d, los, cb, sb, hl, hw, azimuths: np.ndarray, yaw: float, max_columns: int):
@@ -386,34 +380,18 @@ def _footprint_columns(d, los, cb, sb, hl, hw, azimuths: np.ndarray, yaw: float,
     cx = d[:, None] + cb[:, None] * kx - sb[:, None] * ky
     cy = sb[:, None] * kx + cb[:, None] * ky
     rel = np.arctan2(cy, cx)  # (K, 4); > pi/2 in magnitude only when the sensor is (nearly) inside the box
-    lo, hi = np.maximum(rel.min(axis=1), -np.pi / 2), np.minimum(rel.max(axis=1), np.pi / 2)
-    centre_col = (los - yaw - az0) / step
-    first = np.ceil(centre_col + lo / step)
-    last = np.floor(centre_col + hi / step)
-    narrow = last < first  # window narrower than one column: take the nearest column
-    first[narrow] = last[narrow] = np.round(centre_col[narrow])
-    n_window = (last - first + 1).astype(np.int64)  # (K,) columns in the window
-    n_cols = min(int(n_window.max()), max_columns)
-    m = np.minimum(n_window, n_cols)  # columns sampled per target
-    j = np.arange(n_cols)
-    valid_col = j[None, :] < m[:, None]  # (K, C)
-    offset = np.floor((j[None, :] + 0.5) * (n_window / m)[:, None]).astype(np.int64)
-    col = first.astype(np.int64)[:, None] + np.where(valid_col, offset, 0)  # unwrapped column index
-    weight = n_window / m  # columns each sample stands for
+    # the window [centre + lo, centre + hi] in columns (the nearest column when narrower than one), at most
+    # max_columns of its columns sampled evenly: col (K, C), weight (K,) columns per sample, valid (K, C)
+    col, weight, valid_col = occlusion_jit.footprint_columns(rel, los, float(yaw), float(az0), step, max_columns)
 
     # 2-D slab intersection of each column's ray with the footprint (box frame: centre at the origin).
     phi = az0 + col * step + yaw - los[:, None]  # ray bearing relative to the line of sight (K, C)
     ux, uy = np.cos(phi), np.sin(phi)
     ox, oy = -d * cb, d * sb  # sensor position in the box frame: R(-beta) @ (-d, 0)
-    rx = cb[:, None] * ux + sb[:, None] * uy  # ray direction in the box frame
-    ry = -sb[:, None] * ux + cb[:, None] * uy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_in, t_out = _slab(ox[:, None], rx, hl)
-        ty_in, ty_out = _slab(oy[:, None], ry, hw)
-    end = t_in >= ty_in  # the x slab (along the box's axis) is entered last: through a front or rear face
-    t_in, t_out = np.maximum(t_in, ty_in), np.minimum(t_out, ty_out)
-    crosses = valid_col & (t_out >= t_in) & (t_in > 0.0)  # t_in <= 0: the sensor is inside the footprint
-
+    hl, hw = (np.ascontiguousarray(np.broadcast_to(a, (len(d), 1))[:, 0]) for a in (hl, hw))  # (K,) per target
+    # per column: the ray in the box frame, the slabs |x| <= hl and |y| <= hw; crosses: t_in > 0 (else the sensor is
+    # inside the footprint); end: the x slab (along the box's axis) entered last, through a front or rear face
+    t_in, t_out, crosses, end = occlusion_jit.footprint_slabs(ox, oy, cb, sb, ux, uy, hl, hw, valid_col)
     return col, weight, t_in, t_out, crosses, end
 
 

@@ -17,6 +17,11 @@ from scipy.spatial import cKDTree
 from roadtrack.sensors import checks
 
 
+_RECENT_POINTS = 256
+"""Points a RoadMap remembers the nearest sample of per generation (`RoadMap.nearest_index`): a few scans' worth of
+tracks and detections."""
+
+
 @dataclass(frozen=True, eq=False)
 class RoadMap:
     """P lane centre-line samples (all lanes of all carriageways together).
@@ -30,6 +35,7 @@ class RoadMap:
     heading: np.ndarray
     half_width: np.ndarray
     _tree: cKDTree = field(init=False, repr=False)
+    _recent: list = field(init=False, repr=False)  # [this generation, the one before]: point (x, y) -> sample index
 
     def __post_init__(self) -> None:
         centre = checks.float_array("RoadMap.centre", self.centre, (None, 2))
@@ -43,6 +49,7 @@ class RoadMap:
         object.__setattr__(self, "heading", heading)
         object.__setattr__(self, "half_width", half_width)
         object.__setattr__(self, "_tree", cKDTree(centre))
+        object.__setattr__(self, "_recent", [{}, {}])
 
     def nearest(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance (M,) [m] to the nearest centre sample and its index (M,) int64, for xy (M, 2) [m]."""
@@ -51,6 +58,27 @@ class RoadMap:
             return np.zeros(0), np.zeros(0, np.int64)
         dist, k = self._tree.query(q)
         return np.asarray(dist, np.float64), np.asarray(k, np.int64)
+
+    def nearest_index(self, q: np.ndarray) -> np.ndarray:
+        """Index (M,) int64 of the nearest centre sample to each of q (M, 2) [m], finite float64 (checked by the
+        caller): `nearest`'s, remembered for the points of the last calls (the two generations of
+        `_recent`), so that a point asked again (a tracker asks the road at the positions it estimated in the
+        previous scan) costs a dictionary look-up instead of a tree query (about 0.15 M instructions a call)."""
+        if len(q) == 0:
+            return np.zeros(0, np.int64)
+        now, before = self._recent
+        keys = list(map(tuple, q.tolist()))
+        found = [now.get(key, before.get(key, -1)) for key in keys]
+        miss = [i for i, k in enumerate(found) if k < 0]
+        if miss:
+            k_miss = self._tree.query(q[miss] if len(miss) < len(q) else q)[1].tolist()
+            for i, k in zip(miss, k_miss):
+                found[i] = k
+        if len(now) > _RECENT_POINTS:  # a new generation: the older one is forgotten
+            self._recent[:] = [{}, now]
+            now = self._recent[0]
+        now.update(zip(keys, found))
+        return np.array(found, dtype=np.int64)
 
     def on_road(self, xy: np.ndarray, margin_m: float) -> np.ndarray:
         """(M,) bool: xy (M, 2) [m] lies within the nearest sample's half width + margin_m [m] of it.
@@ -78,7 +106,7 @@ class RoadMap:
         from its centre line (> 0: left of the lane's direction), its half width (M,) [m] and curvature (M,)
         [1/m], all at the nearest centre sample."""
         q = checks.float_array("xy", xy, (None, 2))
-        _, k = self.nearest(q)
+        k = self.nearest_index(q)
         h = self.heading[k]
         d = q - self.centre[k]
         offset = -np.sin(h) * d[:, 0] + np.cos(h) * d[:, 1]
@@ -86,5 +114,4 @@ class RoadMap:
 
     def heading_at(self, xy: np.ndarray) -> np.ndarray:
         """(M,) lane heading [rad] of the nearest centre sample to each of xy (M, 2) [m]."""
-        _, k = self.nearest(xy)
-        return self.heading[k]
+        return self.heading[self.nearest_index(checks.float_array("xy", xy, (None, 2)))]

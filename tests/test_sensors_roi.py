@@ -63,6 +63,33 @@ def test_road_map_rejects_bad_arrays(centre, heading, half_width, match):
         RoadMap(centre, heading, half_width)
 
 
+def test_nearest_index_remembers_points_and_matches_the_tree_query():
+    """nearest_index (the lanes' look-ups, remembered per point for the tracker's next scan) gives the tree query's
+    index for every point: asked again, mixed with new points, after the generation holding a point is forgotten, and
+    while the tree is replaced by one that would answer wrongly (a remembered point then answers from memory)."""
+    from roadtrack.sensors import roi
+
+    road = straight_road()
+    rng = np.random.default_rng(3)
+    first = rng.uniform([-90.0, -7.0], [90.0, 7.0], (12, 2))
+    truth = road.nearest(first)[1]
+    np.testing.assert_array_equal(road.nearest_index(first), truth)
+    mixed = np.concatenate([first[::2], rng.uniform([-90.0, -7.0], [90.0, 7.0], (5, 2))])
+    np.testing.assert_array_equal(road.nearest_index(mixed), road.nearest(mixed)[1])
+    far = straight_road(1000.0, 1200.0)  # a tree whose nearest samples are all far from `first`
+    tree = road._tree
+    object.__setattr__(road, "_tree", far._tree)
+    np.testing.assert_array_equal(road.nearest_index(first), truth)  # all remembered: no query of the wrong tree
+    object.__setattr__(road, "_tree", tree)
+    for _ in range(3):  # two new generations: `first` is forgotten, asked again from the tree
+        road.nearest_index(rng.uniform([-90.0, -7.0], [90.0, 7.0], (roi._RECENT_POINTS + 1, 2)))
+    object.__setattr__(road, "_tree", far._tree)
+    assert (road.nearest_index(first) != truth).all()
+    object.__setattr__(road, "_tree", tree)
+    assert road.nearest_index(np.zeros((0, 2))).shape == (0,)
+    np.testing.assert_array_equal(road.heading_at(first), road.heading[truth])
+
+
 def test_road_map_queries_reject_bad_arguments():
     road = straight_road()
     with pytest.raises(ValueError, match="margin_m"):

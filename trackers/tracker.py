@@ -282,19 +282,32 @@ class Tracker:
         covariance (T, 2d, 2d), d the number of position entries of the filter's motion model."""
         return self.state_kinematics([tr.state for tr in tracks])
 
-    def state_kinematics(self, states: list) -> tuple[np.ndarray, np.ndarray]:
-        """`kinematics` of filter states (T of them): kin (T, 2d) [p; v], cov (T, 2d, 2d)."""
+    @functools.cached_property
+    def _kinematic_index(self) -> tuple[np.ndarray, bool]:
+        """The state entries [p; v] (2d,) of the filter's motion model (read-only), and whether they are the whole
+        state in order (a 2-D constant-velocity state [px, py, vx, vy]: kinematics are the states themselves)."""
         mot = self.filter.motion
         idx = np.array(list(mot.position) + list(mot.velocity))
+        idx.setflags(write=False)
+        return idx, bool(np.array_equal(idx, np.arange(idx.size)))
+
+    def state_kinematics(self, states: list, cov: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """`kinematics` of filter states (T of them): kin (T, 2d) [p; v], cov (T, 2d, 2d) (None with ``cov`` False:
+        the callers that read positions and velocities only skip stacking the covariances)."""
+        idx, in_order = self._kinematic_index
         if not states:
-            return np.zeros((0, idx.size)), np.zeros((0, idx.size, idx.size))
+            return np.zeros((0, idx.size)), np.zeros((0, idx.size, idx.size)) if cov else None
         out = [self.filter.output(s) for s in states]
         n = {x.size for x, _ in out}
         if len(n) != 1:  # outputs of several sizes: track by track
             return (np.array([x[idx] for x, _ in out]),
-                    np.array([P[np.ix_(idx, idx)] for _, P in out]))
-        X, P = np.array([x for x, _ in out]), np.array([P for _, P in out])
-        return X[:, idx], P[:, idx][:, :, idx]
+                    np.array([P[np.ix_(idx, idx)] for _, P in out]) if cov else None)
+        X = np.array([x for x, _ in out])
+        whole = in_order and X.shape[1] == idx.size  # [p; v] is the state: no gather
+        if not cov:
+            return (X if whole else X[:, idx]), None
+        P = np.array([P for _, P in out])
+        return (X, P) if whole else (X[:, idx], P[:, idx][:, :, idx])
 
     @property
     def pg(self) -> float:
@@ -388,7 +401,7 @@ class Tracker:
         flt, m = self.filter, self.filter.measurement.ndim
         states = batch_predict(flt, [tr.state for tr in live], dt)
         if road is not None and self.management.road_curvature and live and dt > 0 and hasattr(flt, "shift_many"):
-            kin, _ = self.kinematics(live)
+            kin, _ = self.state_kinematics([tr.state for tr in live], cov=False)
             if kin.shape[1] == 4:  # the road input of trackers.road, at the previous estimates
                 shift = input_shift(centripetal_input(road, kin[:, :2], kin[:, 2:]), dt)
                 states = flt.shift_many(states, shift, self.management.road_curvature_spread)
@@ -465,10 +478,11 @@ class Tracker:
         summing to less than 1/2) get the pseudo-measurement 'in the nearest lane' (filters with a
         `pseudo_update_many` hook only)."""
         flt = self.filter
-        idx = [t for t, tr in enumerate(live) if tr.confirmed and W[t].sum() < 0.5]
+        missed = (W.sum(axis=1) < 0.5).tolist()
+        idx = [t for t, tr in enumerate(live) if tr.confirmed and missed[t]]
         if not idx or not hasattr(flt, "pseudo_update_many"):
             return states
-        kin, _ = self.state_kinematics([states[t] for t in idx])
+        kin, _ = self.state_kinematics([states[t] for t in idx], cov=False)
         if kin.shape[1] != 4:  # the lane map is 2-D: [px, py, vx, vy] only
             return states
         h, y, r = lane_pseudo_measurement(road, kin[:, :2])
@@ -556,11 +570,13 @@ class Tracker:
         if mp.max_position_std_m is not None:
             out |= cross_lane_std(road, xy, P_pos) > mp.max_position_std_m
         others = np.flatnonzero(confirmed)
-        if mp.credible_d2 is not None and others.size > 1 and self.filter.measurement.linear:  # z = position
-            d = pred.z_hat[:, None, :2] - pred.z_hat[None, others, :2]  # (T, C, 2)
-            d2 = np.einsum("tck,tck->tc", d, np.linalg.solve(pred.S[:, None, :2, :2], d[..., None])[..., 0])
-            d2[others[None, :] == np.arange(T)[:, None]] = np.inf  # not itself
-            out |= ~updated & (d2 <= mp.credible_d2).any(axis=1)
+        hidden = np.flatnonzero(~updated)  # only a track the scan did not update can fail this test
+        if mp.credible_d2 is not None and others.size > 1 and hidden.size and self.filter.measurement.linear:
+            z = pred.z_hat[:, :2]  # z = position
+            d = z[hidden, None, :] - z[None, others, :]  # (H, C, 2)
+            d2 = np.einsum("tck,tck->tc", d, np.linalg.solve(pred.S[hidden, None, :2, :2], d[..., None])[..., 0])
+            d2[others[None, :] == hidden[:, None]] = np.inf  # not itself
+            out[hidden] |= (d2 <= mp.credible_d2).any(axis=1)
         return out
 
     def _regimes(self, live, histories, d2: np.ndarray, diag: dict[str, np.ndarray], root_det: np.ndarray,

@@ -34,8 +34,9 @@ def truck_tracks(ids: np.ndarray, W: np.ndarray, lengths: np.ndarray, known: dic
     out = dict(known)
     if W.size:
         best = np.argmax(W, axis=1)
-        for t in np.flatnonzero(W[np.arange(len(ids)), best] > 0.5):
-            out[int(ids[t])] = bool(lengths[best[t]] > TRUCK_MIN_LENGTH_M)
+        rows = np.flatnonzero(W[np.arange(len(ids)), best] > 0.5)
+        trucks = lengths[best[rows]] > TRUCK_MIN_LENGTH_M
+        out.update(zip(np.asarray(ids, dtype=np.int64)[rows].tolist(), trucks.tolist()))
     for i, j in (born_from or {}).items():
         out[int(i)] = bool(lengths[j] > TRUCK_MIN_LENGTH_M)
     return out
@@ -44,6 +45,8 @@ def truck_tracks(ids: np.ndarray, W: np.ndarray, lengths: np.ndarray, known: dic
 def position_velocity(kin: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """[x, y, vx, vy] (T, 4) and its covariance (T, 4, 4) of a tracker's kinematics (T, 2d) [p; v] and (T, 2d, 2d)."""
     d = kin.shape[1] // 2
+    if d == 2:  # [x, y, vx, vy] already
+        return kin, cov
     idx = np.array([0, 1, d, d + 1])
     return kin[:, idx], cov[:, idx][:, :, idx]
 

@@ -45,10 +45,10 @@ class MovingTest:
             del self._history[gone]
             self._moved.discard(gone)
         out = np.zeros(len(ids), dtype=bool)
-        window = self.spec.window_s
-        for k, i in enumerate(ids.tolist()):
+        window, now = self.spec.window_s, float(time)
+        for k, (i, (x, y)) in enumerate(zip(ids.tolist(), np.asarray(xy, dtype=np.float64).tolist())):
             hist = self._history.setdefault(i, deque())
-            hist.append((float(time), float(xy[k, 0]), float(xy[k, 1])))
+            hist.append((now, x, y))
             while len(hist) > 1 and hist[1][0] <= time - window + 1e-9:
                 hist.popleft()  # keep the newest sample at least window_s old
             if i not in self._moved and time - hist[0][0] >= window - 1e-9 and self._steady(hist, xy[k]):

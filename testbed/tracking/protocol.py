@@ -96,14 +96,12 @@ class TrackSet:
             raise ValueError(f"TrackSet.ids: expected (T,) integers, got {ids.dtype} of shape {ids.shape}")
         ids = ids.astype(np.int64)
         t = len(ids)
-        if len(np.unique(ids)) != t:
+        if len(set(ids.tolist())) != t:
             raise ValueError("TrackSet.ids: a label appears twice")
-        fill = dict(v=np.full((t, 2), np.nan), cov=np.full((t, 4, 4), np.nan),
-                    score=np.full(t, np.nan))
         shapes = dict(xy=(t, 2), v=(t, 2), cov=(t, 4, 4), score=(t,))
         for name, shape in shapes.items():
             value = getattr(self, name)
-            a = fill[name] if value is None else np.asarray(value, dtype=np.float64)
+            a = np.full(shape, np.nan) if value is None else np.asarray(value, dtype=np.float64)
             if a.shape != shape:
                 raise ValueError(f"TrackSet.{name}: expected shape {shape}, got {a.shape}")
             object.__setattr__(self, name, a)

@@ -25,8 +25,7 @@ def pda_log_denominator(log_lik: np.ndarray, gated: np.ndarray, pd: np.ndarray |
     """log(1 - P_D P_G + sum_i L_i) (T,): the denominator of (4.13) and the score increment of §7.2."""
     log_miss, log_L = pda_log_terms(log_lik, gated, pd, pg, clutter_density)
     terms = np.concatenate([log_miss[:, None], log_L], axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return logsumexp(terms, axis=1)
+    return logsumexp(terms, axis=1)  # which ignores the floating-point warnings of its -inf terms itself
 
 
 def pda(log_lik: np.ndarray, gated: np.ndarray, p: AssociationParams,

@@ -67,6 +67,14 @@ def tracking_cdf(m, mu, pdpg):
     return head + (1.0 - np.asarray(pdpg)) * poisson_pmf(m, mu)  # paper 002 (3)
 
 
+def _tracking_from_lost(F_L, m, mu, pdpg):
+    """tracking_cdf(m, mu, pdpg) (T, M) at m = 0..M-1 (m (1, M)) from F_L = lost_cdf(m, mu) (T, M): its head
+    sum_{i<m} Pois(i) is F_L one count back (the same pdtr values), so one pdtr call serves both regimes."""
+    head = np.zeros_like(F_L)
+    head[:, 1:] = F_L[:, :-1]  # paper 002 (3): sum_{i<m} Pois(i) for m >= 1, nothing for m = 0
+    return head + (1.0 - np.asarray(pdpg)) * poisson_pmf(m, mu)  # paper 002 (3)
+
+
 def cdf_gap(m, mu, pdpg):
     """Delta_F(m) = F_L(m) - F_T(m) = P_D P_G Pois(m; mu) >= 0, for real m as well."""
     return np.asarray(pdpg) * poisson_pmf(m, mu)  # paper 002 (11)-(12)
@@ -259,8 +267,10 @@ def _window_tests(ng: np.ndarray, cg: np.ndarray, g: np.ndarray, sigma_n: np.nda
     mu, pd_mean = lam * volume, pd.mean(axis=1)
     pdpg = pd_mean * gate_probability(g, nz)  # F_T is linear in P_D: the window's mixture uses mean P_D
     m = np.arange(int(max(ng.max(), cg.max())) + 1)[None, :]
-    D_T = ks_distances_counts(ng, tracking_cdf(m, mu[:, None], pdpg[:, None]))  # paper 002 §V step 4: NG vs F_T
-    D_L = ks_distances_counts(cg, lost_cdf(m, mu[:, None]))  # paper 002 §V step 4: CG counts vs F_L(V_c)
+    F_L = lost_cdf(m, mu[:, None])  # paper 002 (2)
+    F_T = _tracking_from_lost(F_L, m, mu[:, None], pdpg[:, None])  # paper 002 (3)
+    D = ks_distances_counts(np.concatenate([ng, cg]), np.concatenate([F_T, F_L]))  # both tests in one batch
+    D_T, D_L = D[:len(ng)], D[len(ng):]  # paper 002 §V step 4: NG counts vs F_T, CG counts vs F_L(V_c)
     alphas = [float(a) for a in alphas]
     d_n = {a: critical_value(n, a) for a in set(alphas)}
     return [_test(n=n, alpha=a, d_n=d_n[a], D_T=dt, D_L=dl, gamma=gt, sigma_n=st, volume=vt, lam=lam, pd=pt,
@@ -362,7 +372,7 @@ def _low_counts(windows: np.ndarray, thr: np.ndarray, d2_of: Callable[[int, int]
     """(T, n) int64 measurements with d2 <= thr (T, n) per scan of rolled windows (T, n, 3 + k)."""
     low, size = windows[:, :, ROW_FIXED:], windows[:, :, 2].astype(np.int64)
     k = low.shape[2]
-    counts = np.minimum(np.count_nonzero(low <= thr[:, :, None], axis=2), size).astype(np.int64)
+    counts = np.minimum((low <= thr[:, :, None]).sum(axis=2), size)  # int64: sums of bools, minimum of int64s
     for t, j in zip(*np.nonzero((counts == k) & (size > k))):  # the k kept are all in: count the scan's full d2
         counts[t, j] = np.count_nonzero(np.asarray(d2_of(int(t), int(j))) <= thr[t, j])
     return counts
