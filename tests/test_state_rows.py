@@ -90,3 +90,27 @@ def test_imm_rows_and_reused_mode_measurements_change_no_bit(base):
         for ma, mb in zip(sa.modes, sb.modes):
             for name in ("x", "P", "e_post"):
                 np.testing.assert_array_equal(getattr(ma, name), getattr(mb, name))
+
+
+@pytest.mark.parametrize("kind", ["kf", "svsf", "gc-svsf", "gvbl-svsf"])
+@pytest.mark.parametrize("memory", ["keep", "reset"])
+def test_updates_carry_the_rows_of_the_states_they_return(kind, memory):
+    """Every batched update given a StateRows returns one whose carried x, P, e_post are its states' fields bit for
+    bit, the missed tracks' rows included (their memories zeroed with memory_after_miss = "reset"), and whose states
+    equal those of the update on a plain list."""
+    rng = np.random.default_rng(17)
+    extra = {} if kind == "kf" else {"memory_after_miss": memory}
+    flt = make_filter(kind, sigma_v=1.0, sigma_w=0.3, **extra)
+    pred = flt.predict_many(_states(flt, rng), 0.1)
+    pred = StateRows(pred, rows_of(pred, "x"), rows_of(pred, "P"), np.array([s.e_post for s in pred]) + 0.25)
+    pred = StateRows([s.__class__(**{**s.__dict__, "e_post": e}) for s, e in zip(pred, pred.e_post)],
+                     pred.x, pred.P, pred.e_post)  # non-zero memories, so that a reset shows in the rows
+    nu = rng.normal(0, 0.5, (T, M, 2))
+    W, w0 = _weights(rng)
+    carried = flt.update_many(pred, nu, W, w0)
+    _assert_rows(carried)
+    assert (carried.e_post[:3] == (0.0 if memory == "reset" and kind != "kf" else pred.e_post[:3])).all()
+    plain = flt.update_many(list(pred), nu, W, w0)
+    for a, b in zip(carried, plain):
+        for name in ("x", "P", "e_post"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))

@@ -105,6 +105,23 @@ def take_rows(states: list, idx: np.ndarray) -> list:
     return StateRows(out, *(None if a is None else a[idx] for a in (states.x, states.P, states.e_post)))
 
 
+def updated_rows(preds: list, out: list, active: np.ndarray, x: np.ndarray, P: np.ndarray, e_post: np.ndarray,
+                 reset: bool = False) -> list:
+    """`out`, the states a batched update made from `preds` (T), as a StateRows carrying their x, P and e_post when
+    `preds` carries all three: preds' rows with the rows `active` (A,) replaced by x (A, n), P (A, n, n) and e_post
+    (A, m), the fields of the active tracks' new states in `out`, and with `reset` every other row's e_post set to 0
+    (a filter whose miss handling resets the memory). Else `out` as it is. The new arrays are made read-only."""
+    if type(preds) is not StateRows or preds.x is None or preds.P is None or preds.e_post is None:
+        return out
+    rows = [np.array(a) for a in (preds.x, preds.P, preds.e_post)]
+    if reset:
+        rows[2][:] = 0.0
+    for a, new in zip(rows, (x, P, e_post)):
+        a[active] = new
+    freeze(*rows)
+    return StateRows(out, *rows)
+
+
 def freeze(*arrays: np.ndarray) -> None:
     """Make batched arrays read-only at once, so that `derive` given their rows (read-only views) has nothing to
     freeze per row."""

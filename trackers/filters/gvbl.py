@@ -66,7 +66,7 @@ from roadtrack.trackers.filters.svsf import (EY_MEMORY, GAMMA, MEMORY_AFTER_MISS
                                    lower_error, maps_many, promote_state, svsf_gain_factor)
 from roadtrack.trackers.filters.params import ModelParams
 from roadtrack.trackers.params import POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive_frozen, freeze, rows_of
+from roadtrack.trackers.state import FilterState, derive_frozen, freeze, rows_of, updated_rows
 
 SWITCH_RULES = ("z_any", "all_any", "per_partition")
 ROBUST_LOWER = ("optimal", "psi_max")
@@ -263,7 +263,7 @@ class GVBLSVSF(ModelFilter):
             info = {"psi_z": psi_z[i], "psi_y": psi_y[i], "regime": float(ru), "regime_y": float(rl),
                     "chatter": chatter[i]}
             out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info, psi_layer=layer[i])
-        return out
+        return updated_rows(preds, out, active, Xn, Pn, post, reset=self.memory_after_miss == "reset")
 
 
 

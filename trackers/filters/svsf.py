@@ -44,7 +44,7 @@ from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_c
                                    combined_innovation, pda_covariance, symmetrise, weighted_R, weighted_outer)
 from roadtrack.trackers.filters.params import ModelParams
 from roadtrack.trackers.params import POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze, rows_of
+from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze, rows_of, updated_rows
 
 EY_MEMORY = ("a_priori", "a_posteriori")
 COVARIANCES = ("mse", "joseph", "short")
@@ -465,7 +465,7 @@ class SVSF(ModelFilter):
                 info = {"psi_z": psi_p.copy(), "chatter": chatter_p[i]}
             out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=ep[i], e_vel=ev[i], z_prev=z_a[i], tau=0.0,
                                    F=None, info=info)
-        return out
+        return updated_rows(preds, out, active, Xn, Pn, ep, reset=self.memory_after_miss == "reset")
 
 
 def _artificial_many(X, z_prev, tau, nua, Wa, H0, Hv, artificial_pda: str):
@@ -651,7 +651,7 @@ class GeneralisedSVSF(ModelFilter):
             info = {"psi_z": psi_z.copy(), "psi_y": np.array(psi_y[i]),
                     "chatter": np.maximum(0.0, np.abs(e[i]) - psi_z)}  # (5.37)
             out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info)
-        return out
+        return updated_rows(preds, out, active, Xn, Pn, post, reset=self.memory_after_miss == "reset")
 
 
 # ------------------------------------------------------------------------------- registry parameters
