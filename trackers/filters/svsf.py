@@ -41,7 +41,8 @@ import numpy as np
 
 from roadtrack.trackers.errors import FilterError
 from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
-                                   combined_innovation, pda_covariance, symmetrise, weighted_R, weighted_outer)
+                                   combined_innovation, pda_covariance, sum_in_order, symmetrise, weighted_R,
+                                   weighted_outer)
 from roadtrack.trackers.filters.params import ModelParams
 from roadtrack.trackers.params import POSITIVE, ParamError, param
 from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze, rows_of, updated_rows
@@ -492,7 +493,10 @@ def estimate_mse_many(P, H, R, x_pred, x, nu, W, w0) -> np.ndarray:
     P_kf = P - K_kf @ S @ np.swapaxes(K_kf, 1, 2)
     P_kf = 0.5 * (P_kf + np.swapaxes(P_kf, 1, 2))
     d0 = x - x_pred
-    D = d0[:, None, :] - np.einsum("ajm,anm->ajn", nu, K_kf)  # (A, M, n)
+    m = nu.shape[2]
+    KNu = (np.einsum("ajm,anm->ajn", nu, K_kf) if m > 2  # (A, M, n) K_kf nu_j; for m <= 2 its products summed
+           else sum_in_order([nu[:, :, None, i] * K_kf[:, None, :, i] for i in range(m)]))  # as einsum does
+    D = d0[:, None, :] - KNu  # (A, M, n)
     out = (w0[:, None, None] * (P + np.einsum("ai,ak->aik", d0, d0)) + (1.0 - w0)[:, None, None] * P_kf
            + weighted_outer(W, D))
     return 0.5 * (out + np.swapaxes(out, 1, 2))
