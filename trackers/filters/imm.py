@@ -50,6 +50,7 @@ reuses the predicted mode measurements of the same states.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -330,8 +331,9 @@ class IMMFilter:
         for i, (f, (x0, P0, e0, reach)) in enumerate(zip(self.filters, self._mix_many(states, log_w, log_c))):
             if getattr(f, "predicts_arrays", None) is not None and f.predicts_arrays():  # straight from the arrays
                 X, P, F = f.predict_arrays(x0, P0, dt)
-                modes.append(StateRows([derive_frozen(s.modes[i], x=X[t], P=P[t], F=F if F.ndim == 2 else F[t],
-                                                      e_post=e0[t], info={}) for t, s in enumerate(states)], X, P, e0))
+                Fs = [F] * len(states) if F.ndim == 2 else F
+                modes.append(StateRows([derive_frozen(m, x=xt, P=Pt, F=Ft, e_post=et, info={}) for m, xt, Pt, Ft, et
+                                        in zip(self._mode_lists(states)[i], X, P, Fs, e0)], X, P, e0))
                 arrays.append((X, P, e0))
             else:  # the mode filter's own batched predict of the mixed states
                 modes.append(batch_predict(f, [derive(s.modes[i], x=x0[t], P=P0[t], e_post=e0[t]) if reach[t]
@@ -543,13 +545,14 @@ class IMMFilter:
         e = np.einsum("tj,tjm->tm", mu, np.stack(Es, axis=1))
         mu, mu_info = np.array(mu, dtype=np.float64), np.array(mu, dtype=np.float64)  # the states' and info's copies
         freeze(x, P, e, mu)
-        out, names = [], self.mode_names
-        told = [i for i, ms in enumerate(modes) if any(m.info for m in ms)]  # the modes with diagnostics, in order
+        out = []
+        told = [(i, _info_keys(name)) for i, (name, ms) in enumerate(zip(self.mode_names, modes))
+                if any(m.info for m in ms)]  # the modes with diagnostics, in order, and their keys' names
         for s, mt, xt, Pt, et, mut, mui in zip(like, mts, x, P, e, mu, mu_info):
             info: dict[str, Any] = {"mu": mui}
-            for i in told:
+            for i, keys in told:
                 for key, v in mt[i].info.items():
-                    info[f"{names[i]}.{key}"] = v
+                    info[keys[key]] = v  # "<mode name>.<key>"
             out.append(derive_frozen(s, x=xt, P=Pt, e_post=et, F=None, info=info, modes=mt, mu=mut))
         return IMMRows(out, mu, [StateRows(ms, *a) for ms, a in zip(modes, arrays)])
 
@@ -586,6 +589,24 @@ class IMMFilter:
             for key, v in m.info.items():
                 info[f"{name}.{key}"] = v
         return IMMState(x=x, P=P, e_post=e, F=None, info=info, modes=modes, mu=mu)
+
+
+class _PrefixedKeys(dict):
+    """key -> "<mode name>.<key>", each name made once (`_info_keys`)."""
+
+    def __init__(self, name: str):
+        super().__init__()
+        self.name = name
+
+    def __missing__(self, key: str) -> str:
+        self[key] = out = f"{self.name}.{key}"
+        return out
+
+
+@functools.lru_cache(maxsize=None)
+def _info_keys(mode_name: str) -> _PrefixedKeys:
+    """The names of mode `mode_name`'s diagnostics in an IMM state's info, made once per key (T per scan read them)."""
+    return _PrefixedKeys(mode_name)
 
 
 def _one_memory_shape(modes: list, arrays: list | None) -> bool:
