@@ -114,3 +114,24 @@ def test_updates_carry_the_rows_of_the_states_they_return(kind, memory):
     for a, b in zip(carried, plain):
         for name in ("x", "P", "e_post"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+def test_svsf_predict_rows_is_predict_of_the_states_with_those_rows():
+    """SVSF.predict_rows (the IMM's mixed initial conditions as rows) equals predict_many of the states with x, P,
+    e_post replaced by their rows (the IMM's former path), bit for bit, and carries the predicted rows."""
+    from roadtrack.trackers.state import derive
+
+    rng = np.random.default_rng(19)
+    flt = make_filter("svsf", sigma_v=1.0, sigma_w=0.3)
+    states = flt.predict_many(_states(flt, rng), 0.1)
+    X = rows_of(states, "x") + rng.normal(0, 0.5, (T, 4))
+    P = rows_of(states, "P") * rng.uniform(0.5, 2.0, (T, 1, 1))
+    E = rng.normal(0, 0.3, (T, 2))
+    got = flt.predict_rows(list(states), X, P, E, 0.1)
+    _assert_rows(got)
+    wants = flt.predict_many([derive(s, x=x.copy(), P=p.copy(), e_post=e.copy()) for s, x, p, e in zip(states, X, P, E)],
+                             0.1)
+    for g, want in zip(got, wants):
+        for name in ("x", "P", "e_post", "F", "z_prev", "e_vel"):
+            np.testing.assert_array_equal(getattr(g, name), getattr(want, name))
+        assert g.tau == want.tau and type(g) is type(want)

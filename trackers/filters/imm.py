@@ -335,6 +335,9 @@ class IMMFilter:
                 modes.append(StateRows([derive_frozen(m, x=xt, P=Pt, F=Ft, e_post=et, info={}) for m, xt, Pt, Ft, et
                                         in zip(self._mode_lists(states)[i], X, P, Fs, e0)], X, P, e0))
                 arrays.append((X, P, e0))
+            elif getattr(f, "predict_rows", None) is not None and f.motion.linear:  # the mode states with these rows
+                modes.append(f.predict_rows(self._mode_lists(states)[i], x0, P0, e0, dt))
+                arrays.append(stacked(modes[-1]))
             else:  # the mode filter's own batched predict of the mixed states
                 modes.append(batch_predict(f, [derive(s.modes[i], x=x0[t], P=P0[t], e_post=e0[t]) if reach[t]
                                                else s.modes[i] for t, s in enumerate(states)], dt))

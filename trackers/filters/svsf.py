@@ -45,7 +45,7 @@ from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_c
                                    weighted_outer)
 from roadtrack.trackers.filters.params import ModelParams
 from roadtrack.trackers.params import POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze, rows_of, updated_rows
+from roadtrack.trackers.state import FilterState, StateRows, derive, derive_frozen, freeze, rows_of, updated_rows
 
 EY_MEMORY = ("a_priori", "a_posteriori")
 COVARIANCES = ("mse", "joseph", "short")
@@ -399,14 +399,22 @@ class SVSF(ModelFilter):
             raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
         if not states or not self.motion.linear:
             return [self.predict(s, dt) for s in states]
+        return self.predict_rows(states, rows_of(states, "x"), rows_of(states, "P"), rows_of(states, "e_post"), dt)
+
+    def predict_rows(self, states: list[FilterState], X: np.ndarray, P: np.ndarray, e_post: np.ndarray,
+                     dt: float) -> list[FilterState]:
+        """`predict_many` of T states whose x, P, e_post are the rows X (T, n), P (T, n, n), e_post (T, m) (the IMM's
+        mixed initial conditions; the states give the other fields), for a linear motion model and dt >= 0 (checked
+        by the caller): a StateRows carrying the predicted x, P and e_post."""
         states = [promote_state(SVSFState, s) for s in states]
         A, Q = self.motion.transition(dt), self.motion.process_noise(dt)
-        X = np.array([s.x for s in states]) @ A.T  # (2.7) x = A x
-        P = A @ np.array([s.P for s in states]) @ A.T + Q  # (2.8) P = A P A^T + Q
+        X = X @ A.T  # (2.7) x = A x
+        P = A @ P @ A.T + Q  # (2.8) P = A P A^T + Q
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
-        freeze(X, P, A)
-        return [derive_frozen(s, x=X[t], P=P[t], F=A, info={}, tau=s.tau + dt) for t, s in enumerate(states)]
+        freeze(X, P, A, e_post)
+        return StateRows([derive_frozen(s, x=x, P=p, e_post=e, F=A, info={}, tau=s.tau + dt)
+                          for s, x, p, e in zip(states, X, P, e_post)], X, P, e_post)
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
                     w0: np.ndarray, R: np.ndarray | None = None) -> list[FilterState]:
