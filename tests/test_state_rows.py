@@ -135,3 +135,20 @@ def test_svsf_predict_rows_is_predict_of_the_states_with_those_rows():
         for name in ("x", "P", "e_post", "F", "z_prev", "e_vel"):
             np.testing.assert_array_equal(getattr(g, name), getattr(want, name))
         assert g.tau == want.tau and type(g) is type(want)
+
+
+def test_frozen_state_is_the_derived_state():
+    """state.frozen_state builds the FilterState that derive_frozen makes from a template, field by field (the same
+    objects), of type FilterState, and its dataclass fields are exactly those set."""
+    import dataclasses
+
+    from roadtrack.trackers.state import FilterState, derive_frozen, frozen_state
+
+    x, P, e, F = np.arange(4.0), np.eye(4), np.ones(2), 2.0 * np.eye(4)
+    info = {"k": np.ones(2)}
+    template = FilterState(x=np.zeros(4), P=np.eye(4), info={"old": 1.0})
+    got = frozen_state(x, P, e, F, info)
+    want = derive_frozen(template, x=x, P=P, e_post=e, F=F, info=info)
+    assert type(got) is FilterState
+    assert list(got.__dict__) == [f.name for f in dataclasses.fields(FilterState)] == list(want.__dict__)
+    assert all(getattr(got, k) is getattr(want, k) for k in want.__dict__)
