@@ -152,3 +152,25 @@ def test_frozen_state_is_the_derived_state():
     assert type(got) is FilterState
     assert list(got.__dict__) == [f.name for f in dataclasses.fields(FilterState)] == list(want.__dict__)
     assert all(getattr(got, k) is getattr(want, k) for k in want.__dict__)
+
+
+def test_svsf_and_gvbl_states_built_field_by_field_are_the_derived_states():
+    """svsf.svsf_state and gvbl.gvbl_state give the states derive_frozen makes from a template, field by field."""
+    import dataclasses
+
+    from roadtrack.trackers.filters.gvbl import GVBLState, gvbl_state
+    from roadtrack.trackers.filters.svsf import SVSFState, svsf_state
+    from roadtrack.trackers.state import derive_frozen
+
+    x, P, e, F, v = np.arange(4.0), np.eye(4), np.ones(2), 2.0 * np.eye(4), np.full(2, 3.0)
+    for cls, got, extra in ((SVSFState, svsf_state(x, P, e, F, {"a": 1.0}, v, 0.3, 2 * v),
+                             {"z_prev": v, "tau": 0.3, "e_vel": None}),
+                            (GVBLState, gvbl_state(x, P, e, F, {"a": 1.0}, v), {"psi_layer": v})):
+        template = cls(x=np.zeros(4), P=np.eye(4))
+        fields = {"x": x, "P": P, "e_post": e, "F": F, "info": got.info, **extra}
+        if cls is SVSFState:
+            fields["e_vel"] = got.e_vel
+        want = derive_frozen(template, **fields)
+        assert type(got) is cls
+        assert list(got.__dict__) == [f.name for f in dataclasses.fields(cls)]
+        assert all(getattr(got, k) is getattr(want, k) for k in want.__dict__)

@@ -100,6 +100,16 @@ def optimal_layers(P: np.ndarray, S: np.ndarray, part: Partition, M: np.ndarray,
     return Psi_z, Psi_y
 
 
+def gvbl_state(x: np.ndarray, P: np.ndarray, e_post: np.ndarray, F: np.ndarray | None, info: dict,
+               psi_layer: np.ndarray | None) -> GVBLState:
+    """GVBLState of read-only arrays without __init__, its fields set one by one in their order (as
+    state.frozen_state: half of derive_frozen's cost; the batched predict and update make T per scan)."""
+    new = object.__new__(GVBLState)
+    d = new.__dict__
+    d["x"], d["P"], d["e_post"], d["F"], d["info"], d["psi_layer"] = x, P, e_post, F, info, psi_layer
+    return new
+
+
 @dataclass(frozen=True)
 class GVBLSVSF(ModelFilter):
     """GVBL-SVSF (see module docstring). gamma, gamma_y in [0, 1) (thesis ch. 4: 0.1); psi_max [m] saturation
@@ -262,7 +272,8 @@ class GVBLSVSF(ModelFilter):
         for i, (t, ru, rl) in enumerate(zip(active, robust_u.tolist(), robust_l.tolist())):
             info = {"psi_z": psi_z[i], "psi_y": psi_y[i], "regime": float(ru), "regime_y": float(rl),
                     "chatter": chatter[i]}
-            out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info, psi_layer=layer[i])
+            out[t] = (gvbl_state(Xn[i], Pn[i], post[i], None, info, layer[i]) if type(ss[i]) is GVBLState
+                      else derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info, psi_layer=layer[i]))
         return updated_rows(preds, out, active, Xn, Pn, post, reset=self.memory_after_miss == "reset")
 
 

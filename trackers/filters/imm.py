@@ -59,6 +59,7 @@ import numpy as np
 
 from roadtrack.trackers.filters.base import (ModelFilter, batch_layers, batch_predict, batch_predicted_measurements,
                                    batch_update, check_covariance, check_weights, pair_covariances, symmetrise)
+from roadtrack.trackers.filters.gvbl import GVBLState, gvbl_state
 from roadtrack.trackers.gating import log_gaussian
 from roadtrack.trackers.models import MOTION_MODELS
 from roadtrack.trackers.params import NON_NEGATIVE, POSITIVE, ParamError, param
@@ -343,6 +344,7 @@ class IMMFilter:
                 X, P, F = f.predict_arrays(x0, P0, dt)
                 Fs = [F] * len(states) if F.ndim == 2 else F
                 modes.append(StateRows([frozen_state(xt, Pt, et, Ft, {}) if type(m) is FilterState
+                                        else gvbl_state(xt, Pt, et, Ft, {}, m.psi_layer) if type(m) is GVBLState
                                         else derive_frozen(m, x=xt, P=Pt, F=Ft, e_post=et, info={})
                                         for m, xt, Pt, Ft, et in zip(self._mode_lists(states)[i], X, P, Fs, e0)],
                                        X, P, e0))

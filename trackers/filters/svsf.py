@@ -221,6 +221,17 @@ class SVSFState(FilterState):
                 object.__setattr__(self, name, a)
 
 
+def svsf_state(x: np.ndarray, P: np.ndarray, e_post: np.ndarray, F: np.ndarray | None, info: dict,
+               z_prev: np.ndarray | None, tau: float, e_vel: np.ndarray | None) -> SVSFState:
+    """SVSFState of read-only arrays without __init__, its fields set one by one in their order (as
+    state.frozen_state: half of derive_frozen's cost; the batched predict and update make T per scan)."""
+    new = object.__new__(SVSFState)
+    d = new.__dict__
+    d["x"], d["P"], d["e_post"], d["F"], d["info"], d["z_prev"], d["tau"], d["e_vel"] = (x, P, e_post, F, info, z_prev,
+                                                                                          tau, e_vel)
+    return new
+
+
 @dataclass(frozen=True)
 class SVSF(ModelFilter):
     """Standard SVSF (thesis ch. 2, §2.1.3 (2.7)-(2.13); PDA form §2.1.5 (2.27)-(2.34)).
@@ -413,7 +424,8 @@ class SVSF(ModelFilter):
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
         freeze(X, P, A, e_post)
-        return StateRows([derive_frozen(s, x=x, P=p, e_post=e, F=A, info={}, tau=s.tau + dt)
+        return StateRows([svsf_state(x, p, e, A, {}, s.z_prev, s.tau + dt, s.e_vel) if type(s) is SVSFState
+                          else derive_frozen(s, x=x, P=p, e_post=e, F=A, info={}, tau=s.tau + dt)
                           for s, x, p, e in zip(states, X, P, e_post)], X, P, e_post)
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
@@ -472,8 +484,9 @@ class SVSF(ModelFilter):
                 info = {"psi_z": psi_i[:m], "chatter": chatter_v[i], "psi_v": psi_i[m:]}
             else:
                 info = {"psi_z": psi_p.copy(), "chatter": chatter_p[i]}
-            out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=ep[i], e_vel=ev[i], z_prev=z_a[i], tau=0.0,
-                                   F=None, info=info)
+            out[t] = (svsf_state(Xn[i], Pn[i], ep[i], None, info, z_a[i], 0.0, ev[i]) if type(ss[i]) is SVSFState
+                      else derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=ep[i], e_vel=ev[i], z_prev=z_a[i], tau=0.0,
+                                         F=None, info=info))
         return updated_rows(preds, out, active, Xn, Pn, ep, reset=self.memory_after_miss == "reset")
 
 
