@@ -103,12 +103,14 @@ def test_the_reported_small_turn_rate_case_and_continuity_at_the_switch():
 
 @pytest.mark.parametrize("dt", [0.1, 0.05, 1.0, 0.0])
 def test_the_batched_transition_and_jacobian_are_the_per_track_ones_bit_for_bit(dt):
-    """transition_many / jacobian_many (scalars per track, arrays assembled at once) equal transition / jacobian
-    track by track, sign bits included: random turn rates, zero, -0, either side of the series switch, tiny, large."""
+    """transition_many / jacobian_many (libm sin / cos per track, the series as array operations, arrays assembled
+    at once) equal transition / jacobian track by track, sign bits included: random turn rates of three scales, zero,
+    -0, either side of the series switch, tiny, large."""
     ct = CoordinatedTurn(sigma_v=1.0)
     rng = np.random.default_rng(0)
     edge = SERIES_BELOW / max(dt, 1e-9)
-    w = np.concatenate([rng.normal(0, 1, 200), [0.0, -0.0, edge, -edge, np.nextafter(edge, 0.0), 1e-300, 30.0]])
+    w = np.concatenate([rng.normal(0, 1, 200), rng.normal(0, 1e-4, 50), rng.normal(0, 20, 50),
+                        [0.0, -0.0, edge, -edge, np.nextafter(edge, 0.0), -np.nextafter(edge, 0.0), 1e-300, 30.0]])
     X = np.c_[rng.normal(0, 50, (len(w), 2)), rng.normal(0, 20, (len(w), 2)), w]
     for got, want in ((ct.jacobian_many(X, dt), [ct.jacobian(x, dt) for x in X]),
                       (ct.transition_many(dt, w), [ct.transition(dt, float(v)) for v in w])):

@@ -257,6 +257,25 @@ def test_second_order_ekf_predicted_measurement_bias_matches_monte_carlo():
     assert np.all(np.abs(bias2 - bias_mc) <= 4 * se + 0.05 * np.abs(bias_mc)), (bias2, bias_mc, se)
 
 
+def test_sum_in_order_gives_the_replaced_einsum_bit_for_bit():
+    """filters.base.sum_in_order of the products K nu_j summed over m <= 2 (svsf.estimate_mse_many) equals
+    np.einsum("ajm,anm->ajn", nu, K) to the last bit, signed zeros included, for K laid out as the update makes it
+    (a swapped axes view) and as a plain array, with zeroed and negative-zero innovations."""
+    from roadtrack.trackers.filters.base import sum_in_order
+
+    rng = np.random.default_rng(31)
+    for trial in range(300):
+        A, M, m, n = int(rng.integers(1, 60)), int(rng.integers(1, 80)), int(rng.integers(1, 3)), int(rng.integers(2, 6))
+        nu = rng.normal(size=(A, M, m)) * 10.0 ** rng.uniform(-5, 5)
+        nu[rng.random(nu.shape) < 0.1] = -0.0
+        nu = np.where(rng.random((A, M, 1)) < 0.5, nu, 0.0)
+        K = rng.normal(size=(A, m, n))
+        K = np.swapaxes(K, 1, 2) if trial % 2 else np.ascontiguousarray(np.swapaxes(K, 1, 2))
+        full = np.einsum("ajm,anm->ajn", nu, K)
+        got = sum_in_order([nu[:, :, None, i] * K[:, None, :, i] for i in range(m)])
+        assert np.array_equal(got, full) and np.array_equal(np.signbit(got), np.signbit(full)), trial
+
+
 def test_weighted_outer_equals_the_full_einsum_bit_for_bit():
     """filters.base.weighted_outer sums only each track's entries with W > 0: equal to np.einsum over every
     (track, measurement) pair to the last bit (sign of zero included), whatever the shapes, the share of used

@@ -110,8 +110,8 @@ the series are exact to rounding below it (the first omitted term is under 1e-19
 SERIES_TERMS = 8
 
 
-def taylor(coefficients: tuple[float, ...], t2: float) -> float:
-    """sum_k coefficients[k] t2^k by Horner's rule."""
+def taylor(coefficients: tuple[float, ...], t2: float | np.ndarray) -> float | np.ndarray:
+    """sum_k coefficients[k] t2^k by Horner's rule (of each entry of an array t2, with the same float operations)."""
     out = 0.0
     for c in reversed(coefficients):
         out = out * t2 + c
@@ -206,13 +206,26 @@ class CoordinatedTurn:
 
     def _turns(self, dt: float, omega: np.ndarray) -> np.ndarray:
         """Per turn rate the scalars of `transition` and `jacobian`, (T, 6): sin(w dt) / w, (1 - cos(w dt)) / w,
-        cos(w dt), sin(w dt), and df/domega's a, b; by the per-track code (libm, the series switch) track by track."""
-        out = []
-        for w in np.asarray(omega, dtype=np.float64).reshape(-1).tolist():
-            s, c1 = self._terms(w, dt)
-            sw, cw, a, b = self._turn_derivative(w, dt)
-            out.append((s, c1, cw, sw, a, b))
-        return np.array(out, dtype=np.float64).reshape(-1, 6)
+        cos(w dt), sin(w dt), and df/domega's a, b, as the per-track code computes them: sin and cos by libm track by
+        track, the series (|w dt| < SERIES_BELOW) as the same float operations on arrays (Horner's rule, products
+        left to right), the closed forms (large turn rates, rare) by the per-track code."""
+        w = np.asarray(omega, dtype=np.float64).reshape(-1)
+        t = w * dt
+        ts = t.tolist()
+        t2 = t * t
+        out = np.empty((w.size, 6))
+        out[:, 2] = [math.cos(v) for v in ts]  # libm; ValueError for an infinite w dt, as per track
+        out[:, 3] = [math.sin(v) for v in ts]
+        out[:, 0] = dt * taylor(SINC, t2)  # (1.39)-(1.40) [R], series form (`_terms`)
+        out[:, 1] = dt * t * taylor(VERSINE, t2)
+        out[:, 4] = dt * dt * t * taylor(DSINC, t2)  # series form of a, b (`_turn_derivative`)
+        out[:, 5] = dt * dt * taylor(DVERSINE, t2)
+        for k in np.flatnonzero(~(np.abs(t) < SERIES_BELOW)).tolist():  # the closed forms
+            wk = float(w[k])
+            s, c1 = self._terms(wk, dt)
+            sw, cw, a, b = self._turn_derivative(wk, dt)
+            out[k] = (s, c1, cw, sw, a, b)
+        return out
 
     @staticmethod
     def _assemble(turns: np.ndarray) -> np.ndarray:

@@ -76,6 +76,16 @@ def derive_frozen(s: FilterState, **fields) -> FilterState:
     return new
 
 
+def frozen_state(x: np.ndarray, P: np.ndarray, e_post: np.ndarray, F: np.ndarray | None, info: Mapping) -> FilterState:
+    """FilterState(x, P, e_post, F, info) of read-only arrays without __init__: its fields set one by one in their
+    declared order on the new instance, which costs half of `derive_frozen`'s copy of a template (the batched
+    filters make T states per scan)."""
+    new = object.__new__(FilterState)
+    d = new.__dict__
+    d["x"], d["P"], d["e_post"], d["F"], d["info"] = x, P, e_post, F, info
+    return new
+
+
 class StateRows(list):
     """A list of T states that carries their fields stacked: x (T, n), P (T, n, n), e_post (T, m) (each None when not
     carried), row t holding the very values of item t's field (the batched filter that made the list guarantees it).
@@ -103,6 +113,23 @@ def take_rows(states: list, idx: np.ndarray) -> list:
     if type(states) is not StateRows:
         return out
     return StateRows(out, *(None if a is None else a[idx] for a in (states.x, states.P, states.e_post)))
+
+
+def updated_rows(preds: list, out: list, active: np.ndarray, x: np.ndarray, P: np.ndarray, e_post: np.ndarray,
+                 reset: bool = False) -> list:
+    """`out`, the states a batched update made from `preds` (T), as a StateRows carrying their x, P and e_post when
+    `preds` carries all three: preds' rows with the rows `active` (A,) replaced by x (A, n), P (A, n, n) and e_post
+    (A, m), the fields of the active tracks' new states in `out`, and with `reset` every other row's e_post set to 0
+    (a filter whose miss handling resets the memory). Else `out` as it is. The new arrays are made read-only."""
+    if type(preds) is not StateRows or preds.x is None or preds.P is None or preds.e_post is None:
+        return out
+    rows = [np.array(a) for a in (preds.x, preds.P, preds.e_post)]
+    if reset:
+        rows[2][:] = 0.0
+    for a, new in zip(rows, (x, P, e_post)):
+        a[active] = new
+    freeze(*rows)
+    return StateRows(out, *rows)
 
 
 def freeze(*arrays: np.ndarray) -> None:

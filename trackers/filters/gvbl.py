@@ -66,7 +66,7 @@ from roadtrack.trackers.filters.svsf import (EY_MEMORY, GAMMA, MEMORY_AFTER_MISS
                                    lower_error, maps_many, promote_state, svsf_gain_factor)
 from roadtrack.trackers.filters.params import ModelParams
 from roadtrack.trackers.params import POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive_frozen, freeze, rows_of
+from roadtrack.trackers.state import FilterState, derive_frozen, freeze, rows_of, updated_rows
 
 SWITCH_RULES = ("z_any", "all_any", "per_partition")
 ROBUST_LOWER = ("optimal", "psi_max")
@@ -98,6 +98,16 @@ def optimal_layers(P: np.ndarray, S: np.ndarray, part: Partition, M: np.ndarray,
     X = P[np.ix_(l, u)] @ H1.T @ np.linalg.solve(S, np.linalg.pinv(M))  # P21 H1^T S^-1 (Phi22 Phi12^-1)^-1
     Psi_y = np.linalg.pinv(X) @ np.diag(E_y)  # (4.68) Psi_y = (E_y^-1 X)^-1, pseudo-inverse [D]
     return Psi_z, Psi_y
+
+
+def gvbl_state(x: np.ndarray, P: np.ndarray, e_post: np.ndarray, F: np.ndarray | None, info: dict,
+               psi_layer: np.ndarray | None) -> GVBLState:
+    """GVBLState of read-only arrays without __init__, its fields set one by one in their order (as
+    state.frozen_state: half of derive_frozen's cost; the batched predict and update make T per scan)."""
+    new = object.__new__(GVBLState)
+    d = new.__dict__
+    d["x"], d["P"], d["e_post"], d["F"], d["info"], d["psi_layer"] = x, P, e_post, F, info, psi_layer
+    return new
 
 
 @dataclass(frozen=True)
@@ -262,8 +272,9 @@ class GVBLSVSF(ModelFilter):
         for i, (t, ru, rl) in enumerate(zip(active, robust_u.tolist(), robust_l.tolist())):
             info = {"psi_z": psi_z[i], "psi_y": psi_y[i], "regime": float(ru), "regime_y": float(rl),
                     "chatter": chatter[i]}
-            out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info, psi_layer=layer[i])
-        return out
+            out[t] = (gvbl_state(Xn[i], Pn[i], post[i], None, info, layer[i]) if type(ss[i]) is GVBLState
+                      else derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info, psi_layer=layer[i]))
+        return updated_rows(preds, out, active, Xn, Pn, post, reset=self.memory_after_miss == "reset")
 
 
 

@@ -50,6 +50,7 @@ reuses the predicted mode measurements of the same states.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -58,10 +59,12 @@ import numpy as np
 
 from roadtrack.trackers.filters.base import (ModelFilter, batch_layers, batch_predict, batch_predicted_measurements,
                                    batch_update, check_covariance, check_weights, pair_covariances, symmetrise)
+from roadtrack.trackers.filters.gvbl import GVBLState, gvbl_state
 from roadtrack.trackers.gating import log_gaussian
 from roadtrack.trackers.models import MOTION_MODELS
 from roadtrack.trackers.params import NON_NEGATIVE, POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, StateRows, derive, derive_frozen, freeze, rows_of, take_rows
+from roadtrack.trackers.state import (FilterState, StateRows, derive, derive_frozen, freeze, frozen_state, rows_of,
+                                     take_rows)
 
 
 # --------------------------------------------------------------------------------------------- state
@@ -82,6 +85,15 @@ class IMMState(FilterState):
         mu.setflags(write=False)
         object.__setattr__(self, "mu", mu)
         object.__setattr__(self, "modes", tuple(self.modes))
+
+
+def _imm_state(x: np.ndarray, P: np.ndarray, e_post: np.ndarray, info: dict, modes: tuple, mu: np.ndarray) -> IMMState:
+    """IMMState(x, P, e_post, F=None, info, modes, mu) of read-only arrays without __init__, its fields set one by one
+    in their declared order (state.frozen_state's way: half of derive_frozen's cost, T per scan and call)."""
+    new = object.__new__(IMMState)
+    d = new.__dict__
+    d["x"], d["P"], d["e_post"], d["F"], d["info"], d["modes"], d["mu"] = x, P, e_post, None, info, modes, mu
+    return new
 
 
 # ------------------------------------------------------------------------------------------- helpers
@@ -330,9 +342,16 @@ class IMMFilter:
         for i, (f, (x0, P0, e0, reach)) in enumerate(zip(self.filters, self._mix_many(states, log_w, log_c))):
             if getattr(f, "predicts_arrays", None) is not None and f.predicts_arrays():  # straight from the arrays
                 X, P, F = f.predict_arrays(x0, P0, dt)
-                modes.append(StateRows([derive_frozen(s.modes[i], x=X[t], P=P[t], F=F if F.ndim == 2 else F[t],
-                                                      e_post=e0[t], info={}) for t, s in enumerate(states)], X, P, e0))
+                Fs = [F] * len(states) if F.ndim == 2 else F
+                modes.append(StateRows([frozen_state(xt, Pt, et, Ft, {}) if type(m) is FilterState
+                                        else gvbl_state(xt, Pt, et, Ft, {}, m.psi_layer) if type(m) is GVBLState
+                                        else derive_frozen(m, x=xt, P=Pt, F=Ft, e_post=et, info={})
+                                        for m, xt, Pt, Ft, et in zip(self._mode_lists(states)[i], X, P, Fs, e0)],
+                                       X, P, e0))
                 arrays.append((X, P, e0))
+            elif getattr(f, "predict_rows", None) is not None and f.motion.linear:  # the mode states with these rows
+                modes.append(f.predict_rows(self._mode_lists(states)[i], x0, P0, e0, dt))
+                arrays.append(stacked(modes[-1]))
             else:  # the mode filter's own batched predict of the mixed states
                 modes.append(batch_predict(f, [derive(s.modes[i], x=x0[t], P=P0[t], e_post=e0[t]) if reach[t]
                                                else s.modes[i] for t, s in enumerate(states)], dt))
@@ -543,14 +562,16 @@ class IMMFilter:
         e = np.einsum("tj,tjm->tm", mu, np.stack(Es, axis=1))
         mu, mu_info = np.array(mu, dtype=np.float64), np.array(mu, dtype=np.float64)  # the states' and info's copies
         freeze(x, P, e, mu)
-        out, names = [], self.mode_names
-        told = [i for i, ms in enumerate(modes) if any(m.info for m in ms)]  # the modes with diagnostics, in order
+        out = []
+        told = [(i, _info_keys(name)) for i, (name, ms) in enumerate(zip(self.mode_names, modes))
+                if any(m.info for m in ms)]  # the modes with diagnostics, in order, and their keys' names
         for s, mt, xt, Pt, et, mut, mui in zip(like, mts, x, P, e, mu, mu_info):
             info: dict[str, Any] = {"mu": mui}
-            for i in told:
+            for i, keys in told:
                 for key, v in mt[i].info.items():
-                    info[f"{names[i]}.{key}"] = v
-            out.append(derive_frozen(s, x=xt, P=Pt, e_post=et, F=None, info=info, modes=mt, mu=mut))
+                    info[keys[key]] = v  # "<mode name>.<key>"
+            out.append(_imm_state(xt, Pt, et, info, mt, mut) if type(s) is IMMState
+                       else derive_frozen(s, x=xt, P=Pt, e_post=et, F=None, info=info, modes=mt, mu=mut))
         return IMMRows(out, mu, [StateRows(ms, *a) for ms, a in zip(modes, arrays)])
 
     def _mode_lists(self, states: list[IMMState]) -> list:
@@ -586,6 +607,24 @@ class IMMFilter:
             for key, v in m.info.items():
                 info[f"{name}.{key}"] = v
         return IMMState(x=x, P=P, e_post=e, F=None, info=info, modes=modes, mu=mu)
+
+
+class _PrefixedKeys(dict):
+    """key -> "<mode name>.<key>", each name made once (`_info_keys`)."""
+
+    def __init__(self, name: str):
+        super().__init__()
+        self.name = name
+
+    def __missing__(self, key: str) -> str:
+        self[key] = out = f"{self.name}.{key}"
+        return out
+
+
+@functools.lru_cache(maxsize=None)
+def _info_keys(mode_name: str) -> _PrefixedKeys:
+    """The names of mode `mode_name`'s diagnostics in an IMM state's info, made once per key (T per scan read them)."""
+    return _PrefixedKeys(mode_name)
 
 
 def _one_memory_shape(modes: list, arrays: list | None) -> bool:

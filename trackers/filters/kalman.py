@@ -15,7 +15,8 @@ import numpy as np
 from roadtrack.trackers.errors import FilterError
 from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
                                    combined_innovation, identity, pda_covariance, symmetrise, weighted_outer)
-from roadtrack.trackers.state import FilterState, StateRows, derive_frozen, freeze, rows_of
+from roadtrack.trackers.state import (FilterState, StateRows, derive_frozen, freeze, frozen_state, rows_of,
+                                     updated_rows)
 
 
 def gain_update(s_pred: FilterState, H: np.ndarray, R: np.ndarray, S: np.ndarray, K: np.ndarray,
@@ -140,15 +141,11 @@ def _updated(preds: list, out: list, active: np.ndarray, Xn: np.ndarray, Pn: np.
     """`out` (the predictions) with the active tracks' updated states x, P, e_post (A rows each, made read-only here);
     a StateRows carrying every row when `preds` carries x, P and e_post."""
     freeze(Xn, Pn, e_post)
-    for i, t in enumerate(active):
-        out[t] = derive_frozen(preds[t], x=Xn[i], P=Pn[i], e_post=e_post[i], F=None)
-    if type(preds) is not StateRows or preds.x is None or preds.P is None or preds.e_post is None:
-        return out
-    rows = [np.array(a) for a in (preds.x, preds.P, preds.e_post)]
-    for a, new in zip(rows, (Xn, Pn, e_post)):
-        a[active] = new
-    freeze(*rows)
-    return StateRows(out, *rows)
+    for t, x, P, e in zip(active.tolist(), Xn, Pn, e_post):
+        s = preds[t]
+        out[t] = (frozen_state(x, P, e, None, s.info) if type(s) is FilterState
+                  else derive_frozen(s, x=x, P=P, e_post=e, F=None))
+    return updated_rows(preds, out, active, Xn, Pn, e_post)
 
 
 def detection_update(X: np.ndarray, P: np.ndarray, H: np.ndarray, R: np.ndarray, nu: np.ndarray, W: np.ndarray,

@@ -41,10 +41,11 @@ import numpy as np
 
 from roadtrack.trackers.errors import FilterError
 from roadtrack.trackers.filters.base import (ModelFilter, batch_weights, check_covariance, check_weights, cholesky,
-                                   combined_innovation, pda_covariance, symmetrise, weighted_R, weighted_outer)
+                                   combined_innovation, pda_covariance, sum_in_order, symmetrise, weighted_R,
+                                   weighted_outer)
 from roadtrack.trackers.filters.params import ModelParams
 from roadtrack.trackers.params import POSITIVE, ParamError, param
-from roadtrack.trackers.state import FilterState, derive, derive_frozen, freeze, rows_of
+from roadtrack.trackers.state import FilterState, StateRows, derive, derive_frozen, freeze, rows_of, updated_rows
 
 EY_MEMORY = ("a_priori", "a_posteriori")
 COVARIANCES = ("mse", "joseph", "short")
@@ -218,6 +219,17 @@ class SVSFState(FilterState):
                 a = np.array(getattr(self, name), dtype=np.float64)
                 a.setflags(write=False)
                 object.__setattr__(self, name, a)
+
+
+def svsf_state(x: np.ndarray, P: np.ndarray, e_post: np.ndarray, F: np.ndarray | None, info: dict,
+               z_prev: np.ndarray | None, tau: float, e_vel: np.ndarray | None) -> SVSFState:
+    """SVSFState of read-only arrays without __init__, its fields set one by one in their order (as
+    state.frozen_state: half of derive_frozen's cost; the batched predict and update make T per scan)."""
+    new = object.__new__(SVSFState)
+    d = new.__dict__
+    d["x"], d["P"], d["e_post"], d["F"], d["info"], d["z_prev"], d["tau"], d["e_vel"] = (x, P, e_post, F, info, z_prev,
+                                                                                          tau, e_vel)
+    return new
 
 
 @dataclass(frozen=True)
@@ -398,14 +410,23 @@ class SVSF(ModelFilter):
             raise ValueError(f"predict needs a finite dt >= 0, got {dt}")
         if not states or not self.motion.linear:
             return [self.predict(s, dt) for s in states]
+        return self.predict_rows(states, rows_of(states, "x"), rows_of(states, "P"), rows_of(states, "e_post"), dt)
+
+    def predict_rows(self, states: list[FilterState], X: np.ndarray, P: np.ndarray, e_post: np.ndarray,
+                     dt: float) -> list[FilterState]:
+        """`predict_many` of T states whose x, P, e_post are the rows X (T, n), P (T, n, n), e_post (T, m) (the IMM's
+        mixed initial conditions; the states give the other fields), for a linear motion model and dt >= 0 (checked
+        by the caller): a StateRows carrying the predicted x, P and e_post."""
         states = [promote_state(SVSFState, s) for s in states]
         A, Q = self.motion.transition(dt), self.motion.process_noise(dt)
-        X = np.array([s.x for s in states]) @ A.T  # (2.7) x = A x
-        P = A @ np.array([s.P for s in states]) @ A.T + Q  # (2.8) P = A P A^T + Q
+        X = X @ A.T  # (2.7) x = A x
+        P = A @ P @ A.T + Q  # (2.8) P = A P A^T + Q
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         check_covariance(P, "predicted covariance P")
-        freeze(X, P, A)
-        return [derive_frozen(s, x=X[t], P=P[t], F=A, info={}, tau=s.tau + dt) for t, s in enumerate(states)]
+        freeze(X, P, A, e_post)
+        return StateRows([svsf_state(x, p, e, A, {}, s.z_prev, s.tau + dt, s.e_vel) if type(s) is SVSFState
+                          else derive_frozen(s, x=x, P=p, e_post=e, F=A, info={}, tau=s.tau + dt)
+                          for s, x, p, e in zip(states, X, P, e_post)], X, P, e_post)
 
     def update_many(self, preds: list[FilterState], nu: np.ndarray, W: np.ndarray,
                     w0: np.ndarray, R: np.ndarray | None = None) -> list[FilterState]:
@@ -463,9 +484,10 @@ class SVSF(ModelFilter):
                 info = {"psi_z": psi_i[:m], "chatter": chatter_v[i], "psi_v": psi_i[m:]}
             else:
                 info = {"psi_z": psi_p.copy(), "chatter": chatter_p[i]}
-            out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=ep[i], e_vel=ev[i], z_prev=z_a[i], tau=0.0,
-                                   F=None, info=info)
-        return out
+            out[t] = (svsf_state(Xn[i], Pn[i], ep[i], None, info, z_a[i], 0.0, ev[i]) if type(ss[i]) is SVSFState
+                      else derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=ep[i], e_vel=ev[i], z_prev=z_a[i], tau=0.0,
+                                         F=None, info=info))
+        return updated_rows(preds, out, active, Xn, Pn, ep, reset=self.memory_after_miss == "reset")
 
 
 def _artificial_many(X, z_prev, tau, nua, Wa, H0, Hv, artificial_pda: str):
@@ -492,7 +514,10 @@ def estimate_mse_many(P, H, R, x_pred, x, nu, W, w0) -> np.ndarray:
     P_kf = P - K_kf @ S @ np.swapaxes(K_kf, 1, 2)
     P_kf = 0.5 * (P_kf + np.swapaxes(P_kf, 1, 2))
     d0 = x - x_pred
-    D = d0[:, None, :] - np.einsum("ajm,anm->ajn", nu, K_kf)  # (A, M, n)
+    m = nu.shape[2]
+    KNu = (np.einsum("ajm,anm->ajn", nu, K_kf) if m > 2  # (A, M, n) K_kf nu_j; for m <= 2 its products summed
+           else sum_in_order([nu[:, :, None, i] * K_kf[:, None, :, i] for i in range(m)]))  # as einsum does
+    D = d0[:, None, :] - KNu  # (A, M, n)
     out = (w0[:, None, None] * (P + np.einsum("ai,ak->aik", d0, d0)) + (1.0 - w0)[:, None, None] * P_kf
            + weighted_outer(W, D))
     return 0.5 * (out + np.swapaxes(out, 1, 2))
@@ -651,7 +676,7 @@ class GeneralisedSVSF(ModelFilter):
             info = {"psi_z": psi_z.copy(), "psi_y": np.array(psi_y[i]),
                     "chatter": np.maximum(0.0, np.abs(e[i]) - psi_z)}  # (5.37)
             out[t] = derive_frozen(ss[i], x=Xn[i], P=Pn[i], e_post=post[i], F=None, info=info)
-        return out
+        return updated_rows(preds, out, active, Xn, Pn, post, reset=self.memory_after_miss == "reset")
 
 
 # ------------------------------------------------------------------------------- registry parameters
