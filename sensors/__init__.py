@@ -9,7 +9,7 @@ from roadtrack.sensors.clustering import CLUSTER_METHODS, ClusterConfig, cluster
 from roadtrack.sensors.clutter import clutter_detections, poisson_clutter
 from roadtrack.sensors.ground import GROUND_METHODS, GroundConfig, segment_ground
 from roadtrack.sensors.lidar import GROUND, LIDAR_PRESETS, LidarConfig, Scan, scan
-from roadtrack.sensors.occlusion import CAR_BOX_M, OcclusionConfig, detection_probability, shadows
+from roadtrack.sensors.occlusion import CAR_BOX_M, OcclusionConfig, detection_probability, quantised_ranges, shadows
 from roadtrack.sensors.perception import (
     COMPLETED,
     FITS,
@@ -59,6 +59,7 @@ __all__ = [
     "clutter_detections",
     "CAR_BOX_M",
     "detection_probability",
+    "quantised_ranges",
     "fit_vehicle_box",
     "perceive",
     "poisson_clutter",

@@ -172,7 +172,7 @@ class Scan:
         ranges = np.zeros((0, 0)) if self.ranges is None else np.asarray(self.ranges, dtype=np.float64)
         if ranges.ndim != 2:
             raise ValueError(f"Scan.ranges: expected shape (A, B), got {ranges.shape}")
-        if np.any(np.isnan(ranges)) or np.any(ranges < 0.0):
+        if not np.all(ranges >= 0.0):  # NaN >= 0 is false: one pass for NaN and negative ranges
             raise ValueError("Scan.ranges: expected ranges >= 0 or inf, got NaN or a negative value")
         object.__setattr__(self, "ranges", ranges)
         a, b = ranges.shape

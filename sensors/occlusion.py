@@ -172,6 +172,19 @@ def detection_probability(
     return np.where(vis.clear_rays >= lo, cfg.pd_nominal * ramp, 0.0)
 
 
+def quantised_ranges(scan: Scan, drop: np.ndarray, step_m: float) -> np.ndarray:
+    """(A, B) the scan's range image [m] rounded to multiples of step_m [m] (np.rint(ranges / step_m) * step_m),
+    with inf at the rays of the points marked by drop (N,) bool (e.g. the returns the perception called ground: a
+    ray that returns nothing never blocks). Compiled (occlusion_jit.quantised_ranges), bit for bit numpy's."""
+    drop = np.asarray(drop)
+    if drop.dtype != bool or drop.shape != (len(scan.points),):
+        raise ValueError(f"drop: expected a ({len(scan.points)},) bool mask, got dtype {drop.dtype}, shape {drop.shape}")
+    if not (np.isfinite(step_m) and step_m > 0):
+        raise ValueError(f"step_m: expected a step > 0 [m], got {step_m!r}")
+    return occlusion_jit.quantised_ranges(np.ascontiguousarray(scan.ranges, np.float64), scan.ray, drop,
+                                          float(step_m))
+
+
 def _seen_width(scan: Scan, xy: np.ndarray, columns: np.ndarray) -> np.ndarray:
     """(K,) width [m] across the line of sight spanned by ``columns`` (K,) adjacent azimuth columns at each
     target's range: (columns - 1) azimuth steps."""

@@ -204,3 +204,18 @@ def ray_counts(col, t_in, t_out, crosses, end, tz_in, hi_t, lo_t, cos_e, tan_e, 
                     clear_end[k] += 1
         seen_top[k] = top
     return rays, clear_rays, columns, clear_columns, clear_end, seen_top
+
+
+@njit(cache=True)
+def quantised_ranges(ranges, ray, drop, step):
+    """occlusion.quantised_ranges' image: np.rint(ranges / step) * step (A, B) [m] of a C-contiguous range image
+    ranges (A, B) [m], with inf at the rays ray[i] >= 0 of the points i with drop[i] (N,). One pass each; the same
+    float64 division, rounding (half to even, as numpy's rint) and product as numpy's (inf stays inf)."""
+    out = ranges.copy()
+    flat = out.reshape(-1)
+    for i in range(len(ray)):
+        if drop[i] and ray[i] >= 0:
+            flat[ray[i]] = np.inf
+    for j in range(flat.size):
+        flat[j] = np.rint(flat[j] / step) * step
+    return out

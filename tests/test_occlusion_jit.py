@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from roadtrack.sensors import LidarConfig, OcclusionConfig, occlusion, occlusion_jit, scan
+from roadtrack.sensors import GROUND, LidarConfig, OcclusionConfig, Scan, occlusion, occlusion_jit, scan
 
 
 def _slabs_numpy(ox, oy, cb, sb, ux, uy, hl, hw, valid):
@@ -196,3 +196,40 @@ def test_visibility_is_the_numpy_paths_on_a_real_scan(monkeypatch):
         for g, w in zip(f, s):
             np.testing.assert_array_equal(g, w)
     assert fast[0].clear_rays.sum() > 0
+
+
+def _quantised_numpy(sc, drop, step):
+    """The numpy code quantised_ranges replaced (testbed/sensing/lidar.pd_scan before issue 30)."""
+    ranges = sc.ranges / step
+    ranges.reshape(-1)[sc.ray[drop & (sc.ray >= 0)]] = np.inf
+    np.rint(ranges, out=ranges)
+    return ranges * step
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_quantised_ranges_match_numpy_on_a_real_scan_and_on_ties(seed):
+    """The P_D's range image, compiled, is numpy's: on a real scan (ground returns dropped, misses inf) and on an
+    image of exact halves (rint rounds half to even) with a hand-made ray index."""
+    rng = np.random.default_rng(seed)
+    boxes = np.array([[12.0, 0.0, 4.5, 1.8, 1.5, 0.0, 0.0], [25.0, 3.5, 4.5, 1.8, 1.5, 0.1, 0.0]])
+    sc = scan(LidarConfig(), np.zeros(3), boxes, np.arange(2), rng)
+    drop = sc.source == GROUND if seed == 0 else rng.random(len(sc.points)) < 0.5
+    got = occlusion.quantised_ranges(sc, drop, 0.002)
+    np.testing.assert_array_equal(got, _quantised_numpy(sc, drop, 0.002))
+    assert np.isinf(got).any() and np.isfinite(got).any()
+    ties = (np.arange(40, dtype=np.float64).reshape(8, 5) + 0.5) * 0.25  # k + 1/2 steps of 0.25 m exactly
+    tied = Scan(points=np.zeros((3, 3)), source=np.zeros(3, np.int64), origin=np.zeros(3), ranges=ties,
+                ray=np.array([-1, 7, 39]), azimuths=np.arange(8.0) * 0.1, elevations=np.zeros(5))
+    mask = np.array([True, True, False])
+    got = occlusion.quantised_ranges(tied, mask, 0.25)
+    np.testing.assert_array_equal(got, _quantised_numpy(tied, mask, 0.25))
+    assert np.isinf(got.reshape(-1)[7]) and got.reshape(-1)[39] == 10.0 and got[0, 0] == 0.0  # 39.5 -> 40, 0.5 -> 0
+
+
+def test_quantised_ranges_reject_a_bad_mask_or_step():
+    sc = Scan(points=np.zeros((2, 3)), source=np.zeros(2, np.int64), origin=np.zeros(3), ranges=np.ones((2, 2)),
+              ray=np.array([0, 3]), azimuths=np.zeros(2), elevations=np.zeros(2))
+    with pytest.raises(ValueError, match="drop: expected a \\(2,\\) bool mask"):
+        occlusion.quantised_ranges(sc, np.ones(3, bool), 0.002)
+    with pytest.raises(ValueError, match="step_m"):
+        occlusion.quantised_ranges(sc, np.ones(2, bool), 0.0)
