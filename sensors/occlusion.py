@@ -181,6 +181,8 @@ def quantised_ranges(scan: Scan, drop: np.ndarray, step_m: float) -> np.ndarray:
         raise ValueError(f"drop: expected a ({len(scan.points)},) bool mask, got dtype {drop.dtype}, shape {drop.shape}")
     if not (np.isfinite(step_m) and step_m > 0):
         raise ValueError(f"step_m: expected a step > 0 [m], got {step_m!r}")
+    if scan.ranges.size == 0:  # no image (a Scan checks its rays against the image only when there is one)
+        return scan.ranges.copy()
     return occlusion_jit.quantised_ranges(np.ascontiguousarray(scan.ranges, np.float64), scan.ray, drop,
                                           float(step_m))
 

@@ -233,3 +233,5 @@ def test_quantised_ranges_reject_a_bad_mask_or_step():
         occlusion.quantised_ranges(sc, np.ones(3, bool), 0.002)
     with pytest.raises(ValueError, match="step_m"):
         occlusion.quantised_ranges(sc, np.ones(2, bool), 0.0)
+    no_image = Scan(points=np.zeros((2, 3)), source=np.zeros(2, np.int64), origin=np.zeros(3), ray=np.array([0, 5]))
+    assert occlusion.quantised_ranges(no_image, np.ones(2, bool), 0.002).shape == (0, 0)  # rays but no image
