@@ -12,6 +12,15 @@ from typing import Callable
 
 import pytest
 
+from roadtrack.testbed.common.threads import one_thread_per_process
+
+# One BLAS / OpenMP thread per process, as `testbed` gives its own runs (testbed/common/threads.py), also for the
+# runs the tests make through the Python API in the pytest(-xdist) processes: with the default of a thread per core,
+# the two xdist workers' pools wait for each other's cores (test_end_to_end + test_record_levels: 78-82 s -> 43-45 s
+# wall, 115 -> 73 CPU s, on this 2-core machine). Set before numpy is first imported (its pools read them once); a
+# variable the user set is kept, the ones set here are listed as the tool's own (campaign workers size them).
+one_thread_per_process()
+
 REPO = Path(__file__).resolve().parent.parent
 
 

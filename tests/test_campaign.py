@@ -29,6 +29,7 @@ from roadtrack.testbed.cli.campaign import add_campaign_parser, main as campaign
 from roadtrack.testbed.campaign.engine import EngineOptions, run_campaign
 from roadtrack.testbed.campaign.report import fmt_ci, mean_sd_ci, paired_differences, write_report
 from roadtrack.testbed.campaign.spec import load_campaign, plan, run_seed
+from roadtrack.testbed.common.threads import DEFAULTED, THREAD_VARS
 from roadtrack.testbed.config.strict import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent
@@ -257,8 +258,10 @@ def test_same_seed_gives_same_traffic_whatever_the_parameter(reference):
         np.testing.assert_array_equal(a[store.SERIES_COLUMN], b[store.SERIES_COLUMN])
 
 
-def test_dask_local_cluster_gives_the_same_results_as_the_pool(reference, tmp_path):
+def test_dask_local_cluster_gives_the_same_results_as_the_pool(reference, tmp_path, monkeypatch):
     ref_dir, ref = reference
+    for var in (*THREAD_VARS, DEFAULTED):  # unset, as for a Python API user: conftest's 1s would hide a leaked nanny 1
+        monkeypatch.delenv(var, raising=False)
     campaign = store.open_campaign(ref_dir)
     out = tmp_path / "dask"
     store.create(out, ref_dir / store.CAMPAIGN_FILE, campaign)
