@@ -276,11 +276,13 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
 
     with_range: band = min(road_tol + range_term / max(r, 1e-9) + r tan_angle, height_tol) at the range r,
     else height_tol. foot_cell > 0: a point with height above the plane in (foot_keep band, band] sharing a
-    foot_cell cell with one in (band + foot_lo, band + foot_hi] is not road."""
+    foot_cell cell with one in (band + foot_lo, band + foot_hi] is not road (the latter's cells in a foot_cells
+    hash set: one probe per point instead of a sort and a binary search)."""
     n = len(z)
     is_ground = np.empty(n, np.bool_)
-    test = np.empty(n, np.bool_)
-    above = np.empty(n, np.bool_)
+    # per point 1 when tested, 2 when above; padded to whole uint64 words, so the gathering below skips 8 points
+    # with no flag at a time (this loop stays branch-free: compiled to SIMD code)
+    flag = np.zeros((n + 7) // 8 * 8, np.uint8)
     n_above = 0
     for i in range(n):
         res = z[i] - a * x[i] - b * y[i] - c
@@ -294,25 +296,30 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
             tol = height_tol
         g = res <= tol
         is_ground[i] = g
-        test[i] = g and res > foot_keep * tol
-        above[i] = res > tol + foot_lo and res <= tol + foot_hi
-        n_above += above[i]
+        above = res > tol + foot_lo and res <= tol + foot_hi
+        flag[i] = (g and res > foot_keep * tol) + 2 * above
+        n_above += above
     if foot_cell <= 0.0 or n_above == 0:
         return is_ground
+    test, above_at = np.empty(n, np.int64), np.empty(n_above, np.int64)  # the flagged points' indices
+    n_test = n_above = 0
+    words = flag.view(np.uint64)
+    for w in range(len(words)):
+        if words[w] != 0:
+            for i in range(8 * w, 8 * w + 8):
+                if flag[i] & 1:
+                    test[n_test] = i
+                    n_test += 1
+                if flag[i] & 2:
+                    above_at[n_above] = i
+                    n_above += 1
     inv = 1.0 / foot_cell
-    keys = np.empty(n_above, np.int64)
-    j = 0
-    for i in range(n):
-        if above[i]:
-            keys[j] = _foot_key(x[i], y[i], inv)
-            j += 1
-    keys.sort()
-    for i in range(n):
-        if test[i]:
-            q = _foot_key(x[i], y[i], inv)
-            at = np.searchsorted(keys, q)
-            if at < n_above and keys[at] == q:
-                is_ground[i] = False
+    cells = foot_cells(n_above)
+    for i in above_at:
+        foot_cells_add(cells, _foot_key(x[i], y[i], inv))
+    for i in test[:n_test]:
+        if foot_cells_has(cells, _foot_key(x[i], y[i], inv)):
+            is_ground[i] = False
     return is_ground
 
 
@@ -320,6 +327,50 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
 def _foot_key(x, y, inv):
     """One int64 per (floor(x inv), floor(y inv)) cell (distinct cells, distinct keys, within +-2^31 cells)."""
     return np.int64(np.floor(x * inv)) * 4294967296 + np.int64(np.floor(y * inv))
+
+
+_FIB = np.uint64(0x9E3779B97F4A7C15)  # 2^64 / golden ratio: Fibonacci hashing's multiplier
+
+
+@njit(cache=True)
+def foot_cells(n):
+    """An empty hash set for up to n int64 keys: (keys (2^k,) int64, used (2^k,) bool, k), 2^k >= 2 n slots, open
+    addressing with linear probing from the key's Fibonacci hash."""
+    bits = 4
+    while (1 << bits) < 2 * n:
+        bits += 1
+    return np.empty(1 << bits, np.int64), np.zeros(1 << bits, np.bool_), bits
+
+
+@njit(cache=True)
+def _slot(key, bits):
+    return np.int64((np.uint64(key) * _FIB) >> np.uint64(64 - bits))
+
+
+@njit(cache=True)
+def foot_cells_add(cells, key):
+    """Put key into the set `cells` (foot_cells)."""
+    keys, used, bits = cells
+    mask = len(keys) - 1
+    s = _slot(key, bits)
+    while used[s]:
+        if keys[s] == key:
+            return
+        s = (s + 1) & mask
+    keys[s], used[s] = key, True
+
+
+@njit(cache=True)
+def foot_cells_has(cells, key):
+    """Whether key is in the set `cells` (foot_cells)."""
+    keys, used, bits = cells
+    mask = len(keys) - 1
+    s = _slot(key, bits)
+    while used[s]:
+        if keys[s] == key:
+            return True
+        s = (s + 1) & mask
+    return False
 
 
 # --- split (sensors/perception_reference.split_reference) ---------------------------------------------------
