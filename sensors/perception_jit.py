@@ -257,15 +257,27 @@ def near_plane(x, y, z, a, b, c, band):
 
 
 @njit(cache=True)
-def cell_lowest(pts, z, inv, fx0, fy0, ny, size):
-    """(size,) the lowest z (N,) in each BEV cell (floor(x inv) - fx0) * ny + floor(y inv) - fy0 of the points
-    (N, 3) (sensors/grid.bev_cells numbering), inf where empty."""
-    out = np.full(size, np.inf)
+def cell_lowest(pts, z, inv, fx0, fy0, ny, size, cell, ox, oy):
+    """The lowest z (N,) in each occupied BEV cell (floor(x inv) - fx0) * ny + floor(y inv) - fy0 of the points
+    (N, 3) (sensors/grid.bev_cells numbering; size cells), in cell order, and the cells' centres relative to
+    (ox, oy): cx = (fx0 + 0.5 + cell // ny) * cell - ox and cy likewise (numpy's operations): cx, cy, low (M,)."""
+    lowest = np.full(size, np.inf)
     for i in range(len(z)):
         c = np.int64(np.floor(pts[i, 0] * inv) - fx0) * ny + np.int64(np.floor(pts[i, 1] * inv) - fy0)
-        if z[i] < out[c]:
-            out[c] = z[i]
-    return out
+        if z[i] < lowest[c]:
+            lowest[c] = z[i]
+    m = 0
+    for c in range(size):
+        m += lowest[c] < np.inf
+    cx, cy, low = np.empty(m), np.empty(m), np.empty(m)
+    j = 0
+    for c in range(size):
+        if lowest[c] < np.inf:
+            cx[j] = (fx0 + 0.5 + np.float64(c // ny)) * cell - ox
+            cy[j] = (fy0 + 0.5 + np.float64(c % ny)) * cell - oy
+            low[j] = lowest[c]
+            j += 1
+    return cx, cy, low
 
 
 @njit(cache=True)

@@ -222,7 +222,7 @@ def bits(a: np.ndarray) -> np.ndarray:
 def test_ground_columns_and_band_equal_numpy_on_every_shipped_scenario(monkeypatch, shipped):
     columns = kernel_calls(monkeypatch, shipped, "relative_columns")
     bands = kernel_calls(monkeypatch, shipped, "near_plane")
-    assert len(columns) == len(bands) == len(shipped)
+    assert len(columns) == len(shipped) and len(bands) == 4 * len(shipped)  # 3 coarse rounds on the cells, 1 fine
     for pts, cx, cy, cz in columns:
         x, y, z, bounds = perception_jit.relative_columns(pts, cx, cy, cz)
         for got, ref in ((x, pts[:, 0] - cx), (y, pts[:, 1] - cy), (z, pts[:, 2] - cz),
@@ -241,6 +241,26 @@ def test_ground_columns_and_band_equal_numpy_on_every_shipped_scenario(monkeypat
             assert len(perception_jit.near_plane(x, y, z, a, b, c, edge)[0]) == int(
                 np.sum(np.abs(z - a * x - b * y - c) <= edge))
     assert kept > 10000
+
+
+def test_cell_lowest_equals_numpy_on_every_shipped_scenario(monkeypatch, shipped):
+    calls = kernel_calls(monkeypatch, shipped, "cell_lowest")
+    assert len(calls) == len(shipped)
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(-3, 3, (500, 3))
+    pts[::7, :2] = np.floor(pts[::7, :2])  # points on cell edges
+    cases = calls + [(pts, pts[:, 2] - 0.5, 2.0, -6.0, -6.0, 13, 13 * 13, 0.5, 0.25, -0.5)]
+    for pts, z, inv, fx0, fy0, ny, size, cell, ox, oy in cases:
+        lowest = np.full(size, np.inf)  # the former numpy code of ground._coarse_plane
+        ix = np.floor(pts[:, 0] * inv).astype(np.int64) - int(fx0)
+        np.minimum.at(lowest, ix * ny + np.floor(pts[:, 1] * inv).astype(np.int64) - int(fy0), z)
+        occupied = np.flatnonzero(np.isfinite(lowest))
+        ref = ((np.float64(fx0) + 0.5 + occupied // ny) * cell - np.float64(ox),
+               (np.float64(fy0) + 0.5 + occupied % ny) * cell - np.float64(oy), lowest[occupied])
+        got = perception_jit.cell_lowest(pts, z, inv, fx0, fy0, ny, size, cell, ox, oy)
+        for g, r in zip(got, ref):
+            assert np.array_equal(bits(g), bits(r))
+        assert 0 < len(occupied) < size
 
 
 def test_the_conditioning_shortcut_decides_as_numpys_cond(monkeypatch, shipped):
