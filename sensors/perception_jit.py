@@ -242,18 +242,13 @@ def relative_columns(pts, cx, cy, cz):
 def near_plane(x, y, z, a, b, c, band):
     """x, y, z (M,) of the points x, y, z (N,) with np.abs(z - a x - b y - c) <= band (the same operations in
     the same order as numpy's), in their order."""
-    keep = np.empty(len(z), np.bool_)
+    n = len(z)
+    xs, ys, zs = np.empty(n), np.empty(n), np.empty(n)
     m = 0
-    for i in range(len(z)):
-        keep[i] = abs(z[i] - a * x[i] - b * y[i] - c) <= band
-        m += keep[i]
-    xs, ys, zs = np.empty(m), np.empty(m), np.empty(m)
-    j = 0
-    for i in range(len(z)):
-        if keep[i]:
-            xs[j], ys[j], zs[j] = x[i], y[i], z[i]
-            j += 1
-    return xs, ys, zs
+    for i in range(n):  # branch-free: every point written at m, kept when m moves on
+        xs[m], ys[m], zs[m] = x[i], y[i], z[i]
+        m += abs(z[i] - a * x[i] - b * y[i] - c) <= band
+    return xs[:m], ys[:m], zs[:m]
 
 
 @njit(cache=True)
