@@ -290,7 +290,7 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
     # per point 1 when tested, 2 when above; padded to whole uint64 words, so the gathering below skips 8 points
     # with no flag at a time (this loop stays branch-free: compiled to SIMD code)
     flag = np.zeros((n + 7) // 8 * 8, np.uint8)
-    n_above = 0
+    n_test = n_above = 0
     for i in range(n):
         res = z[i] - a * x[i] - b * y[i] - c
         if with_range:
@@ -303,12 +303,14 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
             tol = height_tol
         g = res <= tol
         is_ground[i] = g
+        tested = g and res > foot_keep * tol
         above = res > tol + foot_lo and res <= tol + foot_hi
-        flag[i] = (g and res > foot_keep * tol) + 2 * above
+        flag[i] = tested + 2 * above
+        n_test += tested
         n_above += above
-    if foot_cell <= 0.0 or n_above == 0:
+    if foot_cell <= 0.0 or n_above == 0 or n_test == 0:
         return is_ground
-    test, above_at = np.empty(n, np.int64), np.empty(n_above, np.int64)  # the flagged points' indices
+    test, above_at = np.empty(n_test, np.int64), np.empty(n_above, np.int64)  # the flagged points' indices
     n_test = n_above = 0
     words = flag.view(np.uint64)
     for w in range(len(words)):
@@ -324,7 +326,7 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
     cells = foot_cells(n_above)
     for i in above_at:
         foot_cells_add(cells, _foot_key(x[i], y[i], inv))
-    for i in test[:n_test]:
+    for i in test:
         if foot_cells_has(cells, _foot_key(x[i], y[i], inv)):
             is_ground[i] = False
     return is_ground
