@@ -283,7 +283,7 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
 
     with_range: band = min(road_tol + range_term / max(r, 1e-9) + r tan_angle, height_tol) at the range r,
     else height_tol. foot_cell > 0: a point with height above the plane in (foot_keep band, band] sharing a
-    foot_cell cell with one in (band + foot_lo, band + foot_hi] is not road (the latter's cells in a foot_cells
+    foot_cell cell with one in (band + foot_lo, band + foot_hi] is not road (the latter's cells in a _foot_cells
     hash set: one probe per point instead of a sort and a binary search)."""
     n = len(z)
     is_ground = np.empty(n, np.bool_)
@@ -323,11 +323,11 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
                     above_at[n_above] = i
                     n_above += 1
     inv = 1.0 / foot_cell
-    cells = foot_cells(n_above)
+    cells = _foot_cells(n_above)
     for i in above_at:
-        foot_cells_add(cells, _foot_key(x[i], y[i], inv))
+        _foot_cells_add(cells, _foot_key(x[i], y[i], inv))
     for i in test:
-        if foot_cells_has(cells, _foot_key(x[i], y[i], inv)):
+        if _foot_cells_has(cells, _foot_key(x[i], y[i], inv)):
             is_ground[i] = False
     return is_ground
 
@@ -342,7 +342,7 @@ _FIB = np.uint64(0x9E3779B97F4A7C15)  # 2^64 / golden ratio: Fibonacci hashing's
 
 
 @njit(cache=True)
-def foot_cells(n):
+def _foot_cells(n):
     """An empty hash set for up to n int64 keys: (keys (2^k,) int64, used (2^k,) bool, k), 2^k >= 2 n slots, open
     addressing with linear probing from the key's Fibonacci hash."""
     bits = 4
@@ -357,8 +357,8 @@ def _slot(key, bits):
 
 
 @njit(cache=True)
-def foot_cells_add(cells, key):
-    """Put key into the set `cells` (foot_cells)."""
+def _foot_cells_add(cells, key):
+    """Put key into the set `cells` (_foot_cells)."""
     keys, used, bits = cells
     mask = len(keys) - 1
     s = _slot(key, bits)
@@ -370,8 +370,8 @@ def foot_cells_add(cells, key):
 
 
 @njit(cache=True)
-def foot_cells_has(cells, key):
-    """Whether key is in the set `cells` (foot_cells)."""
+def _foot_cells_has(cells, key):
+    """Whether key is in the set `cells` (_foot_cells)."""
     keys, used, bits = cells
     mask = len(keys) - 1
     s = _slot(key, bits)

@@ -350,12 +350,12 @@ def test_foot_cells_is_a_set():
         keys[: n // 2] = rng.integers(-40, 40, n // 2)  # repeated keys, neighbours, negative ones
         if n:
             keys[0] = -2**63
-        cells = perception_jit.foot_cells(n)
+        cells = perception_jit._foot_cells(n)
         for k in keys:
-            perception_jit.foot_cells_add(cells, k)
+            perception_jit._foot_cells_add(cells, k)
         assert int(cells[1].sum()) == len(set(keys.tolist())) and len(cells[0]) >= 2 * n
         queries = np.concatenate([keys, rng.integers(-60, 60, 200), keys + 1])
-        assert [perception_jit.foot_cells_has(cells, q) for q in queries] == [q in set(keys.tolist())
+        assert [perception_jit._foot_cells_has(cells, q) for q in queries] == [q in set(keys.tolist())
                                                                              for q in queries.tolist()]
 
 
