@@ -160,15 +160,13 @@ def _coarse_plane(pts: np.ndarray, centre: np.ndarray, z: np.ndarray, cfg: Groun
     shape = (int(np.floor(x_max * inv) - fx0) + 1, int(np.floor(y_max * inv) - fy0) + 1)
     if shape[0] * shape[1] > MAX_CELLS:
         bev_cells(pts, cfg.cell_m, "ground")  # raises its ValueError
-    lowest = perception_jit.cell_lowest(pts, z, inv, fx0, fy0, shape[1], shape[0] * shape[1])
-    occupied = np.flatnonzero(np.isfinite(lowest))
-    cx = (fx0 + 0.5 + occupied // shape[1]) * cfg.cell_m - centre[0]  # cell centres
-    cy = (fy0 + 0.5 + occupied % shape[1]) * cfg.cell_m - centre[1]
-    low = lowest[occupied]
+    # the occupied cells' centres cx, cy and lowest z, in cell order
+    cx, cy, low = perception_jit.cell_lowest(pts, z, inv, float(fx0), float(fy0), shape[1], shape[0] * shape[1],
+                                             cfg.cell_m, float(centre[0]), float(centre[1]))
     plane = np.array([0.0, 0.0, cfg.ground_z_m - centre[2]])
-    for band in _COARSE_BANDS_M:
-        inliers = np.abs(low - plane[0] * cx - plane[1] * cy - plane[2]) <= band
-        plane = _plane_fit(cx[inliers], cy[inliers], low[inliers], plane)
+    for band in _COARSE_BANDS_M:  # the cells with np.abs(low - a cx - b cy - c) <= band, compiled
+        plane = _plane_fit(*perception_jit.near_plane(cx, cy, low, float(plane[0]), float(plane[1]),
+                                                      float(plane[2]), band), plane)
     return plane
 
 

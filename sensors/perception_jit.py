@@ -242,30 +242,37 @@ def relative_columns(pts, cx, cy, cz):
 def near_plane(x, y, z, a, b, c, band):
     """x, y, z (M,) of the points x, y, z (N,) with np.abs(z - a x - b y - c) <= band (the same operations in
     the same order as numpy's), in their order."""
-    keep = np.empty(len(z), np.bool_)
+    n = len(z)
+    xs, ys, zs = np.empty(n), np.empty(n), np.empty(n)
     m = 0
-    for i in range(len(z)):
-        keep[i] = abs(z[i] - a * x[i] - b * y[i] - c) <= band
-        m += keep[i]
-    xs, ys, zs = np.empty(m), np.empty(m), np.empty(m)
-    j = 0
-    for i in range(len(z)):
-        if keep[i]:
-            xs[j], ys[j], zs[j] = x[i], y[i], z[i]
-            j += 1
-    return xs, ys, zs
+    for i in range(n):  # branch-free: every point written at m, kept when m moves on
+        xs[m], ys[m], zs[m] = x[i], y[i], z[i]
+        m += abs(z[i] - a * x[i] - b * y[i] - c) <= band
+    return xs[:m], ys[:m], zs[:m]
 
 
 @njit(cache=True)
-def cell_lowest(pts, z, inv, fx0, fy0, ny, size):
-    """(size,) the lowest z (N,) in each BEV cell (floor(x inv) - fx0) * ny + floor(y inv) - fy0 of the points
-    (N, 3) (sensors/grid.bev_cells numbering), inf where empty."""
-    out = np.full(size, np.inf)
+def cell_lowest(pts, z, inv, fx0, fy0, ny, size, cell, ox, oy):
+    """The lowest z (N,) in each occupied BEV cell (floor(x inv) - fx0) * ny + floor(y inv) - fy0 of the points
+    (N, 3) (sensors/grid.bev_cells numbering; size cells), in cell order, and the cells' centres relative to
+    (ox, oy): cx = (fx0 + 0.5 + cell // ny) * cell - ox and cy likewise (numpy's operations): cx, cy, low (M,)."""
+    lowest = np.full(size, np.inf)
     for i in range(len(z)):
         c = np.int64(np.floor(pts[i, 0] * inv) - fx0) * ny + np.int64(np.floor(pts[i, 1] * inv) - fy0)
-        if z[i] < out[c]:
-            out[c] = z[i]
-    return out
+        if z[i] < lowest[c]:
+            lowest[c] = z[i]
+    m = 0
+    for c in range(size):
+        m += lowest[c] < np.inf
+    cx, cy, low = np.empty(m), np.empty(m), np.empty(m)
+    j = 0
+    for c in range(size):
+        if lowest[c] < np.inf:
+            cx[j] = (fx0 + 0.5 + np.float64(c // ny)) * cell - ox
+            cy[j] = (fy0 + 0.5 + np.float64(c % ny)) * cell - oy
+            low[j] = lowest[c]
+            j += 1
+    return cx, cy, low
 
 
 @njit(cache=True)
@@ -276,12 +283,14 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
 
     with_range: band = min(road_tol + range_term / max(r, 1e-9) + r tan_angle, height_tol) at the range r,
     else height_tol. foot_cell > 0: a point with height above the plane in (foot_keep band, band] sharing a
-    foot_cell cell with one in (band + foot_lo, band + foot_hi] is not road."""
+    foot_cell cell with one in (band + foot_lo, band + foot_hi] is not road (the latter's cells in a _foot_cells
+    hash set: one probe per point instead of a sort and a binary search)."""
     n = len(z)
     is_ground = np.empty(n, np.bool_)
-    test = np.empty(n, np.bool_)
-    above = np.empty(n, np.bool_)
-    n_above = 0
+    # per point 1 when tested, 2 when above; padded to whole uint64 words, so the gathering below skips 8 points
+    # with no flag at a time (this loop stays branch-free: compiled to SIMD code)
+    flag = np.zeros((n + 7) // 8 * 8, np.uint8)
+    n_test = n_above = 0
     for i in range(n):
         res = z[i] - a * x[i] - b * y[i] - c
         if with_range:
@@ -294,25 +303,32 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
             tol = height_tol
         g = res <= tol
         is_ground[i] = g
-        test[i] = g and res > foot_keep * tol
-        above[i] = res > tol + foot_lo and res <= tol + foot_hi
-        n_above += above[i]
-    if foot_cell <= 0.0 or n_above == 0:
+        tested = g and res > foot_keep * tol
+        above = res > tol + foot_lo and res <= tol + foot_hi
+        flag[i] = tested + 2 * above
+        n_test += tested
+        n_above += above
+    if foot_cell <= 0.0 or n_above == 0 or n_test == 0:
         return is_ground
+    test, above_at = np.empty(n_test, np.int64), np.empty(n_above, np.int64)  # the flagged points' indices
+    n_test = n_above = 0
+    words = flag.view(np.uint64)
+    for w in range(len(words)):
+        if words[w] != 0:
+            for i in range(8 * w, 8 * w + 8):
+                if flag[i] & 1:
+                    test[n_test] = i
+                    n_test += 1
+                if flag[i] & 2:
+                    above_at[n_above] = i
+                    n_above += 1
     inv = 1.0 / foot_cell
-    keys = np.empty(n_above, np.int64)
-    j = 0
-    for i in range(n):
-        if above[i]:
-            keys[j] = _foot_key(x[i], y[i], inv)
-            j += 1
-    keys.sort()
-    for i in range(n):
-        if test[i]:
-            q = _foot_key(x[i], y[i], inv)
-            at = np.searchsorted(keys, q)
-            if at < n_above and keys[at] == q:
-                is_ground[i] = False
+    cells = _foot_cells(n_above)
+    for i in above_at:
+        _foot_cells_add(cells, _foot_key(x[i], y[i], inv))
+    for i in test:
+        if _foot_cells_has(cells, _foot_key(x[i], y[i], inv)):
+            is_ground[i] = False
     return is_ground
 
 
@@ -320,6 +336,50 @@ def road_band(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, hei
 def _foot_key(x, y, inv):
     """One int64 per (floor(x inv), floor(y inv)) cell (distinct cells, distinct keys, within +-2^31 cells)."""
     return np.int64(np.floor(x * inv)) * 4294967296 + np.int64(np.floor(y * inv))
+
+
+_FIB = np.uint64(0x9E3779B97F4A7C15)  # 2^64 / golden ratio: Fibonacci hashing's multiplier
+
+
+@njit(cache=True)
+def _foot_cells(n):
+    """An empty hash set for up to n int64 keys: (keys (2^k,) int64, used (2^k,) bool, k), 2^k >= 2 n slots, open
+    addressing with linear probing from the key's Fibonacci hash."""
+    bits = 4
+    while (1 << bits) < 2 * n:
+        bits += 1
+    return np.empty(1 << bits, np.int64), np.zeros(1 << bits, np.bool_), bits
+
+
+@njit(cache=True)
+def _slot(key, bits):
+    return np.int64((np.uint64(key) * _FIB) >> np.uint64(64 - bits))
+
+
+@njit(cache=True)
+def _foot_cells_add(cells, key):
+    """Put key into the set `cells` (_foot_cells)."""
+    keys, used, bits = cells
+    mask = len(keys) - 1
+    s = _slot(key, bits)
+    while used[s]:
+        if keys[s] == key:
+            return
+        s = (s + 1) & mask
+    keys[s], used[s] = key, True
+
+
+@njit(cache=True)
+def _foot_cells_has(cells, key):
+    """Whether key is in the set `cells` (_foot_cells)."""
+    keys, used, bits = cells
+    mask = len(keys) - 1
+    s = _slot(key, bits)
+    while used[s]:
+        if keys[s] == key:
+            return True
+        s = (s + 1) & mask
+    return False
 
 
 # --- split (sensors/perception_reference.split_reference) ---------------------------------------------------

@@ -222,7 +222,7 @@ def bits(a: np.ndarray) -> np.ndarray:
 def test_ground_columns_and_band_equal_numpy_on_every_shipped_scenario(monkeypatch, shipped):
     columns = kernel_calls(monkeypatch, shipped, "relative_columns")
     bands = kernel_calls(monkeypatch, shipped, "near_plane")
-    assert len(columns) == len(bands) == len(shipped)
+    assert len(columns) == len(shipped) and len(bands) == 4 * len(shipped)  # 3 coarse rounds on the cells, 1 fine
     for pts, cx, cy, cz in columns:
         x, y, z, bounds = perception_jit.relative_columns(pts, cx, cy, cz)
         for got, ref in ((x, pts[:, 0] - cx), (y, pts[:, 1] - cy), (z, pts[:, 2] - cz),
@@ -241,6 +241,26 @@ def test_ground_columns_and_band_equal_numpy_on_every_shipped_scenario(monkeypat
             assert len(perception_jit.near_plane(x, y, z, a, b, c, edge)[0]) == int(
                 np.sum(np.abs(z - a * x - b * y - c) <= edge))
     assert kept > 10000
+
+
+def test_cell_lowest_equals_numpy_on_every_shipped_scenario(monkeypatch, shipped):
+    calls = kernel_calls(monkeypatch, shipped, "cell_lowest")
+    assert len(calls) == len(shipped)
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(-3, 3, (500, 3))
+    pts[::7, :2] = np.floor(pts[::7, :2])  # points on cell edges
+    cases = calls + [(pts, pts[:, 2] - 0.5, 2.0, -6.0, -6.0, 13, 13 * 13, 0.5, 0.25, -0.5)]
+    for pts, z, inv, fx0, fy0, ny, size, cell, ox, oy in cases:
+        lowest = np.full(size, np.inf)  # the former numpy code of ground._coarse_plane
+        ix = np.floor(pts[:, 0] * inv).astype(np.int64) - int(fx0)
+        np.minimum.at(lowest, ix * ny + np.floor(pts[:, 1] * inv).astype(np.int64) - int(fy0), z)
+        occupied = np.flatnonzero(np.isfinite(lowest))
+        ref = ((np.float64(fx0) + 0.5 + occupied // ny) * cell - np.float64(ox),
+               (np.float64(fy0) + 0.5 + occupied % ny) * cell - np.float64(oy), lowest[occupied])
+        got = perception_jit.cell_lowest(pts, z, inv, fx0, fy0, ny, size, cell, ox, oy)
+        for g, r in zip(got, ref):
+            assert np.array_equal(bits(g), bits(r))
+        assert 0 < len(occupied) < size
 
 
 def test_the_conditioning_shortcut_decides_as_numpys_cond(monkeypatch, shipped):
@@ -272,6 +292,71 @@ def test_the_conditioning_shortcut_decides_as_numpys_cond(monkeypatch, shipped):
         shortcut += det > 0 and (a + d + f) ** 3 / (4 * det) < 1e10
     assert len(normals) > 4 * len(shipped) and shortcut >= 4 * len(shipped)  # the scans' fits take the shortcut
     assert min(conds) < 1e12 < max(conds)  # both answers are checked
+
+
+def road_band_reference(x, y, z, a, b, c, with_range, road_tol, range_term, tan_angle, height_tol, foot_cell,
+                        foot_lo, foot_hi, foot_keep):
+    """sensors/ground._road_plane's former numpy labels (before perception_jit.road_band): the band tol, then
+    the foot test by a sort of the above points' cells and a binary search."""
+    res = z - a * x - b * y - c
+    if with_range:
+        r = np.sqrt(x * x + y * y + z * z)
+        tol = road_tol + range_term / np.maximum(r, 1e-9)
+        if tan_angle > 0.0:
+            tol += r * tan_angle
+        tol = np.minimum(tol, height_tol)
+    else:
+        tol = height_tol
+    is_ground = res <= tol
+    if foot_cell > 0.0:
+        test = np.flatnonzero(is_ground & (res > foot_keep * tol))
+        above = np.flatnonzero((res > tol + foot_lo) & (res <= tol + foot_hi))
+        if len(test) and len(above):
+            inv = 1.0 / foot_cell
+            ax, ay = np.floor(x[above] * inv).astype(np.int64), np.floor(y[above] * inv).astype(np.int64)
+            tx, ty = np.floor(x[test] * inv).astype(np.int64), np.floor(y[test] * inv).astype(np.int64)
+            x0, y0 = min(ax.min(), tx.min()), min(ay.min(), ty.min())
+            width = max(ay.max(), ty.max()) - y0 + 1
+            keys = np.sort((ax - x0) * width + (ay - y0))
+            query = (tx - x0) * width + (ty - y0)
+            is_ground[test[keys[np.minimum(np.searchsorted(keys, query), len(keys) - 1)] == query]] = False
+    return is_ground
+
+
+def test_road_band_equals_the_former_numpy_labels(monkeypatch, shipped):
+    calls = kernel_calls(monkeypatch, shipped, "road_band")
+    assert len(calls) == len(shipped)
+    rng = np.random.default_rng(11)
+    feet = 0
+    for args in calls:
+        ref = road_band_reference(*args)
+        assert np.array_equal(perception_jit.road_band(*args), ref)
+        feet += int(np.sum(ref != road_band_reference(*args[:11], 0.0, *args[12:])))
+    assert feet > 1000  # the foot test removed points
+    # hand-made: a car-like block on a noisy road around the sensor, every option of the band, cells at +-0
+    for n, cell in ((1, 0.04), (7, 0.04), (3000, 0.04), (3000, 0.5), (20000, 0.01), (3000, 0.0)):
+        x, y = rng.uniform(-30, 30, n), rng.uniform(-30, 30, n)
+        x[::9], y[::11] = 0.0, -0.0
+        z = rng.normal(-1.8, 0.02, n) + np.where(np.abs(x - 5) < 2, rng.uniform(0, 1.5, n), 0.0)
+        for with_range, tan_angle in ((True, 0.0), (True, 1e-3), (False, 0.0)):
+            args = (x, y, z, 1e-3, -2e-3, -1.8, with_range, 0.005, 0.144, tan_angle, 0.2, cell, 0.05, 0.5, 0.25)
+            assert np.array_equal(perception_jit.road_band(*args), road_band_reference(*args))
+
+
+def test_foot_cells_is_a_set():
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 5, 100, 5000):
+        keys = rng.integers(-2**62, 2**62, n)
+        keys[: n // 2] = rng.integers(-40, 40, n // 2)  # repeated keys, neighbours, negative ones
+        if n:
+            keys[0] = -2**63
+        cells = perception_jit._foot_cells(n)
+        for k in keys:
+            perception_jit._foot_cells_add(cells, k)
+        assert int(cells[1].sum()) == len(set(keys.tolist())) and len(cells[0]) >= 2 * n
+        queries = np.concatenate([keys, rng.integers(-60, 60, 200), keys + 1])
+        assert [perception_jit._foot_cells_has(cells, q) for q in queries] == [q in set(keys.tolist())
+                                                                             for q in queries.tolist()]
 
 
 # --- clustering --------------------------------------------------------------------------------------------
