@@ -403,7 +403,9 @@ def _footprint_columns(d, los, cb, sb, hl, hw, azimuths: np.ndarray, yaw: float,
     phi = az0 + col * step + yaw - los[:, None]  # ray bearing relative to the line of sight (K, C)
     ux, uy = np.cos(phi), np.sin(phi)
     ox, oy = -d * cb, d * sb  # sensor position in the box frame: R(-beta) @ (-d, 0)
-    hl, hw = (np.ascontiguousarray(np.broadcast_to(a, (len(d), 1))[:, 0]) for a in (hl, hw))  # (K,) per target
+    # (K,) per target, always a fresh writable array: numba compiles a read-only one (a broadcast float's view when
+    # K = 1) as another signature, which the warm-up's runs did not reach (a truck's per-target size did)
+    hl, hw = (np.array(np.broadcast_to(a, (len(d), 1))[:, 0], dtype=np.float64) for a in (hl, hw))
     # per column: the ray in the box frame, the slabs |x| <= hl and |y| <= hw; crosses: t_in > 0 (else the sensor is
     # inside the footprint); end: the x slab (along the box's axis) entered last, through a front or rear face
     t_in, t_out, crosses, end = occlusion_jit.footprint_slabs(ox, oy, cb, sb, ux, uy, hl, hw, valid_col)

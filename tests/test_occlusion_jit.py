@@ -235,3 +235,25 @@ def test_quantised_ranges_reject_a_bad_mask_or_step():
         occlusion.quantised_ranges(sc, np.ones(2, bool), 0.0)
     no_image = Scan(points=np.zeros((2, 3)), source=np.zeros(2, np.int64), origin=np.zeros(3), ray=np.array([0, 5]))
     assert occlusion.quantised_ranges(no_image, np.ones(2, bool), 0.002).shape == (0, 0)  # rays but no image
+
+
+def test_one_footprint_signature_for_shared_and_per_target_sizes():
+    """The footprint kernel gets writable (K,) half sizes whether the size is one float tuple (broadcast; a read-only
+    view when K = 1) or per target: one compiled signature, so a run with trucks compiles nothing after the warm-up."""
+    rng = np.random.default_rng(2)
+    boxes = np.array([[12.0, 0.0, 4.5, 1.8, 1.5, 0.0, 0.0], [30.0, 3.5, 12.0, 2.5, 3.5, 0.0, 0.0]])
+    sc = scan(LidarConfig(), np.zeros(3), boxes, np.arange(2), rng)
+    seen = []
+    real = occlusion_jit.footprint_slabs
+
+    def spy(*args):
+        seen.append(tuple((a.dtype, a.ndim, a.flags.c_contiguous, a.flags.writeable) for a in args))
+        return real(*args)
+
+    cfg = OcclusionConfig()
+    import unittest.mock as mock
+    with mock.patch.object(occlusion_jit, "footprint_slabs", spy):
+        occlusion.visibility(sc, boxes[:1, :2], cfg)  # K = 1, one shared size
+        occlusion.visibility(sc, boxes[:, :2], cfg)  # K = 2, one shared size
+        occlusion.visibility(sc, boxes[:, :2], cfg, size_m=np.array([[4.6, 1.8, 1.5], [12.0, 2.5, 3.5]]))
+    assert len(seen) == 3 and len(set(seen)) == 1 and all(w for *_, w in seen[0])
