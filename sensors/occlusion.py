@@ -236,7 +236,6 @@ def visibility(
     if len(xy) == 0:
         return Visibility(*np.zeros((6, 0)))
 
-    n_az = ranges.shape[0]
     x0, y0, yaw = scan.pose
     h = float(scan.origin[2])
 
@@ -264,6 +263,15 @@ def visibility(
             np.ascontiguousarray(np.atleast_2d(hi_t)), lo_t, cos_e, np.tan(elevations[beams]),
             np.ascontiguousarray(ranges), int(beams.start), float(cfg.margin_m), h)
         return Visibility(*(c * weight for c in counts[:5]), seen_top=counts[5])
+    return _tolerant_counts(cfg, ranges, elevations, h, height, per_target, col, weight, t_in, t_out, crosses, end,
+                            beams, tz_in, cos_e, lo_t, hi_t)
+
+
+def _tolerant_counts(cfg: OcclusionConfig, ranges, elevations, h: float, height, per_target: bool, col, weight, t_in,
+                     t_out, crosses, end, beams, tz_in, cos_e, lo_t, hi_t) -> Visibility:
+    """visibility's ray and column counts in numpy, for a sensor with an attitude tolerance (the compiled
+    occlusion_jit.ray_counts has none): the window's (K, C, b) rays, expected and clear (module docstring)."""
+    n_az = ranges.shape[0]
     tz_b = tz_in[:, None, beams] if per_target else tz_in[beams]
     hi_t = hi_t[:, None, :] if per_target else hi_t
     t_hit = np.maximum(t_in[..., None], tz_b)

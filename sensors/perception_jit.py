@@ -357,29 +357,27 @@ def _slot(key, bits):
 
 
 @njit(cache=True)
-def _foot_cells_add(cells, key):
-    """Put key into the set `cells` (_foot_cells)."""
+def _foot_cells_probe(cells, key):
+    """The slot of key in the set `cells` (_foot_cells), or the empty slot where it goes (linear probing)."""
     keys, used, bits = cells
     mask = len(keys) - 1
     s = _slot(key, bits)
-    while used[s]:
-        if keys[s] == key:
-            return
+    while used[s] and keys[s] != key:
         s = (s + 1) & mask
-    keys[s], used[s] = key, True
+    return s
+
+
+@njit(cache=True)
+def _foot_cells_add(cells, key):
+    """Put key into the set `cells` (_foot_cells)."""
+    s = _foot_cells_probe(cells, key)
+    cells[0][s], cells[1][s] = key, True
 
 
 @njit(cache=True)
 def _foot_cells_has(cells, key):
     """Whether key is in the set `cells` (_foot_cells)."""
-    keys, used, bits = cells
-    mask = len(keys) - 1
-    s = _slot(key, bits)
-    while used[s]:
-        if keys[s] == key:
-            return True
-        s = (s + 1) & mask
-    return False
+    return cells[1][_foot_cells_probe(cells, key)]
 
 
 # --- split (sensors/perception_reference.split_reference) ---------------------------------------------------
