@@ -142,11 +142,16 @@ def visibility(truth, scan, max_range_m: float) -> tuple[np.ndarray, np.ndarray]
     within ``max_range_m`` of the sensor (bool)."""
     src = scan.source[scan.source >= 0]
     n_points = np.zeros(len(truth.ids), dtype=np.int64)
-    if len(src):
-        counts = np.bincount(src)  # vehicle ids are 0..n (testbed/world/simulation.py): a short table
+    if len(src) and src.max() <= 4 * (len(src) + len(truth.ids)):  # ids 0..n (testbed/world/simulation.py)
+        counts = np.bincount(src)  # a short table
         ids = np.asarray(truth.ids, dtype=np.int64)
         known = (ids >= 0) & (ids < len(counts))
         n_points[known] = counts[ids[known]]
+    elif len(src):  # large ids (a replayed recording's labels): by the sorted distinct ids
+        ids, counts = np.unique(src, return_counts=True)
+        at = np.minimum(np.searchsorted(ids, truth.ids), len(ids) - 1)
+        hit = ids[at] == truth.ids
+        n_points[hit] = counts[at[hit]]
     in_range = np.hypot(*(truth.xy - scan.origin[:2]).T) <= max_range_m
     return n_points, in_range
 
