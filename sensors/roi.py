@@ -59,17 +59,13 @@ class RoadMap:
         dist, k = self._tree.query(q)
         return np.asarray(dist, np.float64), np.asarray(k, np.int64)
 
-    def nearest_index(self, q: np.ndarray, remember: bool = True) -> np.ndarray:
+    def nearest_index(self, q: np.ndarray) -> np.ndarray:
         """Index (M,) int64 of the nearest centre sample to each of q (M, 2) [m], finite float64 (checked by the
         caller): `nearest`'s, remembered for the points of the last calls (the two generations of
         `_recent`), so that a point asked again (a tracker asks the road at the positions it estimated in the
-        previous scan) costs a dictionary look-up instead of a tree query (about 0.15 M instructions a call).
-        remember=False: the tree's answer alone, for points that are not asked again (the perception's object
-        centroids: the memory's look-ups and keys cost about as much as the query)."""
+        previous scan) costs a dictionary look-up instead of a tree query (about 0.15 M instructions a call)."""
         if len(q) == 0:
             return np.zeros(0, np.int64)
-        if not remember:
-            return np.asarray(self._tree.query(q)[1], np.int64)
         now, before = self._recent
         keys = list(map(tuple, q.tolist()))
         found = [now.get(key, before.get(key, -1)) for key in keys]
@@ -116,7 +112,6 @@ class RoadMap:
         offset = -np.sin(h) * d[:, 0] + np.cos(h) * d[:, 1]
         return h, offset, self.half_width[k], self.curvature[k]
 
-    def heading_at(self, xy: np.ndarray, remember: bool = True) -> np.ndarray:
-        """(M,) lane heading [rad] of the nearest centre sample to each of xy (M, 2) [m] (remember: as in
-        `nearest_index`)."""
-        return self.heading[self.nearest_index(checks.float_array("xy", xy, (None, 2)), remember)]
+    def heading_at(self, xy: np.ndarray) -> np.ndarray:
+        """(M,) lane heading [rad] of the nearest centre sample to each of xy (M, 2) [m]."""
+        return self.heading[self.nearest_index(checks.float_array("xy", xy, (None, 2)))]

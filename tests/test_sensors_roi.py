@@ -90,16 +90,6 @@ def test_nearest_index_remembers_points_and_matches_the_tree_query():
     np.testing.assert_array_equal(road.heading_at(first), road.heading[truth])
 
 
-def test_nearest_index_without_memory_is_the_tree_query_and_remembers_nothing():
-    road = straight_road()
-    q = np.random.default_rng(5).uniform([-90.0, -7.0], [90.0, 7.0], (40, 2))
-    np.testing.assert_array_equal(road.nearest_index(q, remember=False), road.nearest(q)[1])
-    np.testing.assert_array_equal(road.heading_at(q, remember=False), road.heading_at(q))
-    road = straight_road()
-    road.heading_at(q, remember=False)
-    assert road._recent == [{}, {}]
-
-
 def test_road_map_queries_reject_bad_arguments():
     road = straight_road()
     with pytest.raises(ValueError, match="margin_m"):
