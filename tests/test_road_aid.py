@@ -44,6 +44,21 @@ def test_the_road_map_gives_curvature_and_signed_offsets():
     assert np.allclose(offset, [0.7, -1.5]) and np.allclose(heading, 0.0) and np.allclose(half, 2.0)
 
 
+def test_the_curvature_at_a_few_samples_is_the_whole_maps_and_computes_only_those():
+    rng = np.random.default_rng(3)
+    wavy = np.arange(0.0, 400.0)
+    heading = np.arctan(0.3 * np.cos(wavy / 30.0))
+    centre = np.column_stack([wavy, 9.0 * np.sin(wavy / 30.0)])
+    whole = RoadMap(centre, heading, np.full(len(wavy), 2.0)).curvature
+    lazy = RoadMap(centre, heading, np.full(len(wavy), 2.0))
+    k = rng.integers(0, len(wavy), 40)
+    assert np.array_equal(lazy.curvature_at(k), whole[k])  # the same bits, asked piecemeal
+    assert lazy._kappa[1].sum() == len(np.unique(k))  # only the samples asked for were computed
+    assert np.array_equal(lazy.curvature_at(k[::-1]), whole[k[::-1]])  # remembered ones read back
+    assert np.array_equal(lazy.lane_frame(centre[k] + 0.3)[3], whole[k]) and np.any(whole != 0.0)
+    assert np.array_equal(lazy.curvature, whole)
+
+
 def test_the_curvature_input_is_the_centripetal_acceleration():
     ring = circle_map(20.0)
     u = centripetal_input(ring.lane_frame, np.array([[20.0, 0.0]]), np.array([[0.0, 11.0]]))
