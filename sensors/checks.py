@@ -11,9 +11,12 @@ def float_array(name: str, x, shape: tuple) -> np.ndarray:
         a = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"{name}: expected a float array of shape {_fmt(shape)}") from None
-    if a.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, a.shape)):
+    if a.ndim != len(shape):
         raise ValueError(f"{name}: expected shape {_fmt(shape)}, got {a.shape}")
-    if not np.all(np.isfinite(a)):
+    for s, n in zip(shape, a.shape):  # a plain loop: called ~30 times a frame, mostly on a few rows
+        if s is not None and s != n:
+            raise ValueError(f"{name}: expected shape {_fmt(shape)}, got {a.shape}")
+    if not np.isfinite(a).all():
         raise ValueError(f"{name}: contains NaN or inf")
     return a
 

@@ -53,7 +53,11 @@ def test_the_curvature_at_a_few_samples_is_the_whole_maps_and_computes_only_thos
     lazy = RoadMap(centre, heading, np.full(len(wavy), 2.0))
     k = rng.integers(0, len(wavy), 40)
     assert np.array_equal(lazy.curvature_at(k), whole[k])  # the same bits, asked piecemeal
-    assert lazy._kappa[1].sum() == len(np.unique(k))  # only the samples asked for were computed
+    assert lazy._kappa[1].sum() == len(wavy)  # one block of 512 samples: the whole (short) lane
+    long_lane = np.arange(0.0, 3000.0)
+    many = RoadMap(np.column_stack([long_lane, np.zeros(3000)]), np.zeros(3000), np.full(3000, 2.0))
+    assert np.array_equal(many.curvature_at(np.array([10, 2999])), [0.0, 0.0])
+    assert many._kappa[1].sum() == 512 + 3000 - 2560  # only the two blocks asked for were computed
     assert np.array_equal(lazy.curvature_at(k[::-1]), whole[k[::-1]])  # remembered ones read back
     assert np.array_equal(lazy.lane_frame(centre[k] + 0.3)[3], whole[k]) and np.any(whole != 0.0)
     assert np.array_equal(lazy.curvature, whole)
