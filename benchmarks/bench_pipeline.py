@@ -2,13 +2,17 @@
 against the 100 ms of a 10 Hz LiDAR.
 
     .venv/bin/python benchmarks/bench_pipeline.py [--scenario highway_benchmark] [--duration 10] [--cores 1]
-                                                  [--no-busy] [--densities 30 60 110] [--trackers jpda-kf gnn-kf pda-kf]
-                                                  [--long]
+                                                  [--repeats 3] [--no-busy] [--densities 30 60 110]
+                                                  [--trackers jpda-kf gnn-kf pda-kf] [--long]
 
 1. The loop at the scenario's density: ms per frame per stage (simulation, ray casting, ground, clustering, rest
    of perception, tracking, recording), its ratio to the bare ray cast and the ratio of the loop to the real-time
    budget. The loop is timed in one process through ``run_scenario`` with and without recording, and (unless
    ``--no-busy``) once more while a ``yes > /dev/null`` this script starts and stops keeps another core busy.
+   On a shared machine a run's ratios move by 0.1-0.3x from one run to the next (the cast and the rest are slowed
+   unevenly), so the loop at the scenario's density is measured ``--repeats`` times (default 3): the table shows
+   the run with the median loop / ray cast ratio, the ratios of all runs are printed, and the loop and perceive()
+   targets are graded on the medians.
 2. The scaling table: the same loop at the scenario's density and at the densities that put on average about
    ``--densities`` vehicles within the LiDAR's range (the scenario's ``traffic.density_per_km_lane`` scaled by the
    wanted / measured count, again if the count misses by over 8 %; vehicles spawned 2 m apart instead of 8 m
@@ -200,6 +204,8 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=None, help="simulated seconds per density (default 10, "
                     "--long 30)")
     ap.add_argument("--cores", type=int, default=1, help="pin the process to this many cores")
+    ap.add_argument("--repeats", type=int, default=3, help="runs of the loop at the scenario's density (median "
+                    "graded; default 3)")
     ap.add_argument("--no-busy", action="store_true", help="skip the loop timed beside a busy core")
     ap.add_argument("--densities", type=float, nargs="*", default=[30.0, 60.0, 110.0],
                     help="also run at these mean numbers of vehicles within the LiDAR's range (scenarios with [traffic])")
@@ -208,6 +214,8 @@ def main() -> None:
                          "none, or the option without names: skip the campaign)")
     ap.add_argument("--long", action="store_true", help="30 s per density and five trackers")
     args = ap.parse_args()
+    if args.repeats < 1:
+        ap.error(f"--repeats: expected at least 1, got {args.repeats}")
     duration = args.duration if args.duration is not None else (30.0 if args.long else 10.0)
     trackers = args.trackers if args.trackers is not None else (
         ["jpda-kf", "gnn-kf", "pda-kf"] + (["imm-pda-kf", "jpda-svsf"] if args.long else []))
@@ -227,23 +235,35 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         rec = run_scenario(scn, out_dir=tmp, record=True).timings_ms["recording"]
     n0 = in_range(scn)
-    base = measure(scn)
+    runs = [measure(scn) for _ in range(args.repeats)]
+    ratios = [m["loop"] / m["run"]["raycast"] for m in runs]
+    base = runs[int(np.argsort(ratios, kind="stable")[(len(runs) - 1) // 2])]  # the (lower) median run
     tracker = scn.tracker.name
-    print_rows(f"{scn.name}, {n0:.1f} vehicles within range on average", base, rec, tracker)
+    print_rows(f"{scn.name}, {n0:.1f} vehicles within range on average"
+               + (f" (the median of {len(runs)} runs)" if len(runs) > 1 else ""), base, rec, tracker)
     loop, cast = base["loop"], base["run"]["raycast"]
+    x_loop = float(np.median(ratios))
+    x_perceive = float(np.median([m["split"]["perceive"] / m["split"]["cast"] for m in runs]))
+    if len(runs) > 1:
+        print(f"{'loop / ray cast, each run':<28}" + " ".join(f"{r:.2f}x" for r in ratios)
+              + f"   (median {x_loop:.2f}x; cast {min(m['run']['raycast'] for m in runs):.2f}-"
+              f"{max(m['run']['raycast'] for m in runs):.2f} ms)")
+        print(f"{'perceive() / its cast, each':<28}"
+              + " ".join(f"{m['split']['perceive'] / m['split']['cast']:.2f}x" for m in runs)
+              + f"   (median {x_perceive:.2f}x)")
     loop_rec = loop + rec
     print(f"{'loop with recording':<28}{loop_rec:10.2f}{loop_rec / BUDGET_MS:10.1%}{'':12}"
           f"   -> {BUDGET_MS / loop_rec:.2f}x real time")
-    x_perceive = base["split"]["perceive"] / base["split"]["cast"]
-    targets = [(f"loop without recording <= 4.0x the ray cast at the scenario's density: {loop / cast:.2f}x "
-                f"({BUDGET_MS / (loop / cast * QUIET_CAST_MS):.1f}x real time at a quiet {QUIET_CAST_MS} ms cast)",
-                loop / cast <= 4.0),
-               (f"perceive() <= 1.5x the ray cast at the scenario's density ({n0:.1f} within range): {x_perceive:.2f}x",
-                x_perceive <= 1.5),
+    median = f" (median of {len(runs)} runs)" if len(runs) > 1 else ""
+    traffic = float(np.median([m["run"]["simulation"] for m in runs]))
+    targets = [(f"loop without recording <= 4.0x the ray cast at the scenario's density: {x_loop:.2f}x{median} "
+                f"({BUDGET_MS / (x_loop * QUIET_CAST_MS):.1f}x real time at a quiet {QUIET_CAST_MS} ms cast)",
+                x_loop <= 4.0),
+               (f"perceive() <= 1.5x the ray cast at the scenario's density ({n0:.1f} within range): "
+                f"{x_perceive:.2f}x{median}", x_perceive <= 1.5),
                (f"loop without recording >= 10x real time (at least 5x): {BUDGET_MS / loop:.2f}x",
                 BUDGET_MS / loop >= 10.0),
-               (f"traffic (highway-env step) <= 2 ms per frame: {base['run']['simulation']:.2f} ms",
-                base["run"]["simulation"] <= 2.0)]
+               (f"traffic (highway-env step) <= 2 ms per frame: {traffic:.2f} ms{median}", traffic <= 2.0)]
     cols = [(n0, scn.traffic.density_per_km_lane if scn.traffic.enabled else float("nan"), base)]
     if scn.traffic.enabled and n0 > 0:
         for want in args.densities:
