@@ -508,9 +508,7 @@ def _stats(pts: np.ndarray, objects: list[np.ndarray], road_z: float, sensor_xy:
         pts, members, starts, n, float(road_z), float(sensor_xy[0]), float(sensor_xy[1]))
     principal = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     cos_p, sin_p = np.cos(principal), np.sin(principal)
-    # the lane heading at the centroid by the map's plain tree query (nearest): the memory of heading_at's look-ups
-    # never hits for a scan's fresh centroids and costs about as much as the query
-    axis = road.heading[road.nearest(centroid)[1]] if road is not None else principal
+    axis = road.heading_at(centroid) if road is not None else principal  # the lane heading at the centroid
     cos_a, sin_a = (np.cos(axis), np.sin(axis)) if road is not None else (cos_p, sin_p)
     # extents across and along the principal axis, u and the extents along and across `axis`: one pass
     thickness, p_length, u, along, across = perception_jit.axis_extents(rel, cos_p, sin_p, cos_a, sin_a, starts, n)

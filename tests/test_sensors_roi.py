@@ -63,31 +63,56 @@ def test_road_map_rejects_bad_arrays(centre, heading, half_width, match):
         RoadMap(centre, heading, half_width)
 
 
-def test_nearest_index_remembers_points_and_matches_the_tree_query():
-    """nearest_index (the lanes' look-ups, remembered per point for the tracker's next scan) gives the tree query's
-    index for every point: asked again, mixed with new points, after the generation holding a point is forgotten, and
-    while the tree is replaced by one that would answer wrongly (a remembered point then answers from memory)."""
-    from roadtrack.sensors import roi
+@pytest.mark.parametrize("kind", ["straight", "ring", "sparse", "one sample"])
+def test_the_grid_look_up_is_the_kd_trees_bit_for_bit(kind):
+    """RoadMap's compiled grid (roi_jit.grid_nearest) gives scipy cKDTree's nearest samples and distances, bit for bit,
+    for points on and far off the road, on cell edges and outside the map's box."""
+    from scipy.spatial import cKDTree
 
-    road = straight_road()
-    rng = np.random.default_rng(3)
-    first = rng.uniform([-90.0, -7.0], [90.0, 7.0], (12, 2))
-    truth = road.nearest(first)[1]
-    np.testing.assert_array_equal(road.nearest_index(first), truth)
-    mixed = np.concatenate([first[::2], rng.uniform([-90.0, -7.0], [90.0, 7.0], (5, 2))])
-    np.testing.assert_array_equal(road.nearest_index(mixed), road.nearest(mixed)[1])
-    far = straight_road(1000.0, 1200.0)  # a tree whose nearest samples are all far from `first`
-    tree = road._tree
-    object.__setattr__(road, "_tree", far._tree)
-    np.testing.assert_array_equal(road.nearest_index(first), truth)  # all remembered: no query of the wrong tree
-    object.__setattr__(road, "_tree", tree)
-    for _ in range(3):  # two new generations: `first` is forgotten, asked again from the tree
-        road.nearest_index(rng.uniform([-90.0, -7.0], [90.0, 7.0], (roi._RECENT_POINTS + 1, 2)))
-    object.__setattr__(road, "_tree", far._tree)
-    assert (road.nearest_index(first) != truth).all()
-    object.__setattr__(road, "_tree", tree)
+    rng = np.random.default_rng(11)
+    if kind == "straight":
+        road = straight_road()
+    elif kind == "ring":
+        a = np.arange(0.0, 2 * np.pi, 1.0 / 40.0)
+        road = RoadMap(np.column_stack([40.0 * np.cos(a), 40.0 * np.sin(a)]), a + np.pi / 2, np.full(len(a), 1.75))
+    elif kind == "sparse":  # 2 km x 2 km, few samples: cells larger than GRID_CELL_M
+        c = rng.uniform(-1000.0, 1000.0, (300, 2))
+        road = RoadMap(c, np.zeros(300), np.full(300, 1.75))
+    else:
+        road = RoadMap(np.array([[3.0, -2.0]]), np.zeros(1), np.ones(1))
+    lo, hi = road.centre.min(axis=0) - 60.0, road.centre.max(axis=0) + 60.0
+    h = road._grid[2]
+    q = np.concatenate([rng.uniform(lo, hi, (4000, 2)), road.centre[::7] + 0.25,
+                        road._grid[0] + h * rng.integers(-3, 40, (200, 2)),  # exactly on cell edges
+                        np.array([[1e5, -3e4], [-2e6, 0.0]])])
+    d_tree, k_tree = cKDTree(road.centre).query(q)
+    d, k = road.nearest(q)
+    np.testing.assert_array_equal(k, k_tree)
+    np.testing.assert_array_equal(d, d_tree)
+    np.testing.assert_array_equal(road.nearest_index(q), k)
+    np.testing.assert_array_equal(road.heading_at(q[:50]), road.heading[k[:50]])
     assert road.nearest_index(np.zeros((0, 2))).shape == (0,)
-    np.testing.assert_array_equal(road.heading_at(first), road.heading[truth])
+    if kind == "sparse":
+        assert h > 4.0
+
+
+def test_equal_distances_are_the_kd_trees_to_decide():
+    """A point exactly as far from two samples (here: a lane's end and the next lane's start at one position, as on
+    u_turn's road) gets the sample scipy's cKDTree gives, as before the grid; the tree is made only then."""
+    from scipy.spatial import cKDTree
+
+    xs = np.arange(0.0, 30.0)
+    centre = np.concatenate([np.array([[29.0, 0.0], [29.0, 4.0]]),  # repeated by samples 31 and 32
+                             np.column_stack([xs, np.zeros(30)]), np.column_stack([xs[::-1], np.full(30, 4.0)])])
+    road = RoadMap(centre, np.zeros(len(centre)), np.ones(len(centre)))
+    road.nearest(np.array([[10.3, 0.2], [5.0, 3.9]]))
+    assert road._tree == []  # no tie: the grid alone
+    q = np.array([[29.4, -0.3], [28.8, 4.6], [29.0, 2.0], [10.3, 0.2]])
+    d_tree, k_tree = cKDTree(centre).query(q)
+    d, k = road.nearest(q)
+    np.testing.assert_array_equal(k, k_tree)  # [31, 32, 31, 12] with scipy 1.x: not the lowest index, 0 or 1
+    np.testing.assert_array_equal(d, d_tree)
+    assert len(road._tree) == 1
 
 
 def test_road_map_queries_reject_bad_arguments():

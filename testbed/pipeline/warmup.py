@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator
 from typing import TextIO
 
 KERNEL_MODULES = ("roadtrack.sensors.raycast", "roadtrack.sensors.perception_jit", "roadtrack.sensors.boxfit_jit",
-                  "roadtrack.sensors.occlusion_jit")
+                  "roadtrack.sensors.occlusion_jit", "roadtrack.sensors.roi_jit")
 """The modules of numba kernels (``@njit(cache=True)``); their public functions are the kernels a run calls."""
 RUNS = (("highway_benchmark", {"duration_s": 0.5}),
         ("highway_benchmark", {"duration_s": 0.5, "sensor.pipeline": "thesis"}))
