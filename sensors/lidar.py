@@ -188,6 +188,22 @@ class Scan:
         pose = np.array([origin[0], origin[1], 0.0]) if self.pose is None else self.pose
         object.__setattr__(self, "pose", checks.float_array("Scan.pose", pose, (3,)))
 
+    def image_only(self, ranges: np.ndarray) -> "Scan":
+        """This scan's origin, pose and beam geometry with no points and the range image ``ranges`` (A, B) [m]
+        of this scan's shape, >= 0 or inf (e.g. a rounded copy of its own, or inf everywhere: nothing returned).
+        Only the new image is checked, the rest was when this scan was made (a Scan's check of a whole turn costs
+        about a tenth of a millisecond; the loop makes one such scan a frame for the occlusion-aware P_D)."""
+        ranges = np.asarray(ranges, dtype=np.float64)
+        if ranges.shape != self.ranges.shape:
+            raise ValueError(f"Scan.image_only: expected a range image of shape {self.ranges.shape}, "
+                             f"got {ranges.shape}")
+        if not np.all(ranges >= 0.0):  # NaN >= 0 is false, as in __post_init__
+            raise ValueError("Scan.image_only: expected ranges >= 0 or inf, got NaN or a negative value")
+        out = object.__new__(Scan)
+        out.__dict__.update(self.__dict__, points=np.zeros((0, 3)), source=np.zeros(0, np.int64),
+                            ray=np.zeros(0, np.int64), ranges=ranges)
+        return out
+
 
 def scan(
     cfg: LidarConfig,

@@ -357,6 +357,25 @@ def test_scan_defaults_keep_the_three_field_constructor():
              elevations=np.zeros(2))
 
 
+def test_image_only_keeps_the_geometry_and_checks_only_the_new_image():
+    """Scan.image_only (the occlusion-aware P_D's scan, a sensor outage's): what the full constructor makes of the
+    same fields, without re-checking the points; a wrong shape or a NaN image is one line."""
+    s = scan(EXACT, np.array([3.0, -2.0, 0.4]), np.array([car(15.0, 0.0)]), np.array([7]),
+             np.random.default_rng(0))
+    rounded = np.rint(s.ranges / 0.05) * 0.05
+    got = s.image_only(rounded)
+    want = Scan(points=np.zeros((0, 3)), source=np.zeros(0, np.int64), origin=s.origin, ranges=rounded,
+                ray=np.zeros(0, np.int64), azimuths=s.azimuths, elevations=s.elevations, pose=s.pose)
+    for name in ("points", "source", "origin", "ranges", "ray", "azimuths", "elevations", "pose"):
+        a, b = getattr(got, name), getattr(want, name)
+        assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b), name
+    assert len(s.points) > 0 and s.ranges is not got.ranges  # the scan itself is untouched
+    with pytest.raises(ValueError, match="Scan.image_only: expected a range image of shape"):
+        s.image_only(rounded[:, :-1])
+    with pytest.raises(ValueError, match="Scan.image_only: expected ranges >= 0"):
+        s.image_only(np.where(np.isfinite(rounded), rounded, np.nan))
+
+
 def test_noise_free_road_labels_are_exact():
     """Flat road, no noise: a ray is GROUND exactly when the road is its nearest surface within range."""
     boxes = np.array([car(9.0, 2.0, 0.3), car(-14.0, -3.5), [4.0, -4.0, 0.3, 0.3, 1.0, 0.0, 0.0],

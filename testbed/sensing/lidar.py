@@ -22,10 +22,7 @@ def pd_scan(scan: sensors.Scan, is_ground: np.ndarray) -> sensors.Scan:
     perception called ground removed (inf: a ground return lies beyond where any ray the P_D counts enters a box,
     so it never blocks; sensors/occlusion.py) and the rest rounded to :data:`PD_RANGE_STEP_M`. Small enough to
     cache (about 20 kB a frame compressed on the highway benchmark, against 80 kB with the ground)."""
-    ranges = sensors.quantised_ranges(scan, is_ground, PD_RANGE_STEP_M)  # compiled: one pass, numpy's rounding
-    return sensors.Scan(points=np.zeros((0, 3)), source=np.zeros(0, dtype=np.int64), origin=scan.origin,
-                        ranges=ranges, ray=np.zeros(0, dtype=np.int64), azimuths=scan.azimuths,
-                        elevations=scan.elevations, pose=scan.pose)
+    return scan.image_only(sensors.quantised_ranges(scan, is_ground, PD_RANGE_STEP_M))  # compiled: numpy's rounding
 
 
 
@@ -117,9 +114,7 @@ def perceive_frame(scan: sensors.Scan, off: bool, ego_xy: np.ndarray, scn: Scena
 def empty_scan(scan: sensors.Scan) -> sensors.Scan:
     """``scan`` with no points and a range image of inf (no ray returned): a sensor outage. The occlusion-aware
     P_D of such a scan is nominal everywhere in range (nothing hides anything)."""
-    return sensors.Scan(points=np.zeros((0, 3)), source=np.zeros(0, dtype=np.int64), origin=scan.origin,
-                        ranges=np.full_like(scan.ranges, np.inf), ray=np.zeros(0, dtype=np.int64),
-                        azimuths=scan.azimuths, elevations=scan.elevations, pose=scan.pose)
+    return scan.image_only(np.full_like(scan.ranges, np.inf))
 
 
 def scan_frame(truth, static: np.ndarray, cfg: sensors.LidarConfig, rng: np.random.Generator,
