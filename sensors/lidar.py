@@ -200,8 +200,9 @@ class Scan:
         if not np.all(ranges >= 0.0):  # NaN >= 0 is false, as in __post_init__
             raise ValueError("Scan.image_only: expected ranges >= 0 or inf, got NaN or a negative value")
         out = object.__new__(Scan)
-        out.__dict__.update(self.__dict__, points=np.zeros((0, 3)), source=np.zeros(0, np.int64),
-                            ray=np.zeros(0, np.int64), ranges=ranges)
+        out.__dict__.update(points=np.zeros((0, 3)), source=np.zeros(0, np.int64), origin=self.origin, ranges=ranges,
+                            ray=np.zeros(0, np.int64), azimuths=self.azimuths, elevations=self.elevations,
+                            pose=self.pose)  # every field, as __init__ sets them (nothing else of this scan)
         return out
 
 
