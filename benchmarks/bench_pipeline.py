@@ -241,7 +241,7 @@ def main() -> None:
     tracker = scn.tracker.name
     print_rows(f"{scn.name}, {n0:.1f} vehicles within range on average"
                + (f" (the median of {len(runs)} runs)" if len(runs) > 1 else ""), base, rec, tracker)
-    loop, cast = base["loop"], base["run"]["raycast"]
+    loop = base["loop"]
     x_loop = float(np.median(ratios))
     x_perceive = float(np.median([m["split"]["perceive"] / m["split"]["cast"] for m in runs]))
     if len(runs) > 1:

@@ -125,7 +125,11 @@ class RoadMap:
         time (a stretch of one lane: the samples are stored lane by lane), each block when first asked for, and
         remembered: a tracker asks a few samples a scan, and the whole map's (112 k samples on highway_benchmark)
         took 80-190 ms."""
-        k = np.asarray(k, dtype=np.int64)
+        k = np.asarray(k)
+        if k.size and (k.dtype.kind not in "iu" or k.min() < 0 or k.max() >= len(self.centre)):
+            raise ValueError(f"RoadMap.curvature_at: expected sample indices in [0, {len(self.centre)}), got "
+                             f"{k.dtype} {k.min()}..{k.max()}")
+        k = k.astype(np.int64, copy=False)
         kappa, known = self._kappa
         if not known[k].all():
             blocks = np.unique(k[~known[k]] // _CURVATURE_BLOCK)

@@ -61,6 +61,10 @@ def test_the_curvature_at_a_few_samples_is_the_whole_maps_and_computes_only_thos
     assert np.array_equal(lazy.curvature_at(k[::-1]), whole[k[::-1]])  # remembered ones read back
     assert np.array_equal(lazy.lane_frame(centre[k] + 0.3)[3], whole[k]) and np.any(whole != 0.0)
     assert np.array_equal(lazy.curvature, whole)
+    for bad in (np.array([400]), np.array([-1]), np.array([1.5])):  # off the map, or not an index: one line
+        with pytest.raises(ValueError, match="RoadMap.curvature_at: expected sample indices in"):
+            lazy.curvature_at(bad)
+    assert lazy.curvature_at(np.zeros(0, np.int64)).shape == (0,)
 
 
 def test_the_curvature_input_is_the_centripetal_acceleration():
